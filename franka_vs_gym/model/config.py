@@ -1,0 +1,338 @@
+"""Model configuration: everything that turns the published FER parameters into one concrete robot.
+
+A :class:`ModelConfig` holds the tool on the flange, an optional payload, the gravity vector in the base frame, the
+friction law, rotor inertia (armature), a torque-sensor offset and a torque/motion delay. It is what the
+model-vs-measurement workbench calibrates and saves (a JSON "calibrated model file"), and what ``FrankaModel``,
+``FrankaSim`` and ``gymnasium.make(..., model=...)`` load. Both the pinocchio model and the MuJoCo plant are built
+from it, so they always describe the same robot.
+
+Frames: tool and payload quantities are expressed in the flange frame ``fl`` (as libfranka's ``setLoad``), with
+inertia tensors about the body's own centre of mass. Units are SI.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from franka_vs_gym.model import params
+
+FORMAT = "franka_vs_gym.model/1"
+
+
+def _vec(x: Any, n: int, name: str) -> np.ndarray:
+    a = np.asarray(x, dtype=np.float64)
+    if a.shape != (n,):
+        raise ValueError(f"{name} must have shape ({n},), got {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"{name} contains NaN or inf: {a}")
+    return a
+
+
+def _mat(x: Any, shape: tuple[int, int], name: str) -> np.ndarray:
+    a = np.asarray(x, dtype=np.float64)
+    if a.shape != shape:
+        raise ValueError(f"{name} must have shape {shape}, got {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"{name} contains NaN or inf")
+    return a
+
+
+@dataclass
+class RigidBody:
+    """A rigid body fixed to the flange: mass (kg), com (3,) in the flange frame (m), inertia (3, 3) about the com
+    with flange-frame axes (kg m^2)."""
+
+    mass: float = 0.0
+    com: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    inertia: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
+
+    def __post_init__(self) -> None:
+        self.mass = float(self.mass)
+        if not math.isfinite(self.mass) or self.mass < 0:
+            raise ValueError(f"mass must be a finite number >= 0 kg, got {self.mass}")
+        self.com = _vec(self.com, 3, "com")
+        inertia = np.asarray(self.inertia, dtype=np.float64)
+        if inertia.shape == (3,):
+            inertia = np.diag(inertia)
+        self.inertia = _mat(inertia, (3, 3), "inertia")
+        if not np.allclose(self.inertia, self.inertia.T, atol=1e-12):
+            raise ValueError("inertia must be symmetric")
+        ev = np.linalg.eigvalsh(self.inertia)
+        if ev.min() < -1e-12:
+            raise ValueError(f"inertia must be positive semi-definite, eigenvalues {ev}")
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"mass": self.mass, "com": self.com.tolist(), "inertia": self.inertia.tolist()}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> RigidBody:
+        return cls(d["mass"], d["com"], d["inertia"])
+
+
+@dataclass
+class Tool:
+    """The tool mounted on the flange: its end-effector frame ``flMe`` (4x4) and its rigid body."""
+
+    name: str = "franka_hand"
+    flMe: np.ndarray = field(default_factory=params.hand_flMe)
+    body: RigidBody = field(default_factory=lambda: franka_hand_body())
+
+    def __post_init__(self) -> None:
+        self.flMe = _mat(self.flMe, (4, 4), "flMe")
+        R = self.flMe[:3, :3]
+        if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
+            raise ValueError("flMe must be a homogeneous transform with a rotation matrix")
+
+    @classmethod
+    def franka_hand(cls) -> Tool:
+        return cls()
+
+    @classmethod
+    def none(cls) -> Tool:
+        """No tool: the end effector is the flange."""
+        return cls("none", np.eye(4), RigidBody())
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"name": self.name, "flMe": self.flMe.tolist(), **self.body.to_dict()}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any] | str | None) -> Tool:
+        if d is None or d == "none":
+            return cls.none()
+        if d == "franka_hand":
+            return cls.franka_hand()
+        if isinstance(d, str):
+            raise ValueError(f"unknown tool {d!r}: use 'franka_hand', null, or a mass/com/inertia object")
+        flMe = d.get("flMe", np.eye(4))
+        return cls(d.get("name", "custom"), flMe, RigidBody(d["mass"], d["com"], d["inertia"]))
+
+
+def franka_hand_body() -> RigidBody:
+    """The Franka Hand's inertial parameters expressed in the flange frame."""
+    R = params.hand_placement()[:3, :3]
+    h = params.HAND
+    return RigidBody(h.mass, R @ np.array(h.com), R @ h.inertia_matrix() @ R.T)
+
+
+@dataclass
+class Friction:
+    """Joint friction law, per joint (7,):
+
+    ``tau_f(dq) = phi1 / (1 + exp(-phi2 (dq + phi3))) - phi1 / (1 + exp(-phi2 phi3))``  (Gaz sigmoid)
+    ``          + viscous * dq + coulomb * tanh(dq / coulomb_vel)``.
+
+    Units: phi1, coulomb in Nm; phi2 in s/rad; phi3 in rad/s; viscous in Nm s/rad; coulomb_vel in rad/s (a smoothing
+    velocity for the Coulomb term, small compared with the motion).
+    """
+
+    phi1: np.ndarray = field(default_factory=lambda: params.as_array(params.FRICTION_PHI1))
+    phi2: np.ndarray = field(default_factory=lambda: params.as_array(params.FRICTION_PHI2))
+    phi3: np.ndarray = field(default_factory=lambda: params.as_array(params.FRICTION_PHI3))
+    viscous: np.ndarray = field(default_factory=lambda: np.zeros(7))
+    coulomb: np.ndarray = field(default_factory=lambda: np.zeros(7))
+    coulomb_vel: float = 0.01
+
+    def __post_init__(self) -> None:
+        for name in ("phi1", "phi2", "phi3", "viscous", "coulomb"):
+            setattr(self, name, _vec(getattr(self, name), 7, f"friction.{name}"))
+        if self.coulomb_vel <= 0:
+            raise ValueError("friction.coulomb_vel must be > 0 rad/s")
+
+    @classmethod
+    def none(cls) -> Friction:
+        z = np.zeros(7)
+        return cls(z, np.ones(7), z, z, z)
+
+    def is_zero(self) -> bool:
+        return not (self.phi1.any() or self.viscous.any() or self.coulomb.any())
+
+    def compile(self):
+        """A fast closure dq -> tau_f (7,), specialised to the non-zero terms."""
+        phi1, phi2 = self.phi1.copy(), self.phi2.copy()
+        phi2phi3 = phi2 * self.phi3
+        off = phi1 / (1.0 + np.exp(-phi2phi3))
+        visc, coul, cv = self.viscous.copy(), self.coulomb.copy(), self.coulomb_vel
+        has_sig, has_visc, has_coul = bool(phi1.any()), bool(visc.any()), bool(coul.any())
+        exp, tanh = np.exp, np.tanh
+
+        if has_sig and not has_visc and not has_coul:
+            def f(dq: np.ndarray) -> np.ndarray:
+                return phi1 / (1.0 + exp(-(phi2 * dq + phi2phi3))) - off
+            return f
+
+        def f(dq: np.ndarray) -> np.ndarray:
+            out = np.zeros(7)
+            if has_sig:
+                out += phi1 / (1.0 + exp(-(phi2 * dq + phi2phi3))) - off
+            if has_visc:
+                out += visc * dq
+            if has_coul:
+                out += coul * tanh(dq / cv)
+            return out
+        return f
+
+    def to_dict(self) -> dict[str, Any]:
+        return {k: getattr(self, k).tolist() for k in ("phi1", "phi2", "phi3", "viscous", "coulomb")} | {
+            "coulomb_vel": self.coulomb_vel}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any] | None) -> Friction:
+        if d is None:
+            return cls.none()
+        base = cls()
+        kw = {k: d.get(k, getattr(base, k)) for k in ("phi1", "phi2", "phi3")}
+        kw.update({k: d.get(k, np.zeros(7)) for k in ("viscous", "coulomb")})
+        return cls(**kw, coulomb_vel=d.get("coulomb_vel", 0.01))
+
+
+@dataclass
+class ModelConfig:
+    """One concrete FER: published links plus tool, payload, gravity, friction, armature, offset and delay.
+
+    Attributes
+    ----------
+    tool : Tool
+        Tool on the flange (default the Franka Hand); its ``flMe`` defines the end-effector frame e.
+    payload : RigidBody or None
+        Extra load held by the tool (flange frame), as libfranka's ``setLoad``.
+    gravity : (3,) array
+        Gravity vector in the base frame f, m/s^2 (default (0, 0, -9.81): vertical mounting).
+    friction : Friction
+        Joint friction law (default: Gaz et al. 2019 sigmoid).
+    armature : (7,) array
+        Reflected rotor inertia added to the diagonal of the mass matrix, kg m^2.
+    torque_offset : (7,) array
+        Bias of the joint torque sensors, Nm: measured tau_J = true tau_J + torque_offset.
+    delay : float
+        Time by which the measured torque lags the motion, s (a measurement property; 0 by default).
+    link_mass_scale : (7,) array
+        Multiplies the mass and inertia of each link (domain randomisation), 1 by default.
+    """
+
+    tool: Tool = field(default_factory=Tool.franka_hand)
+    payload: RigidBody | None = None
+    gravity: np.ndarray = field(default_factory=lambda: params.as_array(params.GRAVITY))
+    friction: Friction = field(default_factory=Friction)
+    armature: np.ndarray = field(default_factory=lambda: np.zeros(7))
+    torque_offset: np.ndarray = field(default_factory=lambda: np.zeros(7))
+    delay: float = 0.0
+    link_mass_scale: np.ndarray = field(default_factory=lambda: np.ones(7))
+    notes: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.gravity = _vec(self.gravity, 3, "gravity")
+        self.armature = _vec(self.armature, 7, "armature")
+        if (self.armature < 0).any():
+            raise ValueError(f"armature must be >= 0 kg m^2, got {self.armature}")
+        self.torque_offset = _vec(self.torque_offset, 7, "torque_offset")
+        self.link_mass_scale = _vec(self.link_mass_scale, 7, "link_mass_scale")
+        if (self.link_mass_scale <= 0).any():
+            raise ValueError("link_mass_scale must be > 0")
+        self.delay = float(self.delay)
+        if not math.isfinite(self.delay) or self.delay < 0:
+            raise ValueError(f"delay must be a finite number >= 0 s, got {self.delay}")
+
+    def copy(self, **changes: Any) -> ModelConfig:
+        return ModelConfig.from_dict(replace(self, **changes).to_dict())
+
+    def link_inertials(self) -> list[tuple[float, np.ndarray, np.ndarray]]:
+        """(mass, com (3,), inertia (3,3) about com) of links 1..7 after scaling."""
+        out = []
+        for s, link in zip(self.link_mass_scale, params.LINKS):
+            out.append((link.mass * s, np.array(link.com), link.inertia_matrix() * s))
+        return out
+
+    def flange_body(self) -> RigidBody:
+        """Tool and payload combined into one rigid body in the flange frame."""
+        bodies = [self.tool.body] + ([self.payload] if self.payload is not None else [])
+        m = sum(b.mass for b in bodies)
+        if m == 0:
+            return RigidBody()
+        c = sum(b.mass * b.com for b in bodies) / m
+        inertia = np.zeros((3, 3))
+        for b in bodies:
+            r = b.com - c
+            inertia += b.inertia + b.mass * (r @ r * np.eye(3) - np.outer(r, r))
+        return RigidBody(m, c, inertia)
+
+    # --- serialisation (the calibrated-model file)
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "format": FORMAT,
+            "tool": self.tool.to_dict(),
+            "payload": None if self.payload is None else self.payload.to_dict(),
+            "gravity": self.gravity.tolist(),
+            "friction": self.friction.to_dict(),
+            "armature": self.armature.tolist(),
+            "torque_offset": self.torque_offset.tolist(),
+            "delay": self.delay,
+            "link_mass_scale": self.link_mass_scale.tolist(),
+            "notes": self.notes,
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> ModelConfig:
+        if not isinstance(d, dict):
+            raise ValueError("a model file must hold a JSON object")
+        fmt = d.get("format", FORMAT)
+        if fmt != FORMAT:
+            raise ValueError(f"unsupported model file format {fmt!r} (expected {FORMAT!r})")
+        known = {"format", "tool", "payload", "gravity", "friction", "armature", "torque_offset", "delay",
+                 "link_mass_scale", "notes"}
+        unknown = set(d) - known
+        if unknown:
+            raise ValueError(f"unknown keys in model file: {sorted(unknown)}")
+        return cls(
+            tool=Tool.from_dict(d.get("tool", "franka_hand")),
+            payload=None if d.get("payload") is None else RigidBody.from_dict(d["payload"]),
+            gravity=d.get("gravity", params.GRAVITY),
+            friction=Friction.from_dict(d["friction"]) if "friction" in d else Friction(),
+            armature=d.get("armature", np.zeros(7)),
+            torque_offset=d.get("torque_offset", np.zeros(7)),
+            delay=d.get("delay", 0.0),
+            link_mass_scale=d.get("link_mass_scale", np.ones(7)),
+            notes=dict(d.get("notes", {})),
+        )
+
+    def save(self, path: str | os.PathLike, overwrite: bool = False) -> Path:
+        """Write the model file; refuses to overwrite an existing file unless ``overwrite``."""
+        p = Path(path)
+        if p.exists() and not overwrite:
+            raise FileExistsError(f"{p} exists; pass overwrite=True (or --force) to replace it")
+        p.parent.mkdir(parents=True, exist_ok=True)
+        tmp = p.with_suffix(p.suffix + ".tmp")
+        tmp.write_text(json.dumps(self.to_dict(), indent=2))
+        tmp.replace(p)
+        return p
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> ModelConfig:
+        p = Path(path)
+        if not p.is_file():
+            raise FileNotFoundError(f"model file not found: {p}")
+        try:
+            d = json.loads(p.read_text())
+        except json.JSONDecodeError as e:
+            raise ValueError(f"{p} is not valid JSON: {e}") from None
+        return cls.from_dict(d)
+
+
+def resolve_config(model: Any) -> ModelConfig:
+    """Accept a ModelConfig, a FrankaModel, a path to a model file, or None (defaults)."""
+    if model is None:
+        return ModelConfig()
+    if isinstance(model, ModelConfig):
+        return model
+    if isinstance(model, (str, os.PathLike)):
+        return ModelConfig.load(model)
+    cfg = getattr(model, "config", None)
+    if isinstance(cfg, ModelConfig):
+        return cfg
+    raise TypeError(f"cannot make a model configuration from {type(model).__name__}")

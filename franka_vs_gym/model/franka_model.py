@@ -1,0 +1,238 @@
+"""Pinocchio-backed Lagrangian model of the FER: B(q), C(q, dq), g(q), friction, kinematics and Jacobians.
+
+The dynamic model is ``tau_J = B(q) ddq + C(q, dq) dq + g(q) + tau_f(dq) + tau_offset``, with tau_J the link-side
+joint torque measured by the FER's torque sensors (gravity included), as in Gaz et al. 2019.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pinocchio as pin
+
+from franka_vs_gym.model import params
+from franka_vs_gym.model.config import ModelConfig, RigidBody, Tool, resolve_config
+
+_LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+_LOCAL = pin.ReferenceFrame.LOCAL
+
+
+def _check(x: Any, name: str, n: int = 7) -> np.ndarray:
+    a = np.asarray(x, dtype=np.float64)
+    if a.shape != (n,):
+        raise ValueError(f"{name} must have shape ({n},), got {a.shape}")
+    if not np.isfinite(a).all():
+        raise ValueError(f"{name} contains NaN or inf: {a}")
+    return a
+
+
+def build_pinocchio_model(config: ModelConfig) -> tuple[pin.Model, int, int]:
+    """Build the pinocchio model from the published parameters and a configuration.
+
+    Returns (model, flange frame id, end-effector frame id).
+    """
+    model = pin.Model()
+    model.name = "fer"
+    parent = 0
+    for i, (mass, com, inertia) in enumerate(config.link_inertials()):
+        M = params.dh_placement(i)
+        placement = pin.SE3(M[:3, :3], M[:3, 3])
+        jid = model.addJoint(parent, pin.JointModelRZ(), placement, f"joint{i + 1}",
+                             np.array([params.TAU_MAX[i]]), np.array([params.DQ_MAX[i]]),
+                             np.array([params.Q_MIN[i]]), np.array([params.Q_MAX[i]]))
+        model.appendBodyToJoint(jid, pin.Inertia(mass, com, inertia), pin.SE3.Identity())
+        model.addFrame(pin.Frame(f"link{i + 1}", jid, pin.SE3.Identity(), pin.FrameType.BODY))
+        parent = jid
+    Mfl = params.flange_placement()
+    flange = pin.SE3(Mfl[:3, :3], Mfl[:3, 3])
+    body = config.flange_body()
+    if body.mass > 0:
+        model.appendBodyToJoint(parent, pin.Inertia(body.mass, body.com, body.inertia), flange)
+    fl_id = model.addFrame(pin.Frame("flange", parent, flange, pin.FrameType.OP_FRAME))
+    flMe = config.tool.flMe
+    e_id = model.addFrame(pin.Frame("ee", parent, flange * pin.SE3(flMe[:3, :3], flMe[:3, 3]),
+                                    pin.FrameType.OP_FRAME))
+    model.gravity.linear = config.gravity
+    model.armature = config.armature.copy()
+    return model, fl_id, e_id
+
+
+class FrankaModel:
+    """Dynamic and kinematic model of the FER (+ tool), backed by pinocchio.
+
+    Default: FER + Franka Hand, vertical mounting, Gaz et al. 2019 parameters and sigmoid friction.
+
+    All joint vectors are float64 arrays of shape (7,) in SI units (rad, rad/s, rad/s^2, Nm). Frames follow ViSP:
+    f is the robot base, fl the flange, e the end effector (tool frame ``flMe``).
+
+    Parameters
+    ----------
+    model : ModelConfig, path to a calibrated model file, or None
+        The configuration; ``None`` gives the default robot.
+
+    Notes
+    -----
+    Each instance owns its pinocchio ``Data`` workspace: use one instance per thread.
+    """
+
+    def __init__(self, model: ModelConfig | str | None = None) -> None:
+        self._config = resolve_config(model)
+        self._rebuild()
+
+    # ------------------------------------------------------------------ configuration
+    @property
+    def config(self) -> ModelConfig:
+        """The configuration this model was built from (a copy is made on every change)."""
+        return self._config
+
+    def _rebuild(self) -> None:
+        self.model, self._fl_id, self._e_id = build_pinocchio_model(self._config)
+        self.data = self.model.createData()
+        self._friction = self._config.friction.compile()
+        self._offset = self._config.torque_offset.copy()
+        self._has_offset = bool(self._offset.any())
+        self._il = np.tril_indices(7, -1)
+
+    def set_config(self, config: ModelConfig) -> None:
+        self._config = config
+        self._rebuild()
+
+    def set_payload(self, mass: float, com: Any = (0, 0, 0), inertia: Any = np.zeros((3, 3))) -> None:
+        """Payload held by the tool: mass (kg), com (3,) in the flange frame (m), inertia (3,3) or (3,) about
+        the com (kg m^2). ``mass = 0`` removes it."""
+        payload = None if mass == 0 else RigidBody(mass, com, inertia)
+        self.set_config(self._config.copy(payload=payload))
+
+    def set_tool(self, flMe: Any, mass: float, flMcom: Any = (0, 0, 0), inertia: Any = np.zeros((3, 3)),
+                 name: str = "custom") -> None:
+        """Replace the tool: end-effector pose ``flMe`` (4x4) in the flange frame, mass (kg), centre of mass
+        ``flMcom`` (3,) in the flange frame and inertia (3,3) about it."""
+        self.set_config(self._config.copy(tool=Tool(name, flMe, RigidBody(mass, flMcom, inertia))))
+
+    def set_gravity(self, g0: Any) -> None:
+        """Gravity vector in the base frame (3,), m/s^2; e.g. for a wall or ceiling mounting."""
+        g = _check(g0, "gravity", 3)
+        self._config = self._config.copy(gravity=g)
+        self.model.gravity.linear = g
+
+    # ------------------------------------------------------------------ dynamics
+    def mass_matrix(self, q: np.ndarray) -> np.ndarray:
+        """Joint-space inertia matrix B(q), (7, 7), symmetric positive definite, kg m^2."""
+        M = pin.crba(self.model, self.data, q)
+        M[self._il] = M.T[self._il]
+        return M.copy()
+
+    def coriolis_matrix(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
+        """Full Coriolis/centrifugal matrix C(q, dq), (7, 7), with dB/dt - 2C skew-symmetric, Nm s/rad."""
+        return pin.computeCoriolisMatrix(self.model, self.data, q, dq).copy()
+
+    def coriolis(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
+        """Coriolis/centrifugal torques C(q, dq) dq, (7,), Nm."""
+        return pin.rnea(self.model, self.data, q, dq, np.zeros(7)) - self.gravity(q)
+
+    def gravity(self, q: np.ndarray) -> np.ndarray:
+        """Gravity torques g(q), (7,), Nm."""
+        return pin.computeGeneralizedGravity(self.model, self.data, q).copy()
+
+    def bias(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
+        """C(q, dq) dq + g(q), (7,), Nm (the non-linear effects, without friction)."""
+        return pin.nonLinearEffects(self.model, self.data, q, dq).copy()
+
+    def friction(self, dq: np.ndarray) -> np.ndarray:
+        """Joint friction torques tau_f(dq), (7,), Nm, opposing... i.e. added to the required torque."""
+        return self._friction(np.asarray(dq, dtype=np.float64))
+
+    def rigid_body_inverse_dynamics(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:
+        """B ddq + C dq + g, (7,), Nm: the rigid-body part (armature included, friction and offset excluded)."""
+        return pin.rnea(self.model, self.data, q, dq, ddq).copy() + self._config.armature * ddq
+
+    def inverse_dynamics(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:
+        """Predicted measured joint torque tau_J = B ddq + C dq + g + tau_f(dq) + offset, (7,), Nm."""
+        tau = self.rigid_body_inverse_dynamics(q, dq, ddq) + self._friction(dq)
+        return tau + self._offset if self._has_offset else tau
+
+    def forward_dynamics(self, q: np.ndarray, dq: np.ndarray, tau: np.ndarray) -> np.ndarray:
+        """Joint accelerations ddq (7,) for the joint torque tau_J (7,) (gravity included), rad/s^2."""
+        tau_net = np.asarray(tau, dtype=np.float64) - self._friction(dq) - self._offset
+        B = self.mass_matrix(q)
+        return np.linalg.solve(B, tau_net - self.bias(q, dq))
+
+    # ------------------------------------------------------------------ kinematics
+    def fMe(self, q: np.ndarray) -> np.ndarray:
+        """Pose of the end effector in the base frame, (4, 4)."""
+        pin.forwardKinematics(self.model, self.data, q)
+        return pin.updateFramePlacement(self.model, self.data, self._e_id).homogeneous
+
+    def fMfl(self, q: np.ndarray) -> np.ndarray:
+        """Pose of the flange in the base frame, (4, 4)."""
+        pin.forwardKinematics(self.model, self.data, q)
+        return pin.updateFramePlacement(self.model, self.data, self._fl_id).homogeneous
+
+    def fJe(self, q: np.ndarray) -> np.ndarray:
+        """Geometric Jacobian of the end effector, (6, 7): [v; w] of e's origin in base-frame axes."""
+        return pin.computeFrameJacobian(self.model, self.data, q, self._e_id, _LWA)
+
+    def eJe(self, q: np.ndarray) -> np.ndarray:
+        """Geometric Jacobian of the end effector, (6, 7): [v; w] expressed in the end-effector frame."""
+        return pin.computeFrameJacobian(self.model, self.data, q, self._e_id, _LOCAL)
+
+    def fJe_dot(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
+        """Time derivative of fJe, (6, 7), for Cartesian computed torque (dJ dq is the Cartesian bias)."""
+        pin.computeJointJacobiansTimeVariation(self.model, self.data, q, dq)
+        pin.updateFramePlacements(self.model, self.data)
+        return pin.getFrameJacobianTimeVariation(self.model, self.data, self._e_id, _LWA)
+
+    def inverse_kinematics(self, fMe_target: np.ndarray, q0: np.ndarray | None = None, *, tol: float = 1e-9,
+                           max_iter: int = 200, damping: float = 1e-6, restarts: int = 10,
+                           seed: int = 0) -> np.ndarray:
+        """Joint position (7,) reaching ``fMe_target`` (4x4), within the joint limits.
+
+        Damped least squares on the SE(3) logarithm of the pose error (expressed in e), started at ``q0`` and then,
+        if that fails, at seeded random in-limit configurations. Raises ValueError when no solution within the
+        joint limits is found (the error then says how close it came).
+        """
+        T = np.asarray(fMe_target, dtype=np.float64)
+        if T.shape != (4, 4) or not np.isfinite(T).all():
+            raise ValueError("fMe_target must be a finite 4x4 homogeneous matrix")
+        target = pin.SE3(T[:3, :3], T[:3, 3])
+        lo, hi = params.as_array(params.Q_MIN), params.as_array(params.Q_MAX)
+        rng = np.random.default_rng(seed)
+        starts = [params.as_array(params.Q_NEUTRAL) if q0 is None else _check(q0, "q0")]
+        starts += [rng.uniform(lo, hi) for _ in range(restarts)]
+        best, best_err = starts[0], np.inf
+        for q in starts:
+            q = np.clip(q, lo, hi)
+            for _ in range(max_iter):
+                pin.forwardKinematics(self.model, self.data, q)
+                cur = pin.updateFramePlacement(self.model, self.data, self._e_id)
+                err = pin.log6(cur.actInv(target)).vector
+                n = np.linalg.norm(err)
+                if n < tol:
+                    break
+                J = pin.computeFrameJacobian(self.model, self.data, q, self._e_id, _LOCAL)
+                J = pin.Jlog6(cur.actInv(target)) @ J
+                dq = J.T @ np.linalg.solve(J @ J.T + damping * np.eye(6), err)
+                q = np.clip(q + dq, lo, hi)
+            if n < best_err:
+                best, best_err = q, n
+            if n < max(tol, 1e-8):
+                return q
+        raise ValueError(f"inverse_kinematics: no in-limit solution found (best pose error {best_err:.3g})")
+
+    # ------------------------------------------------------------------ energy (for tests and validation)
+    def kinetic_energy(self, q: np.ndarray, dq: np.ndarray) -> float:
+        return float(0.5 * dq @ self.mass_matrix(q) @ dq)
+
+    def potential_energy(self, q: np.ndarray) -> float:
+        return float(pin.computePotentialEnergy(self.model, self.data, q))
+
+    # ------------------------------------------------------------------ limits
+    @staticmethod
+    def limits() -> dict[str, np.ndarray]:
+        """Joint limits of the FER: q_min, q_max (rad), dq_max (rad/s), ddq_max (rad/s^2), tau_max (Nm)."""
+        return {
+            "q_min": params.as_array(params.Q_MIN), "q_max": params.as_array(params.Q_MAX),
+            "dq_max": params.as_array(params.DQ_MAX), "ddq_max": params.as_array(params.DDQ_MAX),
+            "tau_max": params.as_array(params.TAU_MAX),
+        }

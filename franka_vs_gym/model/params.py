@@ -1,0 +1,135 @@
+"""Published parameters of the Franka Emika Robot (FER) and the Franka Hand.
+
+This module is the single source of the numbers the project takes from publications and datasheets. The MuJoCo
+plant (``franka_vs_gym.sim.plant``) and the pinocchio model (``franka_vs_gym.model.FrankaModel``) are both built
+from it; no number below is typed anywhere else.
+
+Sources
+-------
+- Kinematics: modified (Craig) Denavit-Hartenberg table of the FER as given in Table I of the FrankaSim paper and
+  in the Franka Control Interface documentation.
+- Joint limits: Franka Control Interface datasheet (position, velocity, acceleration, torque).
+- Dynamics: C. Gaz, M. Cognetti, A. Oliva, P. Robuffo Giordano, A. De Luca, "Dynamic Identification of the Franka
+  Emika Panda Robot With Retrieval of Feasible Parameters Using Penalty-Based Optimization", IEEE RA-L 2019.
+  Masses (kg), centres of mass (m, in the link frame) and inertia tensors (kg m^2, about the centre of mass, axes
+  of the link frame), and the sigmoid friction model
+  ``tau_f = phi1 / (1 + exp(-phi2 (dq + phi3))) - phi1 / (1 + exp(-phi2 phi3))``.
+- Franka Hand: 0.73 kg, CoM (-0.01, 0, 0.03) m and inertia diag(0.001, 0.0025, 0.0017) kg m^2 in the hand frame;
+  the hand frame is the flange frame rotated by -45 deg about z; the end-effector (TCP) is 0.1034 m along its z.
+
+Conventions: SI units; joint index 0..6 in code; link ``i`` (1..7 in prose) is ``LINKS[i-1]``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+N_JOINTS = 7
+
+# --- Modified DH table (Craig): frame i is reached from frame i-1 by RotX(alpha_{i-1}) TransX(a_{i-1})
+# RotZ(theta_i) TransZ(d_i). One row per joint 1..7, then the flange (fixed, theta = 0).
+DH_A = (0.0, 0.0, 0.0, 0.0825, -0.0825, 0.0, 0.088)
+DH_D = (0.333, 0.0, 0.316, 0.0, 0.384, 0.0, 0.0)
+DH_ALPHA = (0.0, -math.pi / 2, math.pi / 2, math.pi / 2, -math.pi / 2, math.pi / 2, math.pi / 2)
+FLANGE_D = 0.107
+
+# --- Joint limits (datasheet).
+Q_MIN = (-2.8973, -1.7628, -2.8973, -3.0718, -2.8973, -0.0175, -2.8973)
+Q_MAX = (2.8973, 1.7628, 2.8973, -0.0698, 2.8973, 3.7525, 2.8973)
+DQ_MAX = (2.175, 2.175, 2.175, 2.175, 2.61, 2.61, 2.61)
+DDQ_MAX = (15.0, 7.5, 10.0, 12.5, 15.0, 20.0, 20.0)
+TAU_MAX = (87.0, 87.0, 87.0, 87.0, 12.0, 12.0, 12.0)
+DTAU_MAX = (1000.0,) * 7  # torque rate limit, Nm/s
+
+# Neutral pose used by the Franka examples and the FrankaSim experiments (rad).
+Q_NEUTRAL = (0.0, -math.pi / 4, 0.0, -3 * math.pi / 4, 0.0, math.pi / 2, math.pi / 4)
+
+
+@dataclass(frozen=True)
+class LinkInertial:
+    """Inertial parameters of one rigid body.
+
+    mass in kg; com (3,) in m in the body frame; inertia (6,) = (ixx, ixy, ixz, iyy, iyz, izz) in kg m^2 about the
+    centre of mass, axes of the body frame.
+    """
+
+    mass: float
+    com: tuple[float, float, float]
+    inertia: tuple[float, float, float, float, float, float]
+
+    def inertia_matrix(self) -> np.ndarray:
+        ixx, ixy, ixz, iyy, iyz, izz = self.inertia
+        return np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
+
+
+# --- Gaz et al. 2019 identified link inertials (links 1..7).
+LINKS = (
+    LinkInertial(4.970684, (3.875e-03, 2.081e-03, -4.762e-02),
+                 (7.0337e-01, -1.39e-04, 6.772e-03, 7.0661e-01, 1.9169e-02, 9.117e-03)),
+    LinkInertial(0.646926, (-3.141e-03, -2.872e-02, 3.495e-03),
+                 (7.962e-03, -3.925e-03, 1.0254e-02, 2.811e-02, 7.04e-04, 2.5995e-02)),
+    LinkInertial(3.228604, (2.7518e-02, 3.9252e-02, -6.6502e-02),
+                 (3.7242e-02, -4.761e-03, -1.1396e-02, 3.6155e-02, -1.2805e-02, 1.083e-02)),
+    LinkInertial(3.587895, (-5.317e-02, 1.04419e-01, 2.7454e-02),
+                 (2.5853e-02, 7.796e-03, -1.332e-03, 1.9552e-02, 8.641e-03, 2.8323e-02)),
+    LinkInertial(1.225946, (-1.1953e-02, 4.1065e-02, -3.8437e-02),
+                 (3.5549e-02, -2.117e-03, -4.037e-03, 2.9474e-02, 2.29e-04, 8.627e-03)),
+    LinkInertial(1.666555, (6.0149e-02, -1.4117e-02, -1.0517e-02),
+                 (1.964e-03, 1.09e-04, -1.158e-03, 4.354e-03, 3.41e-04, 5.433e-03)),
+    LinkInertial(7.35522e-01, (1.0517e-02, -4.252e-03, 6.1597e-02),
+                 (1.2516e-02, -4.28e-04, -1.196e-03, 1.0027e-02, -7.41e-04, 4.815e-03)),
+)
+
+# --- Gaz et al. 2019 sigmoid friction (per joint).
+FRICTION_PHI1 = (0.54615, 0.87224, 0.64068, 1.2794, 0.83904, 0.30301, 0.56489)
+FRICTION_PHI2 = (5.1181, 9.0657, 10.136, 5.5903, 8.3469, 17.133, 10.336)
+FRICTION_PHI3 = (0.039533, 0.025882, -0.04607, 0.036194, 0.026226, -0.021047, 0.0035526)
+
+# --- Franka Hand.
+HAND = LinkInertial(0.73, (-0.01, 0.0, 0.03), (0.001, 0.0, 0.0, 0.0025, 0.0, 0.0017))
+HAND_YAW = -math.pi / 4  # hand frame = flange frame rotated about z
+HAND_TCP_Z = 0.1034  # end effector along the hand z axis (m)
+HAND_FINGER_Z = 0.0584  # finger joint origin along the hand z axis (m)
+HAND_FINGER_OPENING = 0.04  # maximum opening of each finger (m)
+
+# --- Default wrist camera and AprilTag (ViSP Franka tutorials use an 8 cm tag).
+TAG_SIZE = 0.08
+GRAVITY = (0.0, 0.0, -9.81)
+
+
+def as_array(values: tuple[float, ...]) -> np.ndarray:
+    """A fresh float64 array of a parameter tuple."""
+    return np.array(values, dtype=np.float64)
+
+
+def dh_placement(i: int) -> np.ndarray:
+    """4x4 pose of frame i+1 in frame i at theta = 0, for joint index i in 0..6 (modified DH)."""
+    return _mdh(DH_A[i], DH_D[i], DH_ALPHA[i], 0.0)
+
+
+def flange_placement() -> np.ndarray:
+    """4x4 pose of the flange in the frame of link 7."""
+    return _mdh(0.0, FLANGE_D, 0.0, 0.0)
+
+
+def hand_placement() -> np.ndarray:
+    """4x4 pose of the hand frame in the flange frame."""
+    return _mdh(0.0, 0.0, 0.0, HAND_YAW)
+
+
+def hand_flMe() -> np.ndarray:
+    """4x4 pose of the Franka Hand TCP (the end effector) in the flange frame."""
+    return hand_placement() @ _mdh(0.0, HAND_TCP_Z, 0.0, 0.0)
+
+
+def _mdh(a: float, d: float, alpha: float, theta: float) -> np.ndarray:
+    ca, sa, ct, st = math.cos(alpha), math.sin(alpha), math.cos(theta), math.sin(theta)
+    return np.array([
+        [ct, -st, 0.0, a],
+        [st * ca, ct * ca, -sa, -d * sa],
+        [st * sa, ct * sa, ca, d * ca],
+        [0.0, 0.0, 0.0, 1.0],
+    ])

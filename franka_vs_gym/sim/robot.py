@@ -1,0 +1,539 @@
+"""FrankaSim: a simulated FER whose API mirrors ViSP's vpRobotFranka.
+
+Controller code written against :class:`FrankaSim` needs only its construction changed to run on the real robot
+with ViSP: the control states, frames and method names are ViSP's (snake_case, with camelCase aliases such as
+``setVelocity``), getters return values instead of filling output arguments, and time is the simulator's.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from collections import deque
+from typing import Any
+
+import mujoco
+import numpy as np
+
+from franka_vs_gym.assets.mjcf import RobotSpec, SceneSpec, TagSpec, mat2quat
+from franka_vs_gym.model import params
+from franka_vs_gym.model.config import ModelConfig, RigidBody, Tool, resolve_config
+from franka_vs_gym.model.franka_model import FrankaModel
+from franka_vs_gym.sim.world import SimulationDiverged, SimWorld
+
+
+class RobotState(enum.IntEnum):
+    """Control states, as vpRobot::vpRobotStateType."""
+
+    STATE_STOP = 0
+    STATE_VELOCITY_CONTROL = 1
+    STATE_POSITION_CONTROL = 2
+    STATE_ACCELERATION_CONTROL = 3
+    STATE_FORCE_TORQUE_CONTROL = 4
+
+
+class ControlFrame(enum.IntEnum):
+    """Frames of commands and measurements, as vpRobot::vpControlFrameType."""
+
+    REFERENCE_FRAME = 0  # f, the robot base
+    ARTICULAR_FRAME = 1
+    JOINT_STATE = 1
+    END_EFFECTOR_FRAME = 2
+    TOOL_FRAME = 2
+    CAMERA_FRAME = 3
+    MIXT_FRAME = 4
+
+
+# Short aliases (ViSP users write vpRobot::JOINT_STATE, vpRobot::STATE_VELOCITY_CONTROL).
+STOP, POSITION, VELOCITY, FORCE_TORQUE = (RobotState.STATE_STOP, RobotState.STATE_POSITION_CONTROL,
+                                          RobotState.STATE_VELOCITY_CONTROL, RobotState.STATE_FORCE_TORQUE_CONTROL)
+JOINT_STATE, END_EFFECTOR_FRAME, CAMERA_FRAME, REFERENCE_FRAME = (
+    ControlFrame.JOINT_STATE, ControlFrame.END_EFFECTOR_FRAME, ControlFrame.CAMERA_FRAME, ControlFrame.REFERENCE_FRAME)
+
+# Default wrist camera mount: optical axis along the end-effector z axis, 6 cm to the side of the fingers (x_e)
+# and 6 cm behind the finger tips, so the fingers stay out of the image.
+DEFAULT_eMc = np.array([[1.0, 0.0, 0.0, 0.06], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, -0.06], [0.0, 0.0, 0.0, 1.0]])
+# Gains of the joint velocity servo (Nm s/rad) used in velocity and position control.
+VELOCITY_GAINS = np.array([120.0, 120.0, 80.0, 80.0, 15.0, 15.0, 6.0])
+_R_CV = np.diag([1.0, -1.0, -1.0])  # ViSP camera (z forward, y down) -> MuJoCo camera (-z forward, y up)
+
+
+def _vec(x: Any, n: int, name: str) -> np.ndarray:
+    try:
+        a = np.asarray(x, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a numeric array of shape ({n},), got {type(x).__name__}") from None
+    if a.shape != (n,):
+        raise ValueError(f"{name} must have shape ({n},), got {a.shape}")
+    if not np.isfinite(a).all():
+        raise ValueError(f"{name} contains NaN or inf: {a}")
+    return a
+
+
+def _hom(M: Any, name: str) -> np.ndarray:
+    a = np.asarray(M, dtype=np.float64)
+    if a.shape != (4, 4) or not np.isfinite(a).all():
+        raise ValueError(f"{name} must be a finite 4x4 homogeneous matrix, got shape {a.shape}")
+    R = a[:3, :3]
+    if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
+        raise ValueError(f"{name}: the rotation part is not a rotation matrix")
+    return a
+
+
+def twist_transform(aMb: np.ndarray) -> np.ndarray:
+    """6x6 velocity twist matrix aVb mapping a twist [v; w] expressed in b to one expressed in a (ViSP's
+    vpVelocityTwistMatrix)."""
+    R, t = aMb[:3, :3], aMb[:3, 3]
+    tx = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
+    V = np.zeros((6, 6))
+    V[:3, :3] = R
+    V[:3, 3:] = tx @ R
+    V[3:, 3:] = R
+    return V
+
+
+def pose_vector(M: np.ndarray) -> np.ndarray:
+    """(tx, ty, tz, thetaux, thetauy, thetauz) of a 4x4 pose, as vpPoseVector."""
+    import pinocchio as pin
+
+    return np.concatenate([M[:3, 3], pin.log3(M[:3, :3])])
+
+
+class FrankaSim:
+    """A simulated Franka Emika Robot (FER) with the API of ViSP's vpRobotFranka.
+
+    Control states (``set_robot_state``): STOP, POSITION (``set_position`` moves there), VELOCITY (``set_velocity``
+    in JOINT_STATE, END_EFFECTOR_FRAME, CAMERA_FRAME or REFERENCE_FRAME) and FORCE_TORQUE (``set_force_torque``
+    with gravity-free joint torques: the robot adds g(q) itself, as libfranka does).
+
+    Units and frames: SI (rad, rad/s, Nm, m, s). f is the base, e the end effector (``flMe`` of the tool), c the
+    wrist camera (``eMc``; ViSP convention: z forward, x right, y down). Twists are [v; w] (6,).
+
+    Limits, as on the real robot: torque commands are saturated at the FER torque limits (87/12 Nm; the total
+    actuator torque, command plus gravity, is clamped too); joint velocity commands (and the joint velocities a
+    Cartesian command maps to) are scaled down uniformly so that no joint exceeds its velocity limit; joint
+    position limits are hard stops in the plant. NaN, inf or wrong-shape commands raise ValueError and never
+    reach MuJoCo. A diverging simulation raises :class:`SimulationDiverged`.
+
+    Parameters
+    ----------
+    model : ModelConfig, FrankaModel, path to a calibrated model file, or None
+        The robot (tool, payload, gravity, friction...). Both the plant and ``self.model`` are built from it.
+    friction : bool
+        Apply the configured joint friction in the plant (default True). The model's friction is unaffected.
+    camera : bool
+        Add the wrist camera.
+    tags : list of TagSpec
+        AprilTags in the scene (e.g. ``[TagSpec()]``: an 8 cm tag id 0 on the table).
+    world, prefix :
+        To put several robots in one scene, build a :class:`SimWorld` from a SceneSpec with several RobotSpecs and
+        make one FrankaSim per prefix; ``world.step()`` (or any robot's ``step``) advances all of them.
+    q0 : (7,) initial joint position (default the neutral pose).
+    torque_noise : standard deviation (Nm) of white noise added to measured torques.
+    seed : seed of the measurement-noise generator.
+    """
+
+    def __init__(self, model: Any = None, *, friction: bool = True, camera: bool = True,
+                 tags: list[TagSpec] | None = None, table: bool = True, timestep: float = 0.001,
+                 world: SimWorld | None = None, prefix: str = "r0_", q0: Any = None, ft_sensor: bool = False,
+                 undeclared_payload: RigidBody | None = None, torque_noise: float = 0.0, seed: int | None = None,
+                 extra_worldbody: str = "", extra_assets: str = "") -> None:
+        if world is None:
+            cfg = resolve_config(model)
+            spec = RobotSpec(prefix=prefix, config=cfg, camera=camera, ft_sensor=ft_sensor,
+                             undeclared_payload=undeclared_payload)
+            if not (timestep > 0 and math.isfinite(timestep)):
+                raise ValueError(f"timestep must be > 0 s, got {timestep}")
+            world = SimWorld(SceneSpec(robots=[spec], table=table, tags=list(tags or []), timestep=timestep,
+                                       extra_worldbody=extra_worldbody, extra_assets=extra_assets))
+        else:
+            specs = [r for r in world.scene.robots if r.prefix == prefix]
+            if not specs:
+                raise ValueError(f"no robot with prefix {prefix!r} in the world "
+                                 f"(have {[r.prefix for r in world.scene.robots]})")
+            spec = specs[0]
+            cfg = spec.config
+        self.world, self.prefix, self.spec = world, prefix, spec
+        m, d = world.model, world.data
+        self._m, self._d = m, d
+        self.model = FrankaModel(cfg)
+        self.dt = world.dt
+        jids = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, f"{prefix}joint{i + 1}") for i in range(7)]
+        qadr = [int(m.jnt_qposadr[j]) for j in jids]
+        vadr = [int(m.jnt_dofadr[j]) for j in jids]
+        if qadr != list(range(qadr[0], qadr[0] + 7)) or vadr != list(range(vadr[0], vadr[0] + 7)):
+            raise RuntimeError("joint addresses of a robot must be contiguous")
+        self._qs, self._vs = slice(qadr[0], qadr[0] + 7), slice(vadr[0], vadr[0] + 7)
+        self._qpos, self._qvel = d.qpos[self._qs], d.qvel[self._vs]
+        self._qacc = d.qacc[self._vs]
+        self._qfrc_applied = d.qfrc_applied[self._vs]
+        self._qfrc_actuator = d.qfrc_actuator[self._vs]
+        a0 = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_ACTUATOR, f"{prefix}motor1")
+        v0 = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_ACTUATOR, f"{prefix}vel1")
+        self._motor = slice(a0, a0 + 7)
+        self._vel = slice(v0, v0 + 7)
+        self._ctrl_tau, self._ctrl_vel = d.ctrl[self._motor], d.ctrl[self._vel]
+        self._ee_site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, f"{prefix}ee")
+        self._hand_body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"{prefix}hand")
+        self._base_body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"{prefix}link0")
+        self._cam = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, f"{prefix}wrist_camera")
+        self._ft = None
+        if spec.ft_sensor:
+            fs = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SENSOR, f"{prefix}ft_force")
+            ts = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SENSOR, f"{prefix}ft_torque")
+            self._ft = (int(m.sensor_adr[fs]), int(m.sensor_adr[ts]))
+        lim = FrankaModel.limits()
+        self.q_min, self.q_max, self.dq_max, self.tau_max = lim["q_min"], lim["q_max"], lim["dq_max"], lim["tau_max"]
+        # Friction in the plant: tau_f = a tanh(b dq + c) + e0 (the Gaz sigmoid written with tanh), plus viscous and
+        # Coulomb terms, written into qfrc_applied as -tau_f with preallocated buffers (this runs at 1 kHz).
+        fr = cfg.friction
+        self._fa = fr.phi1 / 2
+        self._fb = fr.phi2 / 2
+        self._fc = fr.phi2 * fr.phi3 / 2
+        self._fe = fr.phi1 / 2 - fr.phi1 / (1 + np.exp(-fr.phi2 * fr.phi3))
+        self._fvisc, self._fcoul, self._fcv = fr.viscous, fr.coulomb, fr.coulomb_vel
+        self._fbuf = np.zeros(7)
+        self.friction_enabled = bool(friction) and not fr.is_zero()
+        self._simple_friction = not (fr.viscous.any() or fr.coulomb.any())
+        self._delay_steps = int(round(cfg.delay / self.dt))
+        self._tau_fifo: deque[np.ndarray] = deque()
+        self._tau_cmd = np.zeros(7)
+        self._offset = cfg.torque_offset.copy()
+        self._torque_noise = float(torque_noise)
+        self._rng = np.random.default_rng(seed)
+        self._state = RobotState.STATE_STOP
+        self._eMc = DEFAULT_eMc.copy()
+        self._positioning_velocity = 20.0
+        world.add_pre_step(self._pre_step)
+        if self._cam >= 0:
+            self.set_eMc(self._eMc)
+        self.reset(params.as_array(params.Q_NEUTRAL) if q0 is None else q0)
+
+    # ------------------------------------------------------------------ stepping
+    def _pre_step(self) -> None:
+        if self.friction_enabled:
+            buf = self._fbuf
+            np.multiply(self._fb, self._qvel, out=buf)
+            buf += self._fc
+            np.tanh(buf, out=buf)
+            buf *= self._fa
+            buf += self._fe
+            if not self._simple_friction:
+                buf += self._fvisc * self._qvel + self._fcoul * np.tanh(self._qvel / self._fcv)
+            np.negative(buf, out=self._qfrc_applied)
+        if self._delay_steps and self._state == RobotState.STATE_FORCE_TORQUE_CONTROL:
+            self._tau_fifo.append(self._tau_cmd.copy())
+            self._ctrl_tau[:] = self._tau_fifo.popleft() if len(self._tau_fifo) > self._delay_steps else 0.0
+
+    def step(self) -> None:
+        """Advance the simulation by one physics step (``dt``, 1 ms by default); all robots of the world move."""
+        self.world.step()
+
+    def wait(self, duration: float) -> None:
+        """Advance the simulation by ``duration`` seconds (rounded to whole physics steps)."""
+        if not (duration >= 0 and math.isfinite(duration)):
+            raise ValueError(f"duration must be a finite number >= 0 s, got {duration}")
+        self.world.step(int(round(duration / self.dt)))
+
+    def get_time(self) -> float:
+        """Simulated time, s."""
+        return float(self._d.time)
+
+    time = property(get_time)
+
+    def reset(self, q: Any, dq: Any = None) -> None:
+        """Place the robot at joint position q (7,) with velocity dq (default 0), stopped (simulation only)."""
+        q = _vec(q, 7, "q")
+        if (q < self.q_min - 1e-9).any() or (q > self.q_max + 1e-9).any():
+            raise ValueError(f"q is outside the joint limits: {q}")
+        self._qpos[:] = q
+        self._qvel[:] = 0.0 if dq is None else _vec(dq, 7, "dq")
+        self._ctrl_tau[:] = 0.0
+        self._ctrl_vel[:] = 0.0
+        self._tau_cmd[:] = 0.0
+        self._tau_fifo.clear()
+        self.set_robot_state(RobotState.STATE_STOP)
+        self.world.diverged = None
+        mujoco.mj_forward(self._m, self._d)
+
+    # ------------------------------------------------------------------ control state
+    def set_robot_state(self, state: RobotState | int) -> RobotState:
+        """Switch control state. Returns the new state. STOP holds the robot with the velocity servo at 0."""
+        state = RobotState(state)
+        if state == RobotState.STATE_ACCELERATION_CONTROL:
+            raise ValueError("acceleration control is not available on the FER")
+        m = self._m
+        kv = 0.0 if state == RobotState.STATE_FORCE_TORQUE_CONTROL else VELOCITY_GAINS
+        m.actuator_gainprm[self._vel, 0] = kv
+        m.actuator_biasprm[self._vel, 2] = -np.asarray(kv)
+        self._ctrl_vel[:] = 0.0
+        self._ctrl_tau[:] = 0.0
+        self._tau_cmd[:] = 0.0
+        self._tau_fifo.clear()
+        self._state = state
+        return state
+
+    def get_robot_state(self) -> RobotState:
+        return self._state
+
+    # ------------------------------------------------------------------ commands
+    def set_force_torque(self, frame: ControlFrame | int, tau: Any) -> None:
+        """Joint torque command (7,), Nm, gravity-free (the robot adds g(q)); needs FORCE_TORQUE state.
+
+        Torques beyond the FER limits are saturated. Only JOINT_STATE is supported (as on vpRobotFranka).
+        """
+        if ControlFrame(frame) != ControlFrame.JOINT_STATE:
+            raise ValueError("set_force_torque supports JOINT_STATE only")
+        if self._state != RobotState.STATE_FORCE_TORQUE_CONTROL:
+            raise RuntimeError("set_force_torque needs the robot in STATE_FORCE_TORQUE_CONTROL "
+                               "(call set_robot_state(FORCE_TORQUE) first)")
+        t = _vec(tau, 7, "tau")
+        tau_max = self.tau_max
+        np.minimum(t, tau_max, out=self._tau_cmd)
+        np.maximum(self._tau_cmd, -tau_max, out=self._tau_cmd)
+        if not self._delay_steps:
+            self._ctrl_tau[:] = self._tau_cmd
+
+    def set_velocity(self, frame: ControlFrame | int, v: Any) -> None:
+        """Velocity command; needs VELOCITY state.
+
+        JOINT_STATE: dq (7,) rad/s. END_EFFECTOR_FRAME: twist of e expressed in e (6,). CAMERA_FRAME: twist of c
+        expressed in c (6,). REFERENCE_FRAME: twist of e expressed in the base frame f (6,). Cartesian twists are
+        mapped to joint velocities with the Jacobian pseudo-inverse. The joint velocity is scaled down uniformly if
+        any joint would exceed its limit (direction preserved).
+        """
+        if self._state != RobotState.STATE_VELOCITY_CONTROL:
+            raise RuntimeError("set_velocity needs the robot in STATE_VELOCITY_CONTROL "
+                               "(call set_robot_state(VELOCITY) first)")
+        frame = ControlFrame(frame)
+        if frame == ControlFrame.JOINT_STATE:
+            dq = _vec(v, 7, "joint velocity")
+        else:
+            twist = _vec(v, 6, "twist")
+            q = self._qpos
+            if frame == ControlFrame.END_EFFECTOR_FRAME:
+                J = self.model.eJe(q)
+            elif frame == ControlFrame.CAMERA_FRAME:
+                J = twist_transform(np.linalg.inv(self._eMc)) @ self.model.eJe(q)
+            elif frame == ControlFrame.REFERENCE_FRAME:
+                J = self.model.fJe(q)
+            else:
+                raise ValueError(f"unsupported velocity frame {frame!r}")
+            dq = np.linalg.pinv(J, rcond=1e-4) @ twist
+        self._apply_joint_velocity(dq)
+
+    def _apply_joint_velocity(self, dq: np.ndarray) -> None:
+        ratio = np.max(np.abs(dq) / self.dq_max)
+        if ratio > 1.0:
+            dq = dq / ratio
+        self._ctrl_vel[:] = dq
+        # feed-forward friction compensation, as the FER's internal joint controller does
+        self._ctrl_tau[:] = self.model.friction(dq) if self.friction_enabled else 0.0
+
+    def set_positioning_velocity(self, percent: float) -> None:
+        """Speed of ``set_position`` motions, in percent of the joint velocity limits (as ViSP)."""
+        if not 0 < percent <= 100:
+            raise ValueError(f"positioning velocity must be in (0, 100] %, got {percent}")
+        self._positioning_velocity = float(percent)
+
+    def set_position(self, frame: ControlFrame | int, position: Any, timeout: float = 30.0) -> None:
+        """Move to a joint position (JOINT_STATE, (7,) rad) or an end-effector pose (END_EFFECTOR_FRAME /
+        REFERENCE_FRAME: 4x4 fMe, solved by inverse kinematics), with a smooth (quintic) joint trajectory at the
+        positioning velocity. Blocks (in simulated time) until the motion is done; needs POSITION state."""
+        if self._state != RobotState.STATE_POSITION_CONTROL:
+            raise RuntimeError("set_position needs the robot in STATE_POSITION_CONTROL")
+        frame = ControlFrame(frame)
+        if frame == ControlFrame.JOINT_STATE:
+            qd = _vec(position, 7, "joint position")
+        elif frame in (ControlFrame.END_EFFECTOR_FRAME, ControlFrame.REFERENCE_FRAME):
+            qd = self.model.inverse_kinematics(_hom(position, "fMe"), self.get_position())
+        else:
+            raise ValueError(f"unsupported position frame {frame!r}")
+        if (qd < self.q_min).any() or (qd > self.q_max).any():
+            raise ValueError(f"target joint position outside the joint limits: {qd}")
+        q0 = self.get_position()
+        vmax = self.dq_max * self._positioning_velocity / 100
+        # quintic: peak velocity 15/8 * delta / T
+        T = max(float(np.max(15 / 8 * np.abs(qd - q0) / vmax)), 0.05)
+        n = int(math.ceil(T / self.dt))
+        # joint velocity servo along the trajectory, plus a position correction
+        m, d = self._m, self._d
+        m.actuator_gainprm[self._vel, 0] = VELOCITY_GAINS
+        m.actuator_biasprm[self._vel, 2] = -VELOCITY_GAINS
+        for k in range(1, n + 1):
+            s = k * self.dt / T
+            dsdt = (30 * s**2 - 60 * s**3 + 30 * s**4) / T
+            pos = q0 + (qd - q0) * (10 * s**3 - 15 * s**4 + 6 * s**5)
+            v = (qd - q0) * dsdt + 20.0 * (pos - self._qpos)
+            self._ctrl_vel[:] = np.clip(v, -self.dq_max, self.dq_max)
+            self.world.step()
+        for _ in range(int(timeout / self.dt)):
+            err = qd - self._qpos
+            if np.max(np.abs(err)) < 1e-4 and np.max(np.abs(self._qvel)) < 1e-3:
+                break
+            self._ctrl_vel[:] = np.clip(20.0 * err, -self.dq_max, self.dq_max)
+            self.world.step()
+        else:
+            raise RuntimeError(f"set_position: target not reached within {timeout} s (error {err})")
+        self._ctrl_vel[:] = 0.0
+
+    # ------------------------------------------------------------------ measurements
+    def get_position(self, frame: ControlFrame | int = ControlFrame.JOINT_STATE) -> np.ndarray:
+        """JOINT_STATE: q (7,) rad. END_EFFECTOR_FRAME/REFERENCE_FRAME: pose vector of e in f (6,)
+        (t, theta-u). CAMERA_FRAME: pose vector of c in f."""
+        frame = ControlFrame(frame)
+        if frame == ControlFrame.JOINT_STATE:
+            return self._qpos.copy()
+        if frame in (ControlFrame.END_EFFECTOR_FRAME, ControlFrame.REFERENCE_FRAME):
+            return pose_vector(self.get_fMe())
+        if frame == ControlFrame.CAMERA_FRAME:
+            return pose_vector(self.get_fMc())
+        raise ValueError(f"unsupported frame {frame!r}")
+
+    def get_velocity(self, frame: ControlFrame | int = ControlFrame.JOINT_STATE) -> np.ndarray:
+        """JOINT_STATE: dq (7,) rad/s. END_EFFECTOR_FRAME: twist of e in e; CAMERA_FRAME: twist of c in c;
+        REFERENCE_FRAME: twist of e in f (6,)."""
+        frame = ControlFrame(frame)
+        dq = self._qvel.copy()
+        if frame == ControlFrame.JOINT_STATE:
+            return dq
+        q = self._qpos
+        if frame == ControlFrame.END_EFFECTOR_FRAME:
+            return self.model.eJe(q) @ dq
+        if frame == ControlFrame.CAMERA_FRAME:
+            return twist_transform(np.linalg.inv(self._eMc)) @ self.model.eJe(q) @ dq
+        if frame == ControlFrame.REFERENCE_FRAME:
+            return self.model.fJe(q) @ dq
+        raise ValueError(f"unsupported frame {frame!r}")
+
+    def get_acceleration(self) -> np.ndarray:
+        """Joint accelerations of the last step (7,), rad/s^2 (a simulator convenience)."""
+        return self._qacc.copy()
+
+    def get_force_torque(self, frame: ControlFrame | int = ControlFrame.JOINT_STATE) -> np.ndarray:
+        """JOINT_STATE: measured link-side joint torques tau_J (7,), Nm, gravity included (libfranka's tau_J).
+        END_EFFECTOR_FRAME: wrench (6,) [f; tau] exerted by the environment on the tool, in e, from the wrist F/T
+        sensor (needs ``ft_sensor=True``), with the tool's own weight removed."""
+        frame = ControlFrame(frame)
+        if frame == ControlFrame.JOINT_STATE:
+            tau = self._qfrc_actuator + self._offset
+            if self._torque_noise:
+                tau = tau + self._rng.normal(0.0, self._torque_noise, 7)
+            return np.array(tau)
+        if frame == ControlFrame.END_EFFECTOR_FRAME:
+            return self.get_ft_wrench()
+        raise ValueError(f"unsupported frame {frame!r}")
+
+    def get_ft_wrench(self) -> np.ndarray:
+        """External wrench on the tool measured by the wrist F/T sensor, (6,) [f; tau] in e, N and Nm.
+
+        The raw sensor reads the force the hand exerts... on link 7; we return the part due to the environment:
+        raw minus the tool's gravity and inertial load computed from the tool body's motion."""
+        if self._ft is None:
+            raise RuntimeError("this robot has no wrist force/torque sensor (construct with ft_sensor=True)")
+        m, d = self._m, self._d
+        fa, ta = self._ft
+        f_raw, t_raw = d.sensordata[fa:fa + 3].copy(), d.sensordata[ta:ta + 3].copy()
+        # wrench due to the hand itself (weight + inertia) in the sensor (flange) frame
+        b = self._hand_body
+        R = d.xmat[b].reshape(3, 3)  # hand body frame = flange frame (sensor site at its origin)
+        mass = m.body_subtreemass[b]
+        com_w = d.subtree_com[b] - d.xpos[b]
+        g = m.opt.gravity
+        # cacc: body com-based spatial acceleration [rot; lin] (needs mj_rnePostConstraint, run for force sensors)
+        acc = np.zeros(6)
+        mujoco.mj_objectAcceleration(m, d, mujoco.mjtObj.mjOBJ_BODY, b, acc, 0)
+        lin_acc = acc[3:]
+        f_self_w = mass * (lin_acc - g)
+        t_self_w = np.cross(com_w, f_self_w)
+        f_ext_w = R @ f_raw - f_self_w
+        t_ext_w = R @ t_raw - t_self_w
+        # express at the end effector, in e
+        fMfl = d.xmat[b].reshape(3, 3)
+        flMe = self.spec.config.tool.flMe
+        Re = fMfl @ flMe[:3, :3]
+        r = Re @ np.zeros(3) + (R @ flMe[:3, 3])
+        t_ext_e_w = t_ext_w - np.cross(r, f_ext_w)
+        return -np.concatenate([Re.T @ f_ext_w, Re.T @ t_ext_e_w])
+
+    # ------------------------------------------------------------------ model getters (vpRobotFranka names)
+    def get_mass(self) -> np.ndarray:
+        """B(q) (7, 7) at the current position, from the robot's model."""
+        return self.model.mass_matrix(self._qpos)
+
+    def get_coriolis(self) -> np.ndarray:
+        """C(q, dq) dq (7,), Nm, at the current state (as vpRobotFranka::getCoriolis)."""
+        return self.model.coriolis(self._qpos, self._qvel)
+
+    def get_gravity(self) -> np.ndarray:
+        """g(q) (7,), Nm."""
+        return self.model.gravity(self._qpos)
+
+    def get_friction(self) -> np.ndarray:
+        """Model friction torques at the current velocity (7,), Nm."""
+        return self.model.friction(self._qvel)
+
+    def get_fJe(self, q: Any = None) -> np.ndarray:
+        return self.model.fJe(self._qpos if q is None else _vec(q, 7, "q"))
+
+    def get_eJe(self, q: Any = None) -> np.ndarray:
+        return self.model.eJe(self._qpos if q is None else _vec(q, 7, "q"))
+
+    def get_fMe(self, q: Any = None) -> np.ndarray:
+        """Pose of the end effector in the base frame (4, 4)."""
+        return self.model.fMe(self._qpos if q is None else _vec(q, 7, "q"))
+
+    def get_fMc(self, q: Any = None) -> np.ndarray:
+        """Pose of the camera (ViSP convention) in the base frame (4, 4)."""
+        return self.get_fMe(q) @ self._eMc
+
+    def get_eMc(self) -> np.ndarray:
+        return self._eMc.copy()
+
+    def set_eMc(self, eMc: Any) -> None:
+        """Camera mount: pose of the camera frame c (ViSP: z forward, y down) in the end-effector frame."""
+        eMc = _hom(eMc, "eMc")
+        self._eMc = eMc.copy()
+        if self._cam >= 0:
+            flMc = self.spec.config.tool.flMe @ eMc
+            self._m.cam_pos[self._cam] = flMc[:3, 3]
+            self._m.cam_quat[self._cam] = mat2quat(flMc[:3, :3] @ _R_CV)
+
+    def get_wMf(self) -> np.ndarray:
+        """Pose of the robot base in the world (4, 4)."""
+        d = self._d
+        M = np.eye(4)
+        M[:3, :3] = d.xmat[self._base_body].reshape(3, 3)
+        M[:3, 3] = d.xpos[self._base_body]
+        return M
+
+    def set_tool(self, flMe: Any, mass: float = 0.0, flMcom: Any = (0, 0, 0), inertia: Any = np.zeros((3, 3))) -> None:
+        """Declare the tool to the robot's model (as the real robot's end-effector settings): updates the model
+        used by the getters and Cartesian commands. The plant's physical tool is fixed at construction."""
+        self.model.set_tool(_hom(flMe, "flMe"), mass, flMcom, inertia)
+
+    def camera_name(self) -> str:
+        if self._cam < 0:
+            raise RuntimeError("this robot has no wrist camera (construct with camera=True)")
+        return f"{self.prefix}wrist_camera"
+
+    # ViSP camelCase aliases, so code written for vpRobotFranka reads the same.
+    setRobotState = set_robot_state
+    getRobotState = get_robot_state
+    setVelocity = set_velocity
+    setForceTorque = set_force_torque
+    setPosition = set_position
+    setPositioningVelocity = set_positioning_velocity
+    getPosition = get_position
+    getVelocity = get_velocity
+    getForceTorque = get_force_torque
+    getMass = get_mass
+    getCoriolis = get_coriolis
+    getGravity = get_gravity
+    getFriction = get_friction
+    getTime = get_time
+
+
+__all__ = ["CAMERA_FRAME", "ControlFrame", "DEFAULT_eMc", "END_EFFECTOR_FRAME", "FORCE_TORQUE", "FrankaSim",
+           "JOINT_STATE", "POSITION", "REFERENCE_FRAME", "RobotState", "STOP", "SimulationDiverged", "VELOCITY",
+           "Tool", "ModelConfig", "twist_transform", "pose_vector"]

@@ -1,0 +1,111 @@
+"""The MuJoCo world: one compiled scene, one MjData, synchronous stepping of every robot in it."""
+
+from __future__ import annotations
+
+import os
+from typing import Callable
+
+import mujoco
+import numpy as np
+
+from franka_vs_gym.assets.mjcf import SceneSpec, scene_xml
+
+
+class SimulationDiverged(RuntimeError):
+    """The physics produced NaN/inf or unbounded values; the state is no longer meaningful."""
+
+
+_BAD_WARNINGS = {
+    int(mujoco.mjtWarning.mjWARN_BADQPOS): "joint positions became NaN/inf or unbounded",
+    int(mujoco.mjtWarning.mjWARN_BADQVEL): "joint velocities became NaN/inf or unbounded",
+    int(mujoco.mjtWarning.mjWARN_BADQACC): "joint accelerations became NaN/inf or unbounded",
+}
+
+
+class SimWorld:
+    """A compiled MuJoCo scene stepped in simulated time.
+
+    Each robot registers a pre-step hook (friction, command delay...) that runs before every ``mj_step``, so several
+    robots in one scene advance synchronously. Time is the simulator's (``time``, seconds).
+
+    Parameters
+    ----------
+    scene : SceneSpec
+        What to build (robots, table, tags, time step).
+    """
+
+    def __init__(self, scene: SceneSpec | None = None) -> None:
+        self.scene = scene if scene is not None else SceneSpec()
+        self.xml = scene_xml(self.scene)
+        self.model = mujoco.MjModel.from_xml_string(self.xml)
+        self.data = mujoco.MjData(self.model)
+        self.dt = float(self.model.opt.timestep)
+        self._hooks: list[Callable[[], None]] = []
+        self._renderers: dict[tuple[int, int], mujoco.Renderer] = {}
+        self.diverged: str | None = None
+
+    def add_pre_step(self, hook: Callable[[], None]) -> None:
+        self._hooks.append(hook)
+
+    @property
+    def time(self) -> float:
+        """Simulated time, s."""
+        return float(self.data.time)
+
+    def step(self, n: int = 1) -> None:
+        """Advance ``n`` physics steps. Raises SimulationDiverged if the physics blew up."""
+        m, d, hooks, step = self.model, self.data, self._hooks, mujoco.mj_step
+        for _ in range(n):
+            t = d.time
+            for h in hooks:
+                h()
+            step(m, d)
+            if d.time < t:  # MuJoCo auto-reset the state after a NaN/unbounded value
+                self._diverge()
+
+    def _diverge(self) -> None:
+        reasons = [msg for w, msg in _BAD_WARNINGS.items() if self.data.warning[w].number > 0]
+        self.diverged = "; ".join(reasons) or "the simulation state was reset by MuJoCo"
+        raise SimulationDiverged(f"simulation diverged at t={self.data.time:.4f}s: {self.diverged}")
+
+    def forward(self) -> None:
+        mujoco.mj_forward(self.model, self.data)
+
+    # ------------------------------------------------------------------ rendering
+    def renderer(self, width: int, height: int) -> mujoco.Renderer:
+        """A cached offscreen renderer (headless: set MUJOCO_GL=egl or osmesa; chosen automatically)."""
+        key = (width, height)
+        if key not in self._renderers:
+            ensure_gl_backend()
+            try:
+                r = mujoco.Renderer(self.model, height, width)
+            except Exception as e:  # pragma: no cover - depends on the machine
+                raise RuntimeError(
+                    f"offscreen rendering failed with MUJOCO_GL={os.environ.get('MUJOCO_GL')!r}: {e}. On a machine "
+                    "without a display install Mesa (EGL or OSMesa) and set MUJOCO_GL=egl or MUJOCO_GL=osmesa.") from e
+            scene_option = mujoco.MjvOption()
+            self._renderers[key] = r
+            r._fvs_option = scene_option  # type: ignore[attr-defined]
+        return self._renderers[key]
+
+    def render(self, camera: str | int = "overview", width: int = 640, height: int = 480) -> np.ndarray:
+        """RGB image (height, width, 3) uint8 from a named camera."""
+        r = self.renderer(width, height)
+        r.update_scene(self.data, camera)
+        return r.render()
+
+    def close(self) -> None:
+        for r in self._renderers.values():
+            r.close()
+        self._renderers.clear()
+
+
+def ensure_gl_backend() -> str:
+    """Pick a headless OpenGL backend when none is set and there is no display; returns the backend name.
+
+    MuJoCo reads MUJOCO_GL when it first creates a context, so this must run before the first Renderer.
+    """
+    if "MUJOCO_GL" not in os.environ and not os.environ.get("DISPLAY"):
+        os.environ["MUJOCO_GL"] = "egl"
+        os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+    return os.environ.get("MUJOCO_GL", "glfw")
