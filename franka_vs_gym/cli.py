@@ -1,0 +1,55 @@
+"""The ``franka-vs`` command.
+
+Each subcommand lives in its own module, imported only when that subcommand runs (so ``franka-vs diagnose`` does
+not pay for rendering or RL imports). A module provides ``add_arguments(parser)`` and ``main(args) -> int``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+# name -> (module, one-line help)
+COMMANDS: dict[str, tuple[str, str]] = {
+    "demo": ("franka_vs_gym.experiments.demo",
+             "main job: run a demo on the simulated FER (torque motion, or IBVS/PBVS visual servoing) into runs/"),
+    "experiment": ("franka_vs_gym.experiments.cli",
+                   "FrankaSim paper experiments: 'tracking' (IV-A) and 'dual-arm' (IV-B)"),
+    "compare": ("franka_vs_gym.validation.cli_compare", "compare a model with a measurement log"),
+    "diagnose": ("franka_vs_gym.validation.cli_diagnose", "find which physical effect a model lacks on a log"),
+    "fit": ("franka_vs_gym.validation.cli_fit", "fit effects on a log and save a calibrated model file"),
+    "evaluate": ("franka_vs_gym.envs.cli_evaluate", "evaluate a scripted policy or an SB3 model on an environment"),
+}
+
+
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="franka-vs", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name, (module, help_) in COMMANDS.items():
+        p = sub.add_parser(name, help=help_, description=help_)
+        if name == command:
+            importlib.import_module(module).add_arguments(p)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    command = next((a for a in argv if not a.startswith("-")), None)
+    if command is not None and command not in COMMANDS:
+        build_parser().error(f"unknown command {command!r} (choose from {', '.join(COMMANDS)})")
+    parser = build_parser(command)
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help()
+        return 2
+    module = importlib.import_module(COMMANDS[args.command][0])
+    try:
+        return int(module.main(args) or 0)
+    except (ValueError, FileNotFoundError, FileExistsError) as e:
+        print(f"franka-vs {args.command}: error: {e}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
