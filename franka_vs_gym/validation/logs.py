@@ -1,0 +1,396 @@
+"""Measurement logs of a FER: the data class, the file formats, and their validation.
+
+A :class:`MeasurementLog` holds what libfranka's ``RobotState`` gives at each control tick, with its field names:
+
+=========================  ========  ==========================================================================
+field                      unit      meaning
+=========================  ========  ==========================================================================
+``time``                   s         (N,) sample times, non-decreasing (repeats are allowed in raw logs)
+``q``                      rad       (N, 7) measured joint positions
+``dq``                     rad/s     (N, 7) measured joint velocities
+``tau_J``                  Nm        (N, 7) measured link-side joint torques, gravity included
+``tau_J_d``                Nm        (N, 7) optional: commanded joint torques, gravity-free (as sent to libfranka)
+``q_d``, ``dq_d``          rad, /s   (N, 7) optional: desired trajectory
+``ddq_d``                  rad/s^2   (N, 7) optional: desired acceleration
+``tau_ext_hat_filtered``   Nm        (N, 7) optional: the robot's external-torque estimate
+=========================  ========  ==========================================================================
+
+plus metadata: ``tool`` (``"franka_hand"``, ``None`` for no tool, or a ``{"mass", "com", "inertia"}`` dict in the
+flange frame), ``gravity`` (3,) in the base frame (m/s^2), ``controller`` (a free-form dict, e.g. eq. (2) and its
+gains) and ``extra`` (any other JSON-able metadata).
+
+File formats (read by :func:`load_log`, written by :func:`save_log`):
+
+- CSV with a header row. Columns ``time``, then ``q[i]``, ``dq[i]``, ``tau_J[i]`` for i = 0..6, and optionally the
+  other fields with the same ``name[i]`` pattern. ``name_i`` is accepted instead of ``name[i]`` when reading.
+  Metadata lives in a JSON sidecar next to the log: ``<log>.json`` (``run.csv`` -> ``run.csv.json``); the sidecar
+  ``run.json`` is accepted too when reading.
+- NPZ with arrays ``time`` (N,) and ``q``, ``dq``, ``tau_J`` ... (N, 7); metadata in the same JSON sidecar, or in an
+  array ``meta`` holding a JSON string.
+- The text folder of Gaz et al. 2019 (``exciting_traj_time.txt``, ``exciting_traj_positions.txt``,
+  ``exciting_traj_velocity.txt``, ``exciting_traj_torques.txt``; values sample-major, one or more per line). No
+  tool is declared for these logs.
+
+Loading never modifies the input file. Malformed input raises ``ValueError`` naming the problem: missing columns,
+wrong joint count, NaN/inf values, decreasing time, implausible units (degrees, milliseconds, mNm).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from franka_vs_gym.model import params
+
+REQUIRED = ("q", "dq", "tau_J")
+OPTIONAL = ("tau_J_d", "q_d", "dq_d", "ddq_d", "tau_ext_hat_filtered")
+JOINT_FIELDS = REQUIRED + OPTIONAL
+GAZ_FILES = {"time": "exciting_traj_time.txt", "q": "exciting_traj_positions.txt",
+             "dq": "exciting_traj_velocity.txt", "tau_J": "exciting_traj_torques.txt"}
+_COL = re.compile(r"^\s*([A-Za-z_][A-Za-z0-9_]*?)(?:\[(\d+)\]|_(\d+))\s*$")
+_TOOL_DEFAULT = "franka_hand"
+
+
+@dataclass
+class MeasurementLog:
+    """One measurement log of a FER (see the module docstring for fields, units and frames).
+
+    Attributes
+    ----------
+    time : (N,) s
+    q, dq, tau_J : (N, 7) rad, rad/s, Nm (tau_J includes gravity)
+    tau_J_d, q_d, dq_d, ddq_d, tau_ext_hat_filtered : (N, 7) or None
+    tool : "franka_hand", None (no tool) or dict(mass, com, inertia) in the flange frame
+    gravity : (3,) m/s^2 in the base frame
+    controller : dict or None (e.g. ``{"law": "computed_torque_eq2", "kp": [...], "kd": [...]}``)
+    extra : dict of any other JSON-able metadata
+    source : where the log was read from ("" for logs built in memory)
+    """
+
+    time: np.ndarray
+    q: np.ndarray
+    dq: np.ndarray
+    tau_J: np.ndarray
+    tau_J_d: np.ndarray | None = None
+    q_d: np.ndarray | None = None
+    dq_d: np.ndarray | None = None
+    ddq_d: np.ndarray | None = None
+    tau_ext_hat_filtered: np.ndarray | None = None
+    tool: Any = _TOOL_DEFAULT
+    gravity: np.ndarray = field(default_factory=lambda: params.as_array(params.GRAVITY))
+    controller: dict[str, Any] | None = None
+    extra: dict[str, Any] = field(default_factory=dict)
+    source: str = ""
+
+    def __post_init__(self) -> None:
+        self.time = np.array(self.time, dtype=np.float64)
+        if self.time.ndim != 1:
+            raise ValueError(f"time must be a 1-D array, got shape {self.time.shape}")
+        n = len(self.time)
+        if n < 2:
+            raise ValueError(f"a log needs at least 2 samples, got {n}")
+        for name in JOINT_FIELDS:
+            v = getattr(self, name)
+            if v is None:
+                if name in REQUIRED:
+                    raise ValueError(f"missing required field {name!r}")
+                continue
+            a = np.array(v, dtype=np.float64)
+            if a.ndim != 2 or a.shape[0] != n:
+                raise ValueError(f"{name} must have shape ({n}, 7), got {a.shape}")
+            if a.shape[1] != 7:
+                raise ValueError(f"{name} has {a.shape[1]} joints; the FER has 7 (expected shape ({n}, 7))")
+            setattr(self, name, a)
+        self.gravity = np.array(self.gravity, dtype=np.float64)
+        if self.gravity.shape != (3,) or not np.isfinite(self.gravity).all():
+            raise ValueError(f"gravity must be a finite 3-vector (m/s^2, base frame), got {self.gravity}")
+        validate(self)
+
+    @property
+    def n(self) -> int:
+        """Number of samples."""
+        return len(self.time)
+
+    @property
+    def duration(self) -> float:
+        """Time span of the log, s."""
+        return float(self.time[-1] - self.time[0])
+
+    def fields(self) -> list[str]:
+        """Names of the joint fields present, required first."""
+        return [f for f in JOINT_FIELDS if getattr(self, f) is not None]
+
+    def metadata(self) -> dict[str, Any]:
+        """The sidecar content (JSON-able)."""
+        tool = self.tool
+        if isinstance(tool, dict):
+            tool = {k: np.asarray(v).tolist() if not isinstance(v, str) else v for k, v in tool.items()}
+        return {"tool": tool, "gravity": self.gravity.tolist(), "controller": self.controller, **self.extra}
+
+    def slice(self, start: int, stop: int) -> MeasurementLog:
+        """A new log with samples [start, stop)."""
+        kw = {f: (None if getattr(self, f) is None else getattr(self, f)[start:stop].copy()) for f in JOINT_FIELDS}
+        return MeasurementLog(self.time[start:stop].copy(), **kw, tool=self.tool, gravity=self.gravity.copy(),
+                              controller=self.controller, extra=dict(self.extra), source=self.source)
+
+
+def validate(log: MeasurementLog) -> None:
+    """Raise ValueError naming the first problem found: NaN/inf, decreasing time, implausible units."""
+    t = log.time
+    bad = ~np.isfinite(t)
+    if bad.any():
+        raise ValueError(f"time contains NaN or inf (first at row {int(np.argmax(bad))})")
+    dt = np.diff(t)
+    if (dt < 0).any():
+        i = int(np.argmax(dt < 0))
+        raise ValueError(f"time is not monotonic: it decreases from {t[i]:.6g} s to {t[i + 1]:.6g} s at row {i + 1}")
+    if t[-1] - t[0] <= 0:
+        raise ValueError("time does not advance: all timestamps are equal")
+    for name in log.fields():
+        a = getattr(log, name)
+        bad = ~np.isfinite(a)
+        if bad.any():
+            r, c = np.argwhere(bad)[0]
+            raise ValueError(f"{name}[{c}] contains NaN or inf (first at row {r}, time {t[r]:.6g} s)")
+    pos = dt[dt > 0]
+    med = float(np.median(pos)) if len(pos) else 0.0
+    if med > 0.05:
+        raise ValueError(f"time step is {med:.3g} (median): the time column looks like milliseconds or a "
+                         "sample index, it must be in seconds (about 0.001 s at 1 kHz)")
+    for name in ("q", "q_d"):
+        a = getattr(log, name)
+        if a is not None and np.abs(a).max() > 2 * math.pi:
+            j = int(np.argmax(np.abs(a).max(axis=0)))
+            raise ValueError(f"{name}[{j}] reaches {np.abs(a[:, j]).max():.4g}: joint positions must be in rad "
+                             f"(the FER joint range is within [{params.Q_MIN[j]}, {params.Q_MAX[j]}] rad); degrees?")
+    dq_max = params.as_array(params.DQ_MAX)
+    for name in ("dq", "dq_d"):
+        a = getattr(log, name)
+        if a is not None and (np.abs(a) > 3 * dq_max).any():
+            j = int(np.argmax((np.abs(a) / dq_max).max(axis=0)))
+            raise ValueError(f"{name}[{j}] reaches {np.abs(a[:, j]).max():.4g}: joint velocities must be in rad/s "
+                             f"(FER limit {dq_max[j]} rad/s); degrees/s?")
+    tau_max = params.as_array(params.TAU_MAX)
+    for name in ("tau_J", "tau_J_d"):
+        a = getattr(log, name)
+        if a is not None and (np.abs(a) > 5 * tau_max).any():
+            j = int(np.argmax((np.abs(a) / tau_max).max(axis=0)))
+            raise ValueError(f"{name}[{j}] reaches {np.abs(a[:, j]).max():.4g}: torques must be in Nm "
+                             f"(FER limit {tau_max[j]} Nm); mNm?")
+
+
+# ----------------------------------------------------------------------------------------------- reading
+def sidecar_path(path: str | os.PathLike) -> Path:
+    """The JSON sidecar of a log file: ``<log>.json``."""
+    p = Path(path)
+    return p.with_name(p.name + ".json")
+
+
+def _read_sidecar(path: Path) -> dict[str, Any]:
+    for s in (sidecar_path(path), path.with_suffix(".json")):
+        if s.is_file() and s != path:
+            try:
+                d = json.loads(s.read_text())
+            except json.JSONDecodeError as e:
+                raise ValueError(f"sidecar {s} is not valid JSON: {e}") from None
+            if not isinstance(d, dict):
+                raise ValueError(f"sidecar {s} must hold a JSON object")
+            return d
+    return {}
+
+
+def _meta_kwargs(meta: dict[str, Any]) -> dict[str, Any]:
+    meta = dict(meta)
+    kw: dict[str, Any] = {}
+    kw["tool"] = meta.pop("tool", _TOOL_DEFAULT)
+    if isinstance(kw["tool"], str) and kw["tool"] not in ("franka_hand", "none"):
+        raise ValueError(f"unknown tool {kw['tool']!r} in the log metadata: use 'franka_hand', null, or an object "
+                         "with mass, com, inertia")
+    if kw["tool"] == "none":
+        kw["tool"] = None
+    if isinstance(kw["tool"], dict):
+        missing = {"mass", "com", "inertia"} - set(kw["tool"])
+        if missing:
+            raise ValueError(f"tool in the log metadata lacks {sorted(missing)}")
+    if "gravity" in meta:
+        kw["gravity"] = meta.pop("gravity")
+    kw["controller"] = meta.pop("controller", None)
+    kw["extra"] = meta
+    return kw
+
+
+def _columns_to_fields(header: list[str], data: np.ndarray, where: str) -> dict[str, np.ndarray]:
+    names = [h.strip() for h in header]
+    if "time" not in names:
+        raise ValueError(f"{where}: missing column 'time' (s)")
+    if len(set(names)) != len(names):
+        dup = sorted({n for n in names if names.count(n) > 1})
+        raise ValueError(f"{where}: duplicate columns {dup}")
+    groups: dict[str, dict[int, int]] = {}
+    for col, name in enumerate(names):
+        m = _COL.match(name)
+        if m:
+            base, idx = m.group(1), int(m.group(2) if m.group(2) is not None else m.group(3))
+            groups.setdefault(base, {})[idx] = col
+    out = {"time": data[:, names.index("time")]}
+    for f in JOINT_FIELDS:
+        g = groups.get(f)
+        if g is None:
+            if f in REQUIRED:
+                raise ValueError(f"{where}: missing columns {f}[0]..{f}[6] ({f!r} is required)")
+            continue
+        idx = sorted(g)
+        if idx != list(range(7)):
+            missing = [f"{f}[{i}]" for i in range(7) if i not in g]
+            extra = [f"{f}[{i}]" for i in idx if i >= 7]
+            msg = f"{where}: {f} has joints {idx}; the FER has 7 joints (indices 0..6)"
+            if missing:
+                msg += f"; missing {missing}"
+            if extra:
+                msg += f"; unexpected {extra}"
+            raise ValueError(msg)
+        out[f] = data[:, [g[i] for i in range(7)]]
+    return out
+
+
+def _load_csv(path: Path) -> dict[str, np.ndarray]:
+    with open(path, newline="") as fh:
+        reader = csv.reader(fh)
+        try:
+            header = next(reader)
+        except StopIteration:
+            raise ValueError(f"{path}: empty file") from None
+        rows = []
+        for lineno, row in enumerate(reader, start=2):
+            if not row or all(not c.strip() for c in row):
+                continue
+            if len(row) != len(header):
+                raise ValueError(f"{path}: line {lineno} has {len(row)} values, the header has {len(header)} columns")
+            try:
+                rows.append([float(c) if c.strip() != "" else math.nan for c in row])
+            except ValueError:
+                bad = next(c for c in row if not _isfloat(c))
+                raise ValueError(f"{path}: line {lineno}: {bad!r} is not a number") from None
+    if not rows:
+        raise ValueError(f"{path}: no data rows")
+    if all(_isfloat(h) for h in header):
+        raise ValueError(f"{path}: the first line must be a header with column names (time, q[0], ...)")
+    return _columns_to_fields(header, np.array(rows, dtype=np.float64), str(path))
+
+
+def _isfloat(s: str) -> bool:
+    try:
+        float(s)
+        return True
+    except ValueError:
+        return False
+
+
+def _load_npz(path: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    with np.load(path, allow_pickle=False) as z:
+        keys = set(z.files)
+        meta: dict[str, Any] = {}
+        if "meta" in keys:
+            meta = json.loads(str(z["meta"]))
+        if "time" not in keys:
+            raise ValueError(f"{path}: missing array 'time' (s)")
+        out = {"time": np.array(z["time"], dtype=np.float64).ravel()}
+        for f in JOINT_FIELDS:
+            if f in keys:
+                out[f] = np.array(z[f], dtype=np.float64)
+            elif f in REQUIRED:
+                # accept per-joint arrays q[0]..q[6] / q_0..q_6 as well
+                cols = [next((k for k in (f"{f}[{i}]", f"{f}_{i}") if k in keys), None) for i in range(7)]
+                if all(c is not None for c in cols):
+                    out[f] = np.stack([np.asarray(z[c], dtype=np.float64) for c in cols], axis=1)
+                else:
+                    raise ValueError(f"{path}: missing array {f!r} (shape (N, 7))")
+    return out, meta
+
+
+def _load_gaz(folder: Path) -> dict[str, np.ndarray]:
+    out = {}
+    for f, name in GAZ_FILES.items():
+        p = folder / name
+        if not p.is_file():
+            raise ValueError(f"{folder}: missing file {name} (Gaz et al. 2019 log folder)")
+        try:
+            out[f] = np.loadtxt(p, dtype=np.float64, ndmin=1).ravel()
+        except ValueError as e:
+            raise ValueError(f"{p}: {e}") from None
+    n = len(out["time"])
+    for f in ("q", "dq", "tau_J"):
+        if out[f].size != 7 * n:
+            raise ValueError(f"{folder / GAZ_FILES[f]}: {out[f].size} values for {n} timestamps; expected 7 per "
+                             f"sample ({7 * n})")
+        out[f] = out[f].reshape(n, 7)
+    return out
+
+
+def load_log(path: str | os.PathLike) -> MeasurementLog:
+    """Read a log: a CSV file, an NPZ file, or a Gaz et al. 2019 text folder (see the module docstring).
+
+    The sidecar ``<log>.json`` supplies tool, gravity and controller. Raises FileNotFoundError when the path does
+    not exist and ValueError when the content is malformed. The file is only read.
+    """
+    p = Path(path)
+    if not p.exists():
+        raise FileNotFoundError(f"log not found: {p}")
+    if p.is_dir():
+        arrays = _load_gaz(p)
+        meta: dict[str, Any] = {"tool": None, "source_format": "gaz2019"}
+        meta.update(_read_sidecar(p / "log"))
+    elif p.suffix.lower() == ".npz":
+        arrays, meta = _load_npz(p)
+        meta = {**meta, **_read_sidecar(p)}
+    elif p.suffix.lower() in (".csv", ".txt", ".tsv") or p.suffix == "":
+        arrays = _load_csv(p)
+        meta = _read_sidecar(p)
+    else:
+        raise ValueError(f"{p}: unknown log format {p.suffix!r} (use .csv, .npz or a Gaz text folder)")
+    kw = _meta_kwargs(meta)
+    t = arrays.pop("time")
+    return MeasurementLog(t, **arrays, **kw, source=str(p))
+
+
+# ----------------------------------------------------------------------------------------------- writing
+def save_log(log: MeasurementLog, path: str | os.PathLike, overwrite: bool = False) -> Path:
+    """Write ``log`` as CSV (``.csv``) or NPZ (``.npz``) plus the JSON sidecar ``<path>.json``.
+
+    Refuses to overwrite an existing log or sidecar unless ``overwrite``. Returns the path written.
+    """
+    p = Path(path)
+    side = sidecar_path(p)
+    for target in (p, side):
+        if target.exists() and not overwrite:
+            raise FileExistsError(f"{target} exists; pass overwrite=True (or --force) to replace it")
+    suffix = p.suffix.lower()
+    if suffix not in (".csv", ".npz"):
+        raise ValueError(f"{p}: unknown log format {p.suffix!r} (use .csv or .npz)")
+    p.parent.mkdir(parents=True, exist_ok=True)
+    tmp = p.with_name(p.name + ".tmp" + p.suffix)
+    if suffix == ".csv":
+        cols = ["time"] + [f"{f}[{i}]" for f in log.fields() for i in range(7)]
+        data = np.column_stack([log.time] + [getattr(log, f) for f in log.fields()])
+        with open(tmp, "w", newline="") as fh:
+            fh.write(",".join(cols) + "\n")
+            np.savetxt(fh, data, delimiter=",", fmt="%.10g")
+    else:
+        arrays = {f: getattr(log, f) for f in log.fields()}
+        with open(tmp, "wb") as fh:
+            np.savez_compressed(fh, time=log.time, **arrays)
+    tmp.replace(p)
+    side.write_text(json.dumps(log.metadata(), indent=2))
+    return p
+
+
+__all__ = ["MeasurementLog", "load_log", "save_log", "sidecar_path", "validate", "JOINT_FIELDS", "REQUIRED",
+           "OPTIONAL"]
