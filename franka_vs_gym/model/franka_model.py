@@ -140,12 +140,12 @@ class FrankaModel:
         return pin.nonLinearEffects(self.model, self.data, q, dq).copy()
 
     def friction(self, dq: np.ndarray) -> np.ndarray:
-        """Joint friction torques tau_f(dq), (7,), Nm, opposing... i.e. added to the required torque."""
+        """Joint friction torques tau_f(dq), (7,), Nm: the torque the joint needs on top of B ddq + C dq + g."""
         return self._friction(np.asarray(dq, dtype=np.float64))
 
     def rigid_body_inverse_dynamics(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:
         """B ddq + C dq + g, (7,), Nm: the rigid-body part (armature included, friction and offset excluded)."""
-        return pin.rnea(self.model, self.data, q, dq, ddq).copy() + self._config.armature * ddq
+        return pin.rnea(self.model, self.data, q, dq, ddq).copy()  # pinocchio's rnea includes the armature
 
     def inverse_dynamics(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:
         """Predicted measured joint torque tau_J = B ddq + C dq + g + tau_f(dq) + offset, (7,), Nm."""

@@ -157,6 +157,12 @@ class FrankaSim:
         m, d = world.model, world.data
         self._m, self._d = m, d
         self.model = FrankaModel(cfg)
+        # Gravity as the robot sees it: the world's gravity expressed in this robot's base frame (mounting).
+        mujoco.mj_kinematics(m, d)
+        base = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"{prefix}link0")
+        g_base = d.xmat[base].reshape(3, 3).T @ m.opt.gravity
+        if not np.allclose(g_base, cfg.gravity, atol=1e-9):
+            self.model.set_gravity(g_base)
         self.dt = world.dt
         jids = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, f"{prefix}joint{i + 1}") for i in range(7)]
         qadr = [int(m.jnt_qposadr[j]) for j in jids]
@@ -425,36 +431,36 @@ class FrankaSim:
         raise ValueError(f"unsupported frame {frame!r}")
 
     def get_ft_wrench(self) -> np.ndarray:
-        """External wrench on the tool measured by the wrist F/T sensor, (6,) [f; tau] in e, N and Nm.
+        """External wrench on the tool from the wrist F/T sensor, (6,) [f; tau] in e (N, Nm), torque about e.
 
-        The raw sensor reads the force the hand exerts... on link 7; we return the part due to the environment:
-        raw minus the tool's gravity and inertial load computed from the tool body's motion."""
+        The sensor at the flange measures the force link 7 exerts on the tool body. The tool's own weight and
+        inertial load (from its acceleration) are removed, leaving what the environment applies, as a calibrated
+        F/T sensor with load compensation reports."""
         if self._ft is None:
             raise RuntimeError("this robot has no wrist force/torque sensor (construct with ft_sensor=True)")
-        m, d = self._m, self._d
+        m, d, b = self._m, self._d, self._hand_body
         fa, ta = self._ft
-        f_raw, t_raw = d.sensordata[fa:fa + 3].copy(), d.sensordata[ta:ta + 3].copy()
-        # wrench due to the hand itself (weight + inertia) in the sensor (flange) frame
-        b = self._hand_body
-        R = d.xmat[b].reshape(3, 3)  # hand body frame = flange frame (sensor site at its origin)
-        mass = m.body_subtreemass[b]
-        com_w = d.subtree_com[b] - d.xpos[b]
-        g = m.opt.gravity
-        # cacc: body com-based spatial acceleration [rot; lin] (needs mj_rnePostConstraint, run for force sensors)
+        R = d.xmat[b].reshape(3, 3)  # sensor site frame = hand (flange) body frame
+        f_link = R @ d.sensordata[fa:fa + 3]
+        t_link = R @ d.sensordata[ta:ta + 3]
+        # tool acceleration at its com, gravity included (accelerometer convention: a - g), and angular motion
         acc = np.zeros(6)
         mujoco.mj_objectAcceleration(m, d, mujoco.mjtObj.mjOBJ_BODY, b, acc, 0)
-        lin_acc = acc[3:]
-        f_self_w = mass * (lin_acc - g)
-        t_self_w = np.cross(com_w, f_self_w)
-        f_ext_w = R @ f_raw - f_self_w
-        t_ext_w = R @ t_raw - t_self_w
-        # express at the end effector, in e
-        fMfl = d.xmat[b].reshape(3, 3)
-        flMe = self.spec.config.tool.flMe
-        Re = fMfl @ flMe[:3, :3]
-        r = Re @ np.zeros(3) + (R @ flMe[:3, 3])
-        t_ext_e_w = t_ext_w - np.cross(r, f_ext_w)
-        return -np.concatenate([Re.T @ f_ext_w, Re.T @ t_ext_e_w])
+        vel = np.zeros(6)
+        mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_BODY, b, vel, 0)
+        mass = m.body_mass[b]
+        Ri = d.ximat[b].reshape(3, 3)
+        I = Ri @ np.diag(m.body_inertia[b]) @ Ri.T
+        w, alpha = vel[:3], acc[:3]
+        r_com = d.xipos[b] - d.xpos[b]
+        f_need = mass * acc[3:]  # total force the tool needs, minus gravity
+        t_need = np.cross(r_com, f_need) + I @ alpha + np.cross(w, I @ w)  # about the sensor origin
+        f_ext = f_need - f_link
+        t_ext = t_need - t_link
+        p_e = d.site_xpos[self._ee_site]
+        t_ext_e = t_ext - np.cross(p_e - d.xpos[b], f_ext)
+        Re = d.site_xmat[self._ee_site].reshape(3, 3)
+        return np.concatenate([Re.T @ f_ext, Re.T @ t_ext_e])
 
     # ------------------------------------------------------------------ model getters (vpRobotFranka names)
     def get_mass(self) -> np.ndarray:

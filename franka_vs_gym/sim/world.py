@@ -43,6 +43,10 @@ class SimWorld:
         self._hooks: list[Callable[[], None]] = []
         self._renderers: dict[tuple[int, int], mujoco.Renderer] = {}
         self.diverged: str | None = None
+        self._wn = self.data.warning.number  # live view of MuJoCo's warning counters
+        self._w_pos, self._w_vel, self._w_acc = (int(mujoco.mjtWarning.mjWARN_BADQPOS),
+                                                 int(mujoco.mjtWarning.mjWARN_BADQVEL),
+                                                 int(mujoco.mjtWarning.mjWARN_BADQACC))
 
     def add_pre_step(self, hook: Callable[[], None]) -> None:
         self._hooks.append(hook)
@@ -54,18 +58,19 @@ class SimWorld:
 
     def step(self, n: int = 1) -> None:
         """Advance ``n`` physics steps. Raises SimulationDiverged if the physics blew up."""
-        m, d, hooks, step = self.model, self.data, self._hooks, mujoco.mj_step
+        m, d, hooks, step, wn = self.model, self.data, self._hooks, mujoco.mj_step, self._wn
+        a, b, c = self._w_pos, self._w_vel, self._w_acc
         for _ in range(n):
-            t = d.time
             for h in hooks:
                 h()
             step(m, d)
-            if d.time < t:  # MuJoCo auto-reset the state after a NaN/unbounded value
+            if wn[a] or wn[b] or wn[c]:  # MuJoCo found NaN/inf/huge values (and auto-reset the state)
                 self._diverge()
 
     def _diverge(self) -> None:
-        reasons = [msg for w, msg in _BAD_WARNINGS.items() if self.data.warning[w].number > 0]
+        reasons = [msg for w, msg in _BAD_WARNINGS.items() if self._wn[w] > 0]
         self.diverged = "; ".join(reasons) or "the simulation state was reset by MuJoCo"
+        self._wn[:] = 0  # re-arm detection for the next episode
         raise SimulationDiverged(f"simulation diverged at t={self.data.time:.4f}s: {self.diverged}")
 
     def forward(self) -> None:
