@@ -232,6 +232,7 @@ def scene_xml(scene: SceneSpec) -> str:
 </default>
 <asset>
 {meshes}
+<texture name="sky" type="skybox" builtin="gradient" rgb1="0.75 0.82 0.9" rgb2="0.3 0.35 0.42" width="64" height="64"/>
 <texture name="grid" type="2d" builtin="checker" rgb1="0.55 0.45 0.35" rgb2="0.5 0.4 0.3" width="256" height="256"/>
 <material name="table_mat" texture="grid" texrepeat="8 8" specular="0" shininess="0" reflectance="0"/>
 {"".join(tag_assets)}

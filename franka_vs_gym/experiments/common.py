@@ -1,0 +1,58 @@
+"""Helpers shared by the experiments: run folders that never overwrite, progress bars, JSON metrics."""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+
+def make_run_dir(name: str, out: str | Path | None = None, root: str | Path = "runs") -> Path:
+    """Create a fresh output folder: ``out`` if given (it must not exist yet, or be empty), else
+    ``runs/<name>-<YYYYmmdd-HHMMSS>`` (suffixed -2, -3... if taken). Nothing existing is overwritten."""
+    if out is not None:
+        p = Path(out)
+        if p.exists() and any(p.iterdir()):
+            raise FileExistsError(f"output folder {p} exists and is not empty; choose another --out")
+        p.mkdir(parents=True, exist_ok=True)
+        return p
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    base = Path(root) / f"{name}-{stamp}"
+    p, k = base, 1
+    while True:
+        try:
+            p.mkdir(parents=True, exist_ok=False)
+            return p
+        except FileExistsError:
+            k += 1
+            p = base.with_name(f"{base.name}-{k}")
+
+
+def progress(total: int, desc: str, disable: bool = False):
+    """A tqdm progress bar on stderr."""
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=desc, unit="step", file=sys.stderr, disable=disable, mininterval=0.5,
+                dynamic_ncols=True)
+
+
+def _jsonable(x: Any) -> Any:
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    if isinstance(x, np.generic):
+        return x.item()
+    return x
+
+
+def write_json(path: str | Path, data: dict[str, Any]) -> Path:
+    p = Path(path)
+    p.write_text(json.dumps(_jsonable(data), indent=2))
+    return p
