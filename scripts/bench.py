@@ -1,0 +1,118 @@
+#!/usr/bin/env python
+"""Speed benchmarks of franka_vs_gym, printed as tables.
+
+Absolute times on shared machines are noisy, so every simulator figure is given next to a reference measured in
+the same run (raw ``mujoco.mj_step`` on the same model) as a ratio. Each timing is the best of several repeats.
+
+    python scripts/bench.py [--quick] [--only core,vision,envs,validation]
+"""
+
+from __future__ import annotations
+
+import argparse
+import timeit
+
+import numpy as np
+
+
+def best_us(fn, number: int, repeat: int = 5) -> float:
+    """Best-of-``repeat`` mean time of one call, in microseconds."""
+    return min(timeit.repeat(fn, number=number, repeat=repeat)) / number * 1e6
+
+
+def table(title: str, rows: list[tuple], headers: tuple[str, ...]) -> None:
+    print(f"\n## {title}\n")
+    print("| " + " | ".join(headers) + " |")
+    print("|" + "|".join("---" for _ in headers) + "|")
+    for r in rows:
+        print("| " + " | ".join(f"{x:.3g}" if isinstance(x, float) else str(x) for x in r) + " |")
+
+
+def bench_core(quick: bool) -> None:
+    import mujoco
+
+    from franka_vs_gym.model import FrankaModel, params
+    from franka_vs_gym.sim import FORCE_TORQUE, JOINT_STATE, FrankaSim
+
+    n = 2000 if quick else 20000
+    m = FrankaModel()
+    rng = np.random.default_rng(0)
+    q = rng.uniform(params.as_array(params.Q_MIN), params.as_array(params.Q_MAX))
+    dq = rng.uniform(-1, 1, 7)
+    rows = []
+    for name, fn, target in [
+        ("mass_matrix B(q)", lambda: m.mass_matrix(q), 10.0),
+        ("coriolis_matrix C(q, dq)", lambda: m.coriolis_matrix(q, dq), 10.0),
+        ("gravity g(q)", lambda: m.gravity(q), 10.0),
+        ("fJe(q)", lambda: m.fJe(q), 10.0),
+        ("friction(dq)", lambda: m.friction(dq), None),
+        ("inverse_dynamics", lambda: m.inverse_dynamics(q, dq, dq), None),
+        ("fMe(q)", lambda: m.fMe(q), None),
+    ]:
+        t = best_us(fn, n)
+        rows.append((name, t, "-" if target is None else f"<= {target:g}", "-" if target is None else
+                     ("yes" if t <= target else "NO")))
+    table("Model library (per call from Python)", rows, ("call", "us", "target", "met"))
+
+    sim = FrankaSim(camera=False)
+    sim.set_robot_state(FORCE_TORQUE)
+    mm, dd = sim.world.model, sim.world.data
+    z = np.zeros(7)
+
+    def loop():
+        sim.set_force_torque(JOINT_STATE, z)
+        sim.step()
+
+    ns = 3000 if quick else 20000
+    raw = best_us(lambda: mujoco.mj_step(mm, dd), ns)
+    step = best_us(sim.step, ns)
+    full = best_us(loop, ns)
+    raw2 = best_us(lambda: mujoco.mj_step(mm, dd), ns)
+    raw = min(raw, raw2)
+    table("FrankaSim torque-mode step (1 ms, friction on) vs raw mujoco.mj_step, same model, same run", [
+        ("raw mujoco.mj_step", raw, 1.0, "-"),
+        ("FrankaSim.step()", step, step / raw, "<= 2 " + ("yes" if step / raw <= 2 else "NO")),
+        ("set_force_torque + step (one 1 kHz loop iteration)", full, full / raw, "-"),
+    ], ("what", "us", "ratio to raw", "target"))
+
+
+def bench_vision(quick: bool) -> None:
+    from franka_vs_gym import vision
+
+    res = vision.bench(quick=quick)
+    table("Vision (one core)", [(k, v) for k, v in res.items()], ("what", "value"))
+
+
+def bench_envs(quick: bool) -> None:
+    from franka_vs_gym import envs
+
+    rows = envs.bench(quick=quick)
+    if isinstance(rows, dict):
+        rows = [(k, v) for k, v in rows.items()]
+    table("Environments", rows, tuple(f"col{i}" for i in range(len(rows[0]))) if rows else ("-",))
+
+
+def bench_validation(quick: bool) -> None:
+    from franka_vs_gym import validation
+
+    res = validation.bench_compare_diagnose(seconds=30)
+    table("Workbench: compare + diagnose on 30 s of 1 kHz data (one core)", [(k, v) for k, v in res.items()],
+          ("what", "value"))
+
+
+SECTIONS = {"core": bench_core, "vision": bench_vision, "envs": bench_envs, "validation": bench_validation}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="fewer repetitions (a smoke run)")
+    ap.add_argument("--only", default=",".join(SECTIONS), help="comma-separated sections: " + ",".join(SECTIONS))
+    args = ap.parse_args()
+    for name in args.only.split(","):
+        if name not in SECTIONS:
+            raise SystemExit(f"unknown section {name!r}; choose from {', '.join(SECTIONS)}")
+        SECTIONS[name](args.quick)
+
+
+if __name__ == "__main__":
+    main()
