@@ -1,0 +1,381 @@
+"""Shared base of the franka_vs_gym environments: the plant, action handling, stepping, randomisation, failures.
+
+A task (one small module per task) subclasses :class:`FrankaEnv` and provides the observation space and
+observation, the reward, and its success/failure checks. Everything the robot does goes through
+:class:`~franka_vs_gym.sim.FrankaSim` (velocity servo, gravity-free torques, limits), so an agent sees exactly the
+robot a classical controller written against FrankaSim sees.
+
+Time: one environment step lasts ``control_period`` seconds = ``n_substeps`` physics steps of ``physics_step``
+seconds; the action is held constant over the step (zero-order hold, as a real controller running at that rate).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+from gymnasium import spaces
+
+from franka_vs_gym.model.config import ModelConfig, RigidBody, resolve_config
+from franka_vs_gym.model.franka_model import FrankaModel
+from franka_vs_gym.sim import (CAMERA_FRAME, FORCE_TORQUE, JOINT_STATE, VELOCITY, FrankaSim, SimulationDiverged)
+
+ACTION_TYPES = ("torque", "joint_velocity", "cartesian_velocity")
+OBSERVATION_TYPES = ("features", "image", "features+image", "state")
+# Cartesian camera-twist bounds of the contract: +-0.5 m/s, +-1 rad/s.
+CARTESIAN_BOUNDS = np.array([0.5, 0.5, 0.5, 1.0, 1.0, 1.0])
+_LIMITS = FrankaModel.limits()
+
+
+def _positive(x: Any, name: str) -> float:
+    try:
+        v = float(x)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a number, got {x!r}") from None
+    if not (v > 0 and math.isfinite(v)):
+        raise ValueError(f"{name} must be a finite number > 0, got {x!r}")
+    return v
+
+
+def _nonneg(x: Any, name: str) -> float:
+    try:
+        v = float(x)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a number, got {x!r}") from None
+    if not (v >= 0 and math.isfinite(v)):
+        raise ValueError(f"{name} must be a finite number >= 0, got {x!r}")
+    return v
+
+
+def _range(x: Any, name: str, *, positive: bool = False) -> tuple[float, float] | None:
+    """A (low, high) range, a single number (fixed value), or None (feature off)."""
+    if x is None:
+        return None
+    a = np.atleast_1d(np.asarray(x, dtype=np.float64))
+    if a.shape == (1,):
+        a = np.array([a[0], a[0]])
+    if a.shape != (2,) or not np.isfinite(a).all() or a[0] > a[1]:
+        raise ValueError(f"{name} must be a number or a (low, high) pair with low <= high, got {x!r}")
+    if positive and a[0] <= 0:
+        raise ValueError(f"{name} must be > 0, got {x!r}")
+    return float(a[0]), float(a[1])
+
+
+def substeps(control_period: float, physics_step: float) -> int:
+    """Number of physics steps per control period; the period must be a whole multiple of the physics step."""
+    n = control_period / physics_step
+    k = int(round(n))
+    if k < 1 or abs(n - k) > 1e-6 * max(1.0, n):
+        raise ValueError(f"control_period ({control_period} s) must be a whole multiple of physics_step "
+                         f"({physics_step} s)")
+    return k
+
+
+class FrankaEnv(gym.Env):
+    """Base class: a FER (FrankaSim) driven through one of three action types.
+
+    Parameters (shared by every task; all are ``gymnasium.make`` keyword arguments)
+    ----------
+    action_type : "torque" | "joint_velocity" | "cartesian_velocity"
+        torque: (7,) Nm, gravity-free (the robot adds g(q), as libfranka), bounds +-tau_max.
+        joint_velocity: (7,) rad/s, bounds +-dq_max, executed by the robot's joint velocity servo.
+        cartesian_velocity: (6,) twist [v; w] of the camera frame c expressed in c, m/s and rad/s, bounds +-0.5 m/s
+        and +-1 rad/s, mapped to joint velocities with the Jacobian pseudo-inverse (FrankaSim CAMERA_FRAME).
+    control_period : float, s
+        Duration of one environment step (the action is held). Whole multiple of ``physics_step``.
+    physics_step : float, s
+        MuJoCo time step (1 ms = the FER's 1 kHz loop by default).
+    time_limit : float, s
+        Episode duration after which the episode is truncated.
+    model : ModelConfig, path to a calibrated model file (JSON from ``franka-vs fit``), or None
+        The simulated robot (tool, friction, armature, ...). Both the plant and the robot's model use it.
+    link_mass_range : (low, high) or None
+        Domain randomisation: each link's mass and inertia are multiplied by a factor drawn uniformly in this
+        range at every reset. The robot's own gravity compensation follows the true masses (as the FER's internal
+        model does); the nominal :class:`FrankaModel` used by controllers does not.
+    friction_scale_range : (low, high) or None
+        Domain randomisation: the plant's joint friction (Gaz sigmoid, viscous and Coulomb terms) is multiplied by a
+        factor drawn in this range at every reset.
+    payload_mass_range : (low, high) kg or None
+        Domain randomisation: an undeclared payload (a point-like mass the robot does not compensate) of a mass
+        drawn in this range is held 5 cm in front of the flange.
+    joint_noise, velocity_noise : float
+        Standard deviation of white noise added to the observed q (rad) and dq (rad/s).
+    clip_actions : bool
+        False (default): an action outside the action space raises ValueError. True: it is clipped to the space.
+        NaN or inf always raise ValueError.
+    render_mode : None | "rgb_array"
+        "rgb_array": ``render()`` returns an (render_height, render_width, 3) uint8 image of the scene camera.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
+    supported_action_types: tuple[str, ...] = ACTION_TYPES
+    supported_observation_types: tuple[str, ...] = OBSERVATION_TYPES
+    terminate_on_success = True
+
+    def __init__(self, *, action_type: str = "joint_velocity", observation_type: str = "features",
+                 control_period: float = 0.05, physics_step: float = 0.001, time_limit: float = 6.0,
+                 model: Any = None, link_mass_range: Any = None, friction_scale_range: Any = None,
+                 payload_mass_range: Any = None, joint_noise: float = 0.0, velocity_noise: float = 0.0,
+                 clip_actions: bool = False, render_mode: str | None = None, render_width: int = 320,
+                 render_height: int = 240, camera: bool = True, tags: list | None = None,
+                 failure_penalty: float = 1.0) -> None:
+        super().__init__()
+        if action_type not in self.supported_action_types:
+            raise ValueError(f"action_type must be one of {self.supported_action_types} for {type(self).__name__}, "
+                             f"got {action_type!r}")
+        if observation_type not in self.supported_observation_types:
+            raise ValueError(f"observation_type must be one of {self.supported_observation_types} for "
+                             f"{type(self).__name__}, got {observation_type!r}")
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}")
+        self.action_type, self.observation_type, self.render_mode = action_type, observation_type, render_mode
+        self.physics_step = _positive(physics_step, "physics_step")
+        self.control_period = _positive(control_period, "control_period")
+        self.n_substeps = substeps(self.control_period, self.physics_step)
+        self.time_limit = _positive(time_limit, "time_limit")
+        self.max_steps = max(1, int(math.ceil(self.time_limit / self.control_period - 1e-9)))
+        self.metadata = dict(self.metadata, render_fps=int(round(1.0 / self.control_period)))
+        self.joint_noise = _nonneg(joint_noise, "joint_noise")
+        self.velocity_noise = _nonneg(velocity_noise, "velocity_noise")
+        self.failure_penalty = _nonneg(failure_penalty, "failure_penalty")
+        self.link_mass_range = _range(link_mass_range, "link_mass_range", positive=True)
+        self.friction_scale_range = _range(friction_scale_range, "friction_scale_range")
+        if self.friction_scale_range is not None and self.friction_scale_range[0] < 0:
+            raise ValueError(f"friction_scale_range must be >= 0, got {friction_scale_range!r}")
+        self.payload_mass_range = _range(payload_mass_range, "payload_mass_range")
+        if self.payload_mass_range is not None and self.payload_mass_range[0] < 0:
+            raise ValueError(f"payload_mass_range must be >= 0 kg, got {payload_mass_range!r}")
+        self.clip_actions = bool(clip_actions)
+        self.render_width, self.render_height = int(render_width), int(render_height)
+        if self.render_width < 1 or self.render_height < 1:
+            raise ValueError(f"render size must be >= 1 pixel, got {render_width}x{render_height}")
+        self.config: ModelConfig = resolve_config(model)
+        payload = RigidBody(1.0, (0.0, 0.0, 0.05)) if self.payload_mass_range is not None else None
+        self.sim = FrankaSim(self.config, camera=camera, tags=tags, timestep=self.physics_step,
+                             undeclared_payload=payload)
+        self.world = self.sim.world
+        self._m, self._d = self.world.model, self.world.data
+        self._nominal = self._nominal_dynamics()
+        self.q_min, self.q_max = _LIMITS["q_min"], _LIMITS["q_max"]
+        self.dq_max, self.tau_max = _LIMITS["dq_max"], _LIMITS["tau_max"]
+        if action_type == "torque":
+            hi = self.tau_max
+        elif action_type == "joint_velocity":
+            hi = self.dq_max
+        else:
+            hi = CARTESIAN_BOUNDS
+        self.action_space = spaces.Box(-hi.astype(np.float32), hi.astype(np.float32), dtype=np.float32)
+        self._act_lo = self.action_space.low.astype(np.float64)
+        self._act_hi = self.action_space.high.astype(np.float64)
+        self._act_tol = 1e-6 * np.maximum(1.0, self._act_hi)
+        self._arm_geoms: frozenset[int] = self._arm_geom_ids()
+        self._steps = 0
+        self._t0 = 0.0
+        self._diverged: str | None = None
+        self._last_obs: dict[str, np.ndarray] | None = None
+        self._episode_params: dict[str, Any] = {}
+
+    # ------------------------------------------------------------------ dynamics randomisation
+    def _nominal_dynamics(self) -> dict[str, Any]:
+        m, p = self._m, self.sim.prefix
+        links = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"{p}link{i + 1}") for i in range(7)]
+        payload = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"{p}undeclared_payload")
+        s = self.sim
+        return {"links": links, "mass": m.body_mass[links].copy(), "inertia": m.body_inertia[links].copy(),
+                "payload": payload,
+                "friction": (s._fa, s._fe, s._fvisc.copy(), s._fcoul.copy())}
+
+    def _randomise_dynamics(self) -> None:
+        m, nom, rng, s = self._m, self._nominal, self.np_random, self.sim
+        info: dict[str, Any] = {}
+        changed = False
+        if self.link_mass_range is not None:
+            k = rng.uniform(*self.link_mass_range, size=7)
+            m.body_mass[nom["links"]] = nom["mass"] * k
+            m.body_inertia[nom["links"]] = nom["inertia"] * k[:, None]
+            info["link_mass_scale"] = k
+            changed = True
+        if self.friction_scale_range is not None:
+            k = float(rng.uniform(*self.friction_scale_range))
+            fa, fe, fv, fc = nom["friction"]
+            # FrankaSim's plant friction: a tanh(b dq + c) + e (+ viscous, Coulomb); scaling a, e, viscous and
+            # Coulomb scales the whole law.
+            s._fa, s._fe = fa * k, fe * k
+            s._fvisc, s._fcoul = fv * k, fc * k
+            info["friction_scale"] = k
+        if self.payload_mass_range is not None and nom["payload"] >= 0:
+            mass = float(rng.uniform(*self.payload_mass_range))
+            # a small solid sphere of radius 3 cm (MuJoCo needs a positive mass on a body with inertia)
+            mass_eff = max(mass, 1e-9)
+            m.body_mass[nom["payload"]] = mass_eff
+            m.body_inertia[nom["payload"]] = 0.4 * mass_eff * 0.03**2
+            info["payload_mass"] = mass
+            changed = True
+        if changed:
+            mujoco.mj_setConst(m, self._d)
+        self._episode_params = info
+
+    # ------------------------------------------------------------------ action handling
+    def _check_action(self, action: Any) -> np.ndarray:
+        try:
+            a = np.asarray(action, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError(f"action must be a numeric array of shape {self.action_space.shape}, "
+                             f"got {type(action).__name__}") from None
+        if a.shape != self.action_space.shape:
+            if a.size == self.action_space.shape[0]:
+                a = a.reshape(self.action_space.shape)
+            else:
+                raise ValueError(f"action must have shape {self.action_space.shape} ({self.action_type}), "
+                                 f"got {a.shape}")
+        if not np.isfinite(a).all():
+            raise ValueError(f"action contains NaN or inf: {a}")
+        if self.clip_actions:
+            return np.clip(a, self._act_lo, self._act_hi)
+        bad = (a < self._act_lo - self._act_tol) | (a > self._act_hi + self._act_tol)
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            raise ValueError(f"{self.action_type} action component {i} = {a[i]:.6g} is outside the action space "
+                             f"[{self._act_lo[i]:.6g}, {self._act_hi[i]:.6g}] (pass clip_actions=True to clip)")
+        return np.clip(a, self._act_lo, self._act_hi)
+
+    def _apply_action(self, a: np.ndarray) -> None:
+        sim = self.sim
+        if self.action_type == "torque":
+            sim.set_force_torque(JOINT_STATE, a)
+        elif self.action_type == "joint_velocity":
+            sim.set_velocity(JOINT_STATE, a)
+        else:
+            sim.set_velocity(CAMERA_FRAME, a)
+
+    def _start_control(self) -> None:
+        self.sim.set_robot_state(FORCE_TORQUE if self.action_type == "torque" else VELOCITY)
+
+    # ------------------------------------------------------------------ task hooks (overridden by tasks)
+    def _reset_task(self, options: dict[str, Any]) -> np.ndarray:
+        """Draw the episode (targets, initial joint position); returns q0 (7,)."""
+        raise NotImplementedError
+
+    def _after_reset(self) -> None:
+        """Called once the robot is at q0 (e.g. to take the first camera frame)."""
+
+    def _advance(self) -> None:
+        """Run the physics for one control period (tasks with a camera capture frames in between)."""
+        self.world.step(self.n_substeps)
+
+    def _get_obs(self) -> dict[str, np.ndarray]:
+        raise NotImplementedError
+
+    def _evaluate(self, action: np.ndarray) -> tuple[float, bool, str | None, dict[str, Any]]:
+        """(reward, success, failure reason or None, extra info) after a step."""
+        raise NotImplementedError
+
+    # ------------------------------------------------------------------ common checks
+    def _arm_geom_ids(self) -> frozenset[int]:
+        m, p = self._m, self.sim.prefix
+        ids = []
+        for g in range(m.ngeom):
+            b = int(m.geom_bodyid[g])
+            name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, b) or ""
+            if name.startswith(p) and name != f"{p}link0" and m.geom_contype[g] != 0:
+                ids.append(g)
+        return frozenset(ids)
+
+    def _robot_failure(self) -> str | None:
+        """Joint limit reached or the arm in contact with the environment."""
+        q = self.sim._qpos
+        margin = 1e-3
+        low = q < self.q_min + margin
+        high = q > self.q_max - margin
+        if low.any() or high.any():
+            i = int(np.flatnonzero(low | high)[0])
+            return f"joint limit: joint {i} at {q[i]:.4f} rad (limits [{self.q_min[i]:.4f}, {self.q_max[i]:.4f}])"
+        d = self._d
+        if d.ncon:
+            for c in d.contact[: d.ncon]:
+                g1, g2 = int(c.geom1), int(c.geom2)
+                if g1 in self._arm_geoms or g2 in self._arm_geoms:
+                    g = g1 if g1 in self._arm_geoms else g2
+                    other = g2 if g == g1 else g1
+                    name = mujoco.mj_id2name(self._m, mujoco.mjtObj.mjOBJ_BODY, int(self._m.geom_bodyid[g]))
+                    oname = mujoco.mj_id2name(self._m, mujoco.mjtObj.mjOBJ_GEOM, other) or f"geom {other}"
+                    return f"collision: {name} touches {oname}"
+        return None
+
+    def _noisy_joint_state(self) -> tuple[np.ndarray, np.ndarray]:
+        q, dq = self.sim._qpos.copy(), self.sim._qvel.copy()
+        if self.joint_noise:
+            q += self.np_random.normal(0.0, self.joint_noise, 7)
+        if self.velocity_noise:
+            dq += self.np_random.normal(0.0, self.velocity_noise, 7)
+        return q, dq
+
+    @property
+    def episode_time(self) -> float:
+        """Simulated time since the start of the episode, s."""
+        return self.sim.time - self._t0
+
+    # ------------------------------------------------------------------ Gymnasium API
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        super().reset(seed=seed)
+        options = dict(options or {})
+        self._randomise_dynamics()
+        q0 = self._reset_task(options)
+        self.sim.reset(q0)
+        self._start_control()
+        self._t0 = self.sim.time
+        self._steps = 0
+        self._diverged = None
+        self._after_reset()
+        obs = self._get_obs()
+        self._last_obs = obs
+        info = {"time": 0.0, "is_success": False, "failure": None, **self._episode_params, **self._reset_info()}
+        return obs, info
+
+    def _reset_info(self) -> dict[str, Any]:
+        return {}
+
+    def step(self, action: Any):
+        if self._diverged is not None:
+            raise RuntimeError(f"the simulation diverged ({self._diverged}); call reset() before step()")
+        if self._last_obs is None:
+            raise RuntimeError("call reset() before step()")
+        a = self._check_action(action)
+        self._apply_action(a)
+        try:
+            self._advance()
+        except SimulationDiverged as e:
+            self._diverged = str(e)
+            info = {"time": self.episode_time, "is_success": False, "failure": f"diverged: {e}",
+                    **self._episode_params}
+            return self._last_obs, -self._failure_cost(), True, False, info
+        self._steps += 1
+        obs = self._get_obs()
+        self._last_obs = obs
+        reward, success, failure, extra = self._evaluate(a)
+        if failure is None:
+            failure = self._robot_failure()
+        terminated = bool((success and self.terminate_on_success) or failure is not None)
+        if failure is not None:
+            success = False
+            reward -= self._failure_cost()
+        truncated = (not terminated) and self._steps >= self.max_steps
+        info = {"time": self.episode_time, "is_success": bool(success), "failure": failure, **extra}
+        return obs, float(reward), terminated, bool(truncated), info
+
+    def _failure_cost(self) -> float:
+        """Penalty of a failure: ``failure_penalty`` per remaining step of the episode, so that ending an episode
+        early by failing is never better than continuing at the worst per-step reward (-1)."""
+        return self.failure_penalty * (self.max_steps - self._steps + 1)
+
+    def render(self):
+        if self.render_mode != "rgb_array":
+            return None
+        return self.world.render("overview", self.render_width, self.render_height)
+
+    def close(self) -> None:
+        self.world.close()

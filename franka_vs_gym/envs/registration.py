@@ -1,0 +1,27 @@
+"""Registration of the franka_vs_gym environments with Gymnasium (runs on ``import franka_vs_gym``).
+
+Entry points are strings, so registering costs nothing: a task module is imported by ``gymnasium.make`` only.
+Time limits are part of each task (``time_limit`` in seconds, truncation built in), so no ``max_episode_steps``
+is registered; ``gymnasium.make(..., max_episode_steps=N)`` still adds Gymnasium's TimeLimit on top if wanted.
+"""
+
+from __future__ import annotations
+
+import gymnasium as gym
+
+ENVS: dict[str, str] = {
+    "FrankaIBVS-v0": "franka_vs_gym.envs.ibvs:FrankaIBVSEnv",
+    "FrankaPBVS-v0": "franka_vs_gym.envs.pbvs:FrankaPBVSEnv",
+    "FrankaTorqueTracking-v0": "franka_vs_gym.envs.torque_tracking:FrankaTorqueTrackingEnv",
+    "FrankaVisualTorque-v0": "franka_vs_gym.envs.visual_torque:FrankaVisualTorqueEnv",
+}
+
+
+def register_envs() -> None:
+    """Register every environment id (idempotent)."""
+    for env_id, entry_point in ENVS.items():
+        if env_id not in gym.registry:
+            gym.register(id=env_id, entry_point=entry_point, disable_env_checker=False)
+
+
+register_envs()
