@@ -1,0 +1,57 @@
+"""End-to-end tests of the franka-vs command and the README's promises."""
+
+import json
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def run(*args, **kw):
+    return subprocess.run([sys.executable, "-m", "franka_vs_gym.cli", *args], capture_output=True, text=True,
+                          timeout=600, cwd=kw.get("cwd", ROOT))
+
+
+def test_readme_test_command_is_what_ci_runs():
+    readme = (ROOT / "README.md").read_text()
+    ci = (ROOT / ".ci" / "run").read_text()
+    blocks = re.findall(r"```bash\n(.*?)\n```", readme, re.S)
+    assert len(blocks) >= 2
+    test_cmd = next(b for b in blocks if "pytest" in b).strip()
+    assert test_cmd in ci.splitlines()
+
+
+def test_demo_torque_writes_outputs(tmp_path):
+    out = tmp_path / "demo"
+    r = run("demo", "torque", "--duration", "0.6", "--out", str(out), "--quiet")
+    assert r.returncode == 0, r.stderr
+    assert (out / "joints_and_torques.png").stat().st_size > 10_000
+    assert (out / "final_view.png").stat().st_size > 10_000
+    assert (out / "motion.mp4").stat().st_size > 1_000
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert len(metrics["rmse_q_rad"]) == 7
+    assert max(metrics["rmse_q_rad"]) < 0.02
+
+
+def test_demo_refuses_to_overwrite(tmp_path):
+    out = tmp_path / "demo"
+    out.mkdir()
+    (out / "keep.txt").write_text("precious")
+    r = run("demo", "--duration", "0.1", "--out", str(out), "--quiet", "--no-video")
+    assert r.returncode == 2
+    assert "not empty" in r.stderr
+    assert (out / "keep.txt").read_text() == "precious"
+
+
+def test_unknown_command_is_a_clear_error():
+    r = run("frobnicate")
+    assert r.returncode == 2
+    assert "unknown command 'frobnicate'" in r.stderr
+
+
+def test_bad_duration_is_a_clear_error(tmp_path):
+    r = run("demo", "--duration", "-1", "--out", str(tmp_path / "x"), "--quiet")
+    assert r.returncode == 2
+    assert "--duration" in r.stderr
