@@ -5,8 +5,8 @@ import mujoco
 import numpy as np
 import pinocchio as pin
 import pytest
-
 from conftest import random_q
+
 from franka_vs_gym.assets.mjcf import RobotSpec, SceneSpec, mesh_dir, scene_xml
 from franka_vs_gym.model import FrankaModel, ModelConfig, RigidBody, Tool, params
 
@@ -72,7 +72,7 @@ def test_friction_is_gaz_sigmoid(model):
 def _dh_fk(q):
     """Independent forward kinematics: the product of modified-DH transforms, in plain numpy."""
     T = np.eye(4)
-    for a, d, alpha, th in zip(params.DH_A, params.DH_D, params.DH_ALPHA, q):
+    for a, d, alpha, th in zip(params.DH_A, params.DH_D, params.DH_ALPHA, q, strict=True):
         ca, sa, ct, st = np.cos(alpha), np.sin(alpha), np.cos(th), np.sin(th)
         T = T @ np.array([[ct, -st, 0, a], [st * ca, ct * ca, -sa, -sa * d], [st * sa, ct * sa, ca, ca * d],
                           [0, 0, 0, 1]])

@@ -5,8 +5,18 @@ import pytest
 
 from franka_vs_gym.assets.mjcf import RobotSpec, SceneSpec
 from franka_vs_gym.model import FrankaModel, ModelConfig, RigidBody, params
-from franka_vs_gym.sim import (CAMERA_FRAME, END_EFFECTOR_FRAME, FORCE_TORQUE, JOINT_STATE, POSITION,
-                               REFERENCE_FRAME, VELOCITY, FrankaSim, SimulationDiverged, SimWorld)
+from franka_vs_gym.sim import (
+    CAMERA_FRAME,
+    END_EFFECTOR_FRAME,
+    FORCE_TORQUE,
+    JOINT_STATE,
+    POSITION,
+    REFERENCE_FRAME,
+    VELOCITY,
+    FrankaSim,
+    SimulationDiverged,
+    SimWorld,
+)
 
 Q0 = params.as_array(params.Q_NEUTRAL)
 

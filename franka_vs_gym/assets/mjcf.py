@@ -20,7 +20,6 @@ Modelling choices (documented because they matter when comparing with the pinocc
 from __future__ import annotations
 
 import importlib.metadata
-import math
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
@@ -47,7 +46,8 @@ def mesh_dir() -> Path:
     for f in files:
         if str(f).endswith("panda_description/meshes/collision/link0.stl"):
             return Path(str(f.locate())).parent
-    raise RuntimeError("FER meshes not found: install the 'example-robot-data' package (pip install example-robot-data)")
+    raise RuntimeError("FER meshes not found: install the 'example-robot-data' package "
+                       "(pip install example-robot-data)")
 
 
 def _fmt(v) -> str:
@@ -115,7 +115,7 @@ def _robot_bodies(r: RobotSpec) -> tuple[str, str, str, str]:
     """(worldbody xml, actuator xml, sensor xml, contact-exclude xml) of one robot."""
     p, cfg = r.prefix, r.config
     xml = [f'<body name="{p}link0" pos="{_fmt(r.base_pos)}" quat="{_fmt(r.base_quat)}">',
-           f'<geom class="fer_visual" mesh="link0"/><geom class="fer_collision" mesh="link0"/>']
+           '<geom class="fer_visual" mesh="link0"/><geom class="fer_collision" mesh="link0"/>']
     closing = ["</body>"]
     for i, (mass, com, inertia) in enumerate(cfg.link_inertials()):
         M = params.dh_placement(i)

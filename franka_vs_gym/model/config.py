@@ -245,7 +245,7 @@ class ModelConfig:
     def link_inertials(self) -> list[tuple[float, np.ndarray, np.ndarray]]:
         """(mass, com (3,), inertia (3,3) about com) of links 1..7 after scaling."""
         out = []
-        for s, link in zip(self.link_mass_scale, params.LINKS):
+        for s, link in zip(self.link_mass_scale, params.LINKS, strict=True):
             out.append((link.mass * s, np.array(link.com), link.inertia_matrix() * s))
         return out
 

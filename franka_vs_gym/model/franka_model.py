@@ -98,16 +98,17 @@ class FrankaModel:
         self._config = config
         self._rebuild()
 
-    def set_payload(self, mass: float, com: Any = (0, 0, 0), inertia: Any = np.zeros((3, 3))) -> None:
+    def set_payload(self, mass: float, com: Any = (0, 0, 0), inertia: Any = None) -> None:
         """Payload held by the tool: mass (kg), com (3,) in the flange frame (m), inertia (3,3) or (3,) about
         the com (kg m^2). ``mass = 0`` removes it."""
-        payload = None if mass == 0 else RigidBody(mass, com, inertia)
+        payload = None if mass == 0 else RigidBody(mass, com, np.zeros((3, 3)) if inertia is None else inertia)
         self.set_config(self._config.copy(payload=payload))
 
-    def set_tool(self, flMe: Any, mass: float, flMcom: Any = (0, 0, 0), inertia: Any = np.zeros((3, 3)),
+    def set_tool(self, flMe: Any, mass: float, flMcom: Any = (0, 0, 0), inertia: Any = None,
                  name: str = "custom") -> None:
         """Replace the tool: end-effector pose ``flMe`` (4x4) in the flange frame, mass (kg), centre of mass
         ``flMcom`` (3,) in the flange frame and inertia (3,3) about it."""
+        inertia = np.zeros((3, 3)) if inertia is None else inertia
         self.set_config(self._config.copy(tool=Tool(name, flMe, RigidBody(mass, flMcom, inertia))))
 
     def set_gravity(self, g0: Any) -> None:
@@ -200,7 +201,7 @@ class FrankaModel:
         rng = np.random.default_rng(seed)
         starts = [params.as_array(params.Q_NEUTRAL) if q0 is None else _check(q0, "q0")]
         starts += [rng.uniform(lo, hi) for _ in range(restarts)]
-        best, best_err = starts[0], np.inf
+        best_err = np.inf
         for q in starts:
             q = np.clip(q, lo, hi)
             for _ in range(max_iter):
@@ -214,8 +215,7 @@ class FrankaModel:
                 J = pin.Jlog6(cur.actInv(target)) @ J
                 dq = J.T @ np.linalg.solve(J @ J.T + damping * np.eye(6), err)
                 q = np.clip(q + dq, lo, hi)
-            if n < best_err:
-                best, best_err = q, n
+            best_err = min(best_err, n)
             if n < max(tol, 1e-8):
                 return q
         raise ValueError(f"inverse_kinematics: no in-limit solution found (best pose error {best_err:.3g})")

@@ -363,7 +363,7 @@ class FrankaSim:
         T = max(float(np.max(15 / 8 * np.abs(qd - q0) / vmax)), 0.05)
         n = int(math.ceil(T / self.dt))
         # joint velocity servo along the trajectory, plus a position correction
-        m, d = self._m, self._d
+        m = self._m
         m.actuator_gainprm[self._vel, 0] = VELOCITY_GAINS
         m.actuator_biasprm[self._vel, 2] = -VELOCITY_GAINS
         for k in range(1, n + 1):
@@ -513,7 +513,7 @@ class FrankaSim:
         M[:3, 3] = d.xpos[self._base_body]
         return M
 
-    def set_tool(self, flMe: Any, mass: float = 0.0, flMcom: Any = (0, 0, 0), inertia: Any = np.zeros((3, 3))) -> None:
+    def set_tool(self, flMe: Any, mass: float = 0.0, flMcom: Any = (0, 0, 0), inertia: Any = None) -> None:
         """Declare the tool to the robot's model (as the real robot's end-effector settings): updates the model
         used by the getters and Cartesian commands. The plant's physical tool is fixed at construction."""
         self.model.set_tool(_hom(flMe, "flMe"), mass, flMcom, inertia)
