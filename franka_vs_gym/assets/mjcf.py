@@ -200,7 +200,9 @@ def scene_xml(scene: SceneSpec) -> str:
         bodies.append(b)
         acts.append(a)
         sens.append(s)
-    tag_assets, tag_bodies, held = [], [], {}
+    tag_assets: list[str] = []
+    tag_bodies: list[str] = []
+    held: dict[str, list[str]] = {}
     for t in scene.tags:
         a, b = _tag_xml(t)
         tag_assets.append(a)

@@ -255,7 +255,7 @@ class ModelConfig:
         m = sum(b.mass for b in bodies)
         if m == 0:
             return RigidBody()
-        c = sum(b.mass * b.com for b in bodies) / m
+        c = np.sum([b.mass * b.com for b in bodies], axis=0) / m
         inertia = np.zeros((3, 3))
         for b in bodies:
             r = b.com - c

@@ -215,7 +215,7 @@ class FrankaModel:
                 J = pin.Jlog6(cur.actInv(target)) @ J
                 dq = J.T @ np.linalg.solve(J @ J.T + damping * np.eye(6), err)
                 q = np.clip(q + dq, lo, hi)
-            best_err = min(best_err, n)
+            best_err = min(best_err, float(n))
             if n < max(tol, 1e-8):
                 return q
         raise ValueError(f"inverse_kinematics: no in-limit solution found (best pose error {best_err:.3g})")
