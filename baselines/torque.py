@@ -1,0 +1,144 @@
+"""Scripted torque policies for the torque-tracking environments (FrankaTorqueTracking-v0).
+
+They consume the observation contract of docs/ARCHITECTURE.md (dict, float32): ``q``, ``dq``, ``q_desired``,
+``dq_desired``, ``ddq_desired`` (7,) and ``time`` (1,) in s since the episode start, and return the ``torque``
+action: (7,) float32, Nm, gravity-free (the robot adds g(q)), clipped to the FER torque limits. Their
+``predict`` has the stable-baselines3 signature, so classical control and RL agents are evaluated the same way::
+
+    policy = ComputedTorquePolicy(env.unwrapped.robot.model)
+    action, _ = policy.predict(obs)
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from franka_vs_gym.control.computed_torque import ComputedTorque
+from franka_vs_gym.control.impedance import JointImpedance
+from franka_vs_gym.model.config import resolve_config
+from franka_vs_gym.model.franka_model import FrankaModel
+
+OBSERVATION_KEYS = ("q", "dq", "q_desired", "dq_desired", "ddq_desired", "time")
+
+
+def _as_model(model: Any) -> FrankaModel:
+    """FrankaModel from a FrankaModel, ModelConfig, model-file path or None (the default FER + hand)."""
+    if isinstance(model, FrankaModel):
+        return model
+    try:
+        return FrankaModel(resolve_config(model))
+    except TypeError as e:
+        raise ValueError(f"model: {e}") from None
+
+
+def _read(observation: Any) -> dict[str, np.ndarray]:
+    if not isinstance(observation, dict):
+        raise ValueError(f"observation must be a dict with keys {OBSERVATION_KEYS}, got {type(observation).__name__}"
+                         " (vectorised envs: pass one env's observation, or use predict on each)")
+    missing = [k for k in OBSERVATION_KEYS if k not in observation]
+    if missing:
+        raise ValueError(f"observation lacks {missing}; a torque-tracking observation has {OBSERVATION_KEYS}")
+    out = {}
+    for k in OBSERVATION_KEYS:
+        a = np.asarray(observation[k], dtype=np.float64).reshape(-1)
+        n = 1 if k == "time" else 7
+        if a.shape != (n,):
+            raise ValueError(f"observation[{k!r}] must have shape ({n},), got {np.shape(observation[k])}")
+        if not np.isfinite(a).all():
+            raise ValueError(f"observation[{k!r}] contains NaN or inf")
+        out[k] = a
+    return out
+
+
+class _TorquePolicy:
+    """Shared episode handling: the controller is reset at an episode start (``episode_start`` true, or the
+    observation's time going backwards)."""
+
+    def __init__(self, clip: bool) -> None:
+        self.clip = bool(clip)
+        self.tau_max = FrankaModel.limits()["tau_max"]
+        self._last_time: float | None = None
+
+    def _controller_reset(self) -> None:  # pragma: no cover - overridden
+        raise NotImplementedError
+
+    def _torque(self, o: dict[str, np.ndarray]) -> np.ndarray:  # pragma: no cover - overridden
+        raise NotImplementedError
+
+    def reset(self) -> None:
+        """Start a new episode."""
+        self._last_time = None
+        self._controller_reset()
+
+    def predict(self, observation: dict[str, Any], state: Any = None, episode_start: Any = None,
+                deterministic: bool = True) -> tuple[np.ndarray, None]:
+        """Torque action (7,) float32, Nm, gravity-free, for one observation; returns ``(action, None)``."""
+        o = _read(observation)
+        t = float(o["time"][0])
+        if (episode_start is not None and bool(np.any(episode_start))) or (
+                self._last_time is not None and t < self._last_time):
+            self.reset()
+        self._last_time = t
+        tau = self._torque(o)
+        if self.clip:
+            tau = np.clip(tau, -self.tau_max, self.tau_max)
+        return tau.astype(np.float32), None
+
+
+class ComputedTorquePolicy(_TorquePolicy):
+    """Joint computed torque with PID and smooth start (eq. (2) of the FrankaSim paper) as a policy.
+
+    Parameters
+    ----------
+    model : FrankaModel, ModelConfig, model-file path or None
+        The controller's model (None: the default FER + Franka Hand).
+    kp, kd, ki, mu, friction :
+        As :class:`franka_vs_gym.control.ComputedTorque` (Kp 400, 900 on joint 7; Kd critical; mu 4 1/s).
+    clip : bool
+        Clip the action to the FER torque limits (the env's action bounds).
+    """
+
+    def __init__(self, model: Any = None, kp: Any = None, kd: Any = None, ki: Any = 0.0, mu: float = 4.0,
+                 friction: bool = True, clip: bool = True) -> None:
+        super().__init__(clip)
+        self.controller = ComputedTorque(_as_model(model), kp=kp, kd=kd, ki=ki, mu=mu, friction=friction)
+
+    def _controller_reset(self) -> None:
+        self.controller.reset()
+
+    def _torque(self, o: dict[str, np.ndarray]) -> np.ndarray:
+        return self.controller(float(o["time"][0]), o["q"], o["dq"], o["q_desired"], o["dq_desired"],
+                               o["ddq_desired"])
+
+
+class JointImpedancePolicy(_TorquePolicy):
+    """Joint impedance (spring-damper to the desired trajectory, Coriolis and inertial feed-forward) as a policy.
+
+    Parameters
+    ----------
+    model : FrankaModel, ModelConfig, model-file path or None
+    k, d, zeta, friction :
+        As :class:`franka_vs_gym.control.JointImpedance` (stiffness Nm/rad, damping Nm s/rad).
+    feedforward : bool
+        Add ``B(q) ddq_desired`` (default True).
+    clip : bool
+        Clip the action to the FER torque limits.
+    """
+
+    def __init__(self, model: Any = None, k: Any = JointImpedance.DEFAULT_K, d: Any = None, zeta: float = 1.0,
+                 feedforward: bool = True, friction: bool = True, clip: bool = True) -> None:
+        super().__init__(clip)
+        self.controller = JointImpedance(_as_model(model), k=k, d=d, zeta=zeta, friction=friction)
+        self.feedforward = bool(feedforward)
+
+    def _controller_reset(self) -> None:
+        self.controller.reset()
+
+    def _torque(self, o: dict[str, np.ndarray]) -> np.ndarray:
+        return self.controller(o["q"], o["dq"], o["q_desired"], o["dq_desired"],
+                               o["ddq_desired"] if self.feedforward else None)
+
+
+__all__ = ["ComputedTorquePolicy", "JointImpedancePolicy", "OBSERVATION_KEYS"]
