@@ -1,0 +1,249 @@
+"""Compare a model with a measurement log: inverse-dynamics residual, simulation replay, noise floor, and where the
+error concentrates.
+
+Two views, both per joint and in total:
+
+- **Inverse-dynamics residual** ``r = tau_J - tau_model(q, dq, ddq)`` on the cleaned log (raw measured torque versus
+  the model evaluated on the filtered motion; see :mod:`franka_vs_gym.validation.signals`).
+- **Simulation replay**: the MuJoCo plant built from the same configuration re-runs, from the logged initial state,
+  either the logged controller (``controller.law == "computed_torque_eq2"`` in the sidecar, with the logged desired
+  trajectory), or the logged commanded torques ``tau_J_d`` (open loop), or, when neither is available, eq. (2)
+  tracking the measured trajectory (mode ``"tracking"``, which shows the torque the plant needs to reproduce the
+  measured motion). RMSE_q (rad) and RMSE_tau (Nm) are reported as in the FrankaSim paper.
+
+The noise floor is the torque-measurement noise estimated from the content above the filter cutoff: no model can
+bring the residual RMSE below it.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from franka_vs_gym.model.config import Friction, ModelConfig, Tool, resolve_config
+from franka_vs_gym.validation.evaluate import ModelEvaluation, evaluate, shift
+from franka_vs_gym.validation.logs import MeasurementLog, load_log
+from franka_vs_gym.validation.signals import CleanSettings, ProcessedLog, clean
+
+VELOCITY_REGIMES = ((0.0, 0.05, "|dq| < 0.05 rad/s (near rest: stiction, offsets)"),
+                    (0.05, 0.5, "0.05 <= |dq| < 0.5 rad/s"),
+                    (0.5, math.inf, "|dq| >= 0.5 rad/s (viscous regime)"))
+
+
+def progress(msg: str, enabled: bool = True) -> None:
+    """Print a progress stage on stderr (never on stdout, which may carry JSON)."""
+    if enabled:
+        print(f"[franka-vs] {msg}", file=sys.stderr, flush=True)
+
+
+def tool_from_log(log: MeasurementLog) -> Tool:
+    """The tool the log declares: the Franka Hand, none, or a custom rigid body."""
+    t = log.tool
+    if t is None:
+        return Tool.none()
+    if isinstance(t, str):
+        return Tool.from_dict(t)
+    return Tool.from_dict({"name": "custom", **t})
+
+
+def baseline_config(log: MeasurementLog, model: Any = None, rigid_body: bool = False) -> ModelConfig:
+    """The model to start from: ``model`` (a ModelConfig or a calibrated-model file) if given, else the library's
+    default FER with the log's declared tool and gravity. ``rigid_body`` removes all friction."""
+    if model is not None:
+        cfg = resolve_config(model)
+    else:
+        cfg = ModelConfig(tool=tool_from_log(log), gravity=log.gravity)
+    if rigid_body:
+        cfg = cfg.copy(friction=Friction.none())
+    return cfg
+
+
+def as_processed(log: MeasurementLog | ProcessedLog | str, settings: CleanSettings | None = None) -> ProcessedLog:
+    """Load (path) and clean (MeasurementLog) as needed."""
+    if isinstance(log, ProcessedLog):
+        return log
+    if not isinstance(log, MeasurementLog):
+        log = load_log(log)
+    return clean(log, settings)
+
+
+def rmse(x: np.ndarray, axis: int = 0) -> np.ndarray:
+    return np.sqrt(np.mean(np.asarray(x) ** 2, axis=axis))
+
+
+@dataclass
+class ReplayResult:
+    """Simulation replay: mode ("controller", "torque" or "tracking"), RMSE_q (7,) rad, RMSE_tau (7,) Nm and the
+    simulated q, tau_J (N, 7)."""
+
+    mode: str
+    rmse_q: np.ndarray
+    rmse_tau: np.ndarray
+    q: np.ndarray
+    tau: np.ndarray
+    diverged: str | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"mode": self.mode, "rmse_q": self.rmse_q.round(6).tolist(), "rmse_tau": self.rmse_tau.round(4).tolist(),
+                "rmse_q_total": float(rmse(self.rmse_q)), "rmse_tau_total": float(rmse(self.rmse_tau)),
+                "diverged": self.diverged}
+
+
+@dataclass
+class CompareResult:
+    """Inverse-dynamics comparison of one model with one log (arrays (7,) per joint unless said).
+
+    residual (N, 7) Nm = tau_J - tau_model; rmse_tau, mean_tau (bias), max_abs_tau per joint; rmse_tau_total the
+    RMS over all joints and samples; noise_floor the estimated measurement noise; concentration: rows of the table
+    of where the error concentrates; replay: a ReplayResult or None.
+    """
+
+    config: ModelConfig
+    data: ProcessedLog
+    evaluation: ModelEvaluation
+    residual: np.ndarray
+    rmse_tau: np.ndarray
+    rmse_tau_total: float
+    mean_tau: np.ndarray
+    max_abs_tau: np.ndarray
+    noise_floor: np.ndarray
+    concentration: list[dict[str, Any]] = field(default_factory=list)
+    replay: ReplayResult | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "rmse_tau": self.rmse_tau.round(4).tolist(), "rmse_tau_total": round(float(self.rmse_tau_total), 4),
+            "noise_floor": self.noise_floor.round(4).tolist(), "mean_tau": self.mean_tau.round(4).tolist(),
+            "max_abs_tau": self.max_abs_tau.round(4).tolist(), "samples": int(self.data.n),
+            "duration_s": round(float(self.data.time[-1] - self.data.time[0]), 4),
+            "cleaning": self.data.report.to_dict(), "concentration": self.concentration,
+            "replay": None if self.replay is None else self.replay.to_dict(),
+        }
+
+
+def concentration_table(data: ProcessedLog, residual: np.ndarray, n_windows: int = 10) -> list[dict[str, Any]]:
+    """Per joint: RMSE overall, in each velocity regime (share of the squared error and of the samples), and the
+    time window (1/n_windows of the log) with the largest RMSE."""
+    rows = []
+    t = data.time
+    edges = np.linspace(0, len(t), n_windows + 1).astype(int)
+    for j in range(7):
+        r = residual[:, j]
+        sq = r ** 2
+        total = float(sq.sum()) or 1.0
+        row: dict[str, Any] = {"joint": j, "rmse": float(np.sqrt(sq.mean())), "regimes": []}
+        a = np.abs(data.dq[:, j])
+        for lo, hi, label in VELOCITY_REGIMES:
+            m = (a >= lo) & (a < hi)
+            row["regimes"].append({"regime": label, "samples": float(m.mean()),
+                                   "rmse": float(np.sqrt(sq[m].mean())) if m.any() else None,
+                                   "error_share": float(sq[m].sum() / total)})
+        w = [float(np.sqrt(sq[edges[k]:edges[k + 1]].mean())) for k in range(n_windows)]
+        k = int(np.argmax(w))
+        row["worst_window"] = {"t0": float(t[edges[k]]), "t1": float(t[edges[k + 1] - 1]), "rmse": w[k]}
+        rows.append(row)
+    return rows
+
+
+def replay(data: ProcessedLog, config: ModelConfig, mode: str | None = None) -> ReplayResult:
+    """Re-run the logged experiment in the MuJoCo plant built from ``config`` (see the module docstring)."""
+    from franka_vs_gym.control.computed_torque import ComputedTorque
+    from franka_vs_gym.model.franka_model import FrankaModel
+    from franka_vs_gym.sim.robot import FORCE_TORQUE, JOINT_STATE, FrankaSim, SimulationDiverged
+
+    log = data.log
+    ctrl_meta = log.controller or {}
+    opt = data.optional
+    has_ctrl = ctrl_meta.get("law") == "computed_torque_eq2" and all(k in opt for k in ("q_d", "dq_d", "ddq_d"))
+    if mode is None:
+        mode = "controller" if has_ctrl else ("torque" if "tau_J_d" in opt else "tracking")
+    if mode == "controller" and not has_ctrl:
+        raise ValueError("replay mode 'controller' needs controller.law = 'computed_torque_eq2' in the sidecar and "
+                         "q_d, dq_d, ddq_d columns")
+    if mode == "torque" and "tau_J_d" not in opt:
+        raise ValueError("replay mode 'torque' needs tau_J_d columns in the log")
+    # the configuration's delay is a measurement lag of tau_J (see ModelConfig.delay): the plant runs without it and
+    # the simulated torque measurement is shifted afterwards
+    sim = FrankaSim(model=config.copy(delay=0.0), camera=False, table=False, timestep=data.dt)
+    lim_lo, lim_hi = sim.q_min + 1e-6, sim.q_max - 1e-6
+    sim.reset(np.clip(data.q[0], lim_lo, lim_hi), data.dq[0])
+    sim.set_robot_state(FORCE_TORQUE)
+    n = data.n
+    q_sim = np.empty((n, 7))
+    tau_sim = np.empty((n, 7))
+    if mode == "controller":
+        ctrl_cfg = ctrl_meta.get("model")
+        cmodel = FrankaModel(ModelConfig.from_dict(ctrl_cfg) if isinstance(ctrl_cfg, dict) else
+                             baseline_config(log))
+        law = ComputedTorque(cmodel, kp=ctrl_meta.get("kp"), kd=ctrl_meta.get("kd"), ki=ctrl_meta.get("ki", 0.0),
+                             mu=ctrl_meta.get("mu", 4.0), friction=ctrl_meta.get("friction", True))
+        qd, dqd, ddqd = opt["q_d"], opt["dq_d"], opt["ddq_d"]
+    elif mode == "tracking":
+        law = ComputedTorque(FrankaModel(config), mu=0.0)
+        qd, dqd, ddqd = data.q, data.dq, data.ddq
+    diverged = None
+    t = data.time
+    try:
+        for k in range(n):
+            q, dq = sim.get_position(), sim.get_velocity()
+            q_sim[k] = q
+            if mode == "torque":
+                cmd = opt["tau_J_d"][k]
+            else:
+                cmd = law(float(t[k]), q, dq, qd[k], dqd[k], ddqd[k])
+            sim.set_force_torque(JOINT_STATE, cmd)
+            sim.step()
+            tau_sim[k] = sim.get_force_torque()
+    except SimulationDiverged as e:
+        diverged = f"diverged at t = {t[k]:.3f} s: {e}"
+        q_sim[k:] = np.nan
+        tau_sim[k:] = np.nan
+    if config.delay > 0:
+        tau_sim = shift(tau_sim, t, config.delay)
+    ok = np.isfinite(q_sim[:, 0])
+    return ReplayResult(mode, rmse(q_sim[ok] - data.q[ok]), rmse(tau_sim[ok] - data.tau[ok]), q_sim, tau_sim,
+                        diverged)
+
+
+def compare(log: MeasurementLog | ProcessedLog | str, model: Any = None, *, rigid_body: bool = False,
+            settings: CleanSettings | None = None, do_replay: bool = True, replay_mode: str | None = None,
+            verbose: bool = False) -> CompareResult:
+    """Compare ``model`` (default: the baseline for the log, see :func:`baseline_config`) with a log."""
+    progress("cleaning the log", verbose)
+    data = as_processed(log, settings)
+    cfg = baseline_config(data.log, model, rigid_body)
+    progress(f"inverse dynamics on {data.n} samples", verbose)
+    ev = evaluate(cfg, data)
+    r = data.tau - ev.predicted
+    res = CompareResult(cfg, data, ev, r, rmse(r), float(np.sqrt(np.mean(r ** 2))), r.mean(axis=0),
+                        np.abs(r).max(axis=0), data.noise.copy(), concentration_table(data, r))
+    if do_replay:
+        progress("simulation replay in the MuJoCo plant", verbose)
+        res.replay = replay(data, cfg, replay_mode)
+    return res
+
+
+def format_compare(res: CompareResult) -> str:
+    """A plain-text summary table (per joint RMSE, bias, noise floor, replay)."""
+    lines = ["joint   rmse_tau  mean_tau  noise_floor  worst window (s)        largest error share"]
+    for j, row in enumerate(res.concentration):
+        reg = max(row["regimes"], key=lambda x: x["error_share"])
+        w = row["worst_window"]
+        lines.append(f"{j:5d}  {res.rmse_tau[j]:8.3f}  {res.mean_tau[j]:8.3f}  {res.noise_floor[j]:11.3f}  "
+                     f"{w['t0']:6.1f}-{w['t1']:6.1f} ({w['rmse']:.3f})   {reg['error_share'] * 100:4.0f}% in "
+                     f"{reg['regime']}")
+    lines.append(f"total  {res.rmse_tau_total:8.3f}  (Nm)")
+    if res.replay is not None:
+        rp = res.replay
+        lines.append(f"replay ({rp.mode}): RMSE_q = {np.round(rp.rmse_q, 4).tolist()} rad")
+        lines.append(f"                   RMSE_tau = {np.round(rp.rmse_tau, 3).tolist()} Nm"
+                     + (f"  [{rp.diverged}]" if rp.diverged else ""))
+    return "\n".join(lines)
+
+
+__all__ = ["CompareResult", "ReplayResult", "as_processed", "baseline_config", "compare", "concentration_table",
+           "format_compare", "progress", "replay", "rmse", "tool_from_log"]

@@ -1,0 +1,113 @@
+"""Vectorised evaluation of a model configuration on a processed log.
+
+``predict_torque(config, data)`` gives the predicted measured torque ``tau_J = B ddq + C dq + g + tau_f(dq) +
+offset`` at every sample, shifted by the configuration's delay (the measured torque lags the motion by ``delay``
+seconds: ``tau_pred(t) = tau(t - delay)``). :class:`ModelEvaluation` also keeps the pieces the effect library needs:
+the friction parts, the gravity torque per unit gravity vector ``G`` (so ``g(q) = G @ g0``), and the joint-torque
+regressor of the last body (for a payload).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+
+from franka_vs_gym.model import params
+from franka_vs_gym.model.config import Friction, ModelConfig
+from franka_vs_gym.model.franka_model import build_pinocchio_model
+from franka_vs_gym.validation.signals import ProcessedLog
+
+FLANGE_OFFSET = np.array([0.0, 0.0, params.FLANGE_D])  # flange origin in the joint-7 frame (same axes), m
+
+
+def sigmoid_friction(fr: Friction, dq: np.ndarray) -> np.ndarray:
+    """Gaz sigmoid part of the friction, (N, 7) Nm, for dq (N, 7) rad/s."""
+    off = fr.phi1 / (1.0 + np.exp(-fr.phi2 * fr.phi3))
+    return fr.phi1 / (1.0 + np.exp(-fr.phi2 * (dq + fr.phi3))) - off
+
+
+def friction_torque(fr: Friction, dq: np.ndarray) -> np.ndarray:
+    """Full friction law of ``Friction`` (sigmoid + viscous + Coulomb), vectorised: (N, 7) Nm."""
+    out = sigmoid_friction(fr, dq) if fr.phi1.any() else np.zeros_like(dq)
+    if fr.viscous.any():
+        out = out + fr.viscous * dq
+    if fr.coulomb.any():
+        out = out + fr.coulomb * np.tanh(dq / fr.coulomb_vel)
+    return out
+
+
+def shift(x: np.ndarray, time: np.ndarray, delay: float) -> np.ndarray:
+    """x(t - delay) on the same time grid (linear interpolation; held at the first value before the start)."""
+    if delay == 0:
+        return x
+    out = np.empty_like(x)
+    for j in range(x.shape[1]):
+        out[:, j] = np.interp(time - delay, time, x[:, j])
+    return out
+
+
+@dataclass
+class ModelEvaluation:
+    """A configuration evaluated on every sample of a processed log (all arrays (N, 7) Nm unless said).
+
+    rigid: B ddq + C dq + g (armature included); friction: tau_f(dq); offset: (7,); predicted: the delayed sum;
+    gravity: g(q); G: (N, 7, 3) gravity torque per unit gravity component (base frame); Y_last: (N, 7, 10) joint
+    torque regressor of the last body (pinocchio dynamic parameters in the joint-7 frame: m, m c, inertia about the
+    joint-7 origin as Ixx, Ixy, Iyy, Ixz, Iyz, Izz), or None when not requested.
+    """
+
+    config: ModelConfig
+    rigid: np.ndarray
+    friction: np.ndarray
+    offset: np.ndarray
+    predicted: np.ndarray
+    gravity: np.ndarray
+    G: np.ndarray | None
+    Y_last: np.ndarray | None
+
+
+def evaluate(config: ModelConfig, data: ProcessedLog, regressors: bool = False) -> ModelEvaluation:
+    """Evaluate ``config`` on ``data``. ``regressors`` also computes G and the last-body regressor (slower)."""
+    model, _, _ = build_pinocchio_model(config)
+    d = model.createData()
+    q, dq, ddq = data.q, data.dq, data.ddq
+    n = len(q)
+    rigid = np.empty((n, 7))
+    grav = np.empty((n, 7))
+    rnea, ggrav = pin.rnea, pin.computeGeneralizedGravity
+    G = Y = None
+    if regressors:
+        G = np.empty((n, 7, 3))
+        Y = np.empty((n, 7, 10))
+        gm, _, _ = build_pinocchio_model(config)
+        gd = gm.createData()
+        reg = pin.computeJointTorqueRegressor
+        units = np.eye(3)
+        for k in range(n):
+            qk = q[k]
+            rigid[k] = rnea(model, d, qk, dq[k], ddq[k])
+            for c in range(3):
+                gm.gravity.linear = units[c]
+                G[k, :, c] = ggrav(gm, gd, qk)
+            Y[k] = reg(model, d, qk, dq[k], ddq[k])[:, 60:70]
+        grav = np.einsum("nic,c->ni", G, config.gravity)
+    else:
+        for k in range(n):
+            rigid[k] = rnea(model, d, q[k], dq[k], ddq[k])
+            grav[k] = ggrav(model, d, q[k])
+    rigid += config.armature * ddq
+    fr = friction_torque(config.friction, dq)
+    total = rigid + fr + config.torque_offset
+    pred = shift(total, data.time, config.delay)
+    return ModelEvaluation(config, rigid, fr, config.torque_offset.copy(), pred, grav, G, Y)
+
+
+def predict_torque(config: ModelConfig, data: ProcessedLog) -> np.ndarray:
+    """Predicted measured joint torque (N, 7) Nm of ``config`` on the samples of ``data``."""
+    return evaluate(config, data).predicted
+
+
+__all__ = ["ModelEvaluation", "evaluate", "friction_torque", "predict_torque", "shift", "sigmoid_friction",
+           "FLANGE_OFFSET"]

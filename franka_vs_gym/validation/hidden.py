@@ -1,0 +1,196 @@
+"""Measurement logs with a hidden physical effect, generated in the MuJoCo plant.
+
+The plant (``FrankaSim``) is built from the default FER model plus ONE hidden effect the log does not declare; the
+computed-torque controller of eq. (2), using the default model (what the experimenter believes), tracks an exciting
+trajectory (a finite Fourier series per joint, as in Gaz et al. 2019); the log records what the robot measures,
+with realistic sensor noise. The workbench, run with the default model, must find the hidden effect.
+
+Effects and their size at ``magnitude = 1`` (each value scaled per joint by a seeded factor in [0.7, 1.3]):
+
+=====================  ================================================================================
+``viscous_friction``   extra viscous friction [0.5, 0.5, 0.4, 0.4, 0.15, 0.15, 0.08] Nm s/rad
+``coulomb_friction``   extra Coulomb friction [0.8, 0.8, 0.6, 0.6, 0.25, 0.25, 0.15] Nm
+``sigmoid_friction``   Gaz sigmoid heights x (1 + 0.8 m), widths phi2 x [0.6, 1.4]
+``torque_offset``      torque-sensor bias of random sign, [0.6, 0.6, 0.5, 0.5, 0.2, 0.2, 0.1] Nm
+``armature``           rotor inertia [0.25, 0.25, 0.2, 0.2, 0.06, 0.06, 0.03] kg m^2
+``payload``            undeclared 0.8 m kg body, centre of mass 3-10 cm beyond the flange
+``gravity_tilt``       base tilted by 4 m degrees about a random horizontal axis
+``delay``              measured torque lagging the motion by 6 m ms
+``none``               nothing hidden
+=====================  ================================================================================
+
+Sensor noise: white, torque [0.25, 0.25, 0.2, 0.2, 0.08, 0.08, 0.05] Nm (the Gaz data show 0.26-0.35 Nm on joints
+1-4), velocity 2e-3 rad/s, position 1e-5 rad; the controller sees the noisy measurements.
+
+Time alignment: the plant's torque at step k produces the acceleration over [t_k, t_k + dt]; the logged tau_J[k] is
+the mean of the torques of steps k-1 and k, so that q, dq and tau_J of a row describe the same instant t_k (to second
+order), as a real robot's state does.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from franka_vs_gym.model import params
+from franka_vs_gym.model.config import Friction, ModelConfig, RigidBody
+from franka_vs_gym.validation.logs import MeasurementLog
+
+EFFECTS = ("viscous_friction", "coulomb_friction", "sigmoid_friction", "torque_offset", "armature", "payload",
+           "gravity_tilt", "delay")
+TORQUE_NOISE = np.array([0.25, 0.25, 0.2, 0.2, 0.08, 0.08, 0.05])
+DQ_NOISE = 2e-3
+Q_NOISE = 1e-5
+_SIZES = {
+    "viscous_friction": np.array([0.5, 0.5, 0.4, 0.4, 0.15, 0.15, 0.08]),
+    "coulomb_friction": np.array([0.8, 0.8, 0.6, 0.6, 0.25, 0.25, 0.15]),
+    "torque_offset": np.array([0.6, 0.6, 0.5, 0.5, 0.2, 0.2, 0.1]),
+    "armature": np.array([0.25, 0.25, 0.2, 0.2, 0.06, 0.06, 0.03]),
+}
+
+
+def fourier_trajectory(rng: np.random.Generator, duration: float, f0: float = 0.1, harmonics: int = 5,
+                       v_peak: float = 0.9):
+    """A random exciting trajectory: per joint ``q = q_c + sum_l a_l sin(2 pi f0 l t) + b_l cos(...)`` within the
+    joint limits (0.15 rad margin) with peak speed about v_peak rad/s. Returns a function t -> (q, dq, ddq) (7,)."""
+    q_min, q_max = params.as_array(params.Q_MIN) + 0.15, params.as_array(params.Q_MAX) - 0.15
+    qn = params.as_array(params.Q_NEUTRAL)
+    qc = np.clip(qn + rng.uniform(-0.3, 0.3, 7), q_min + 0.3, q_max - 0.3)
+    w = 2 * math.pi * f0 * np.arange(1, harmonics + 1)  # (L,)
+    a = rng.normal(0, 1, (7, harmonics)) / np.arange(1, harmonics + 1)
+    b = rng.normal(0, 1, (7, harmonics)) / np.arange(1, harmonics + 1)
+    # scale: peak velocity bound sum |c_l| w_l = v_peak, and amplitude bound within the limits
+    vbound = (np.abs(a) + np.abs(b)) @ w
+    abound = (np.abs(a) + np.abs(b)).sum(axis=1)
+    room = np.minimum(qc - q_min, q_max - qc)
+    s = np.minimum(v_peak / vbound, room / abound)
+    a *= s[:, None]
+    b *= s[:, None]
+
+    def traj(t: float):
+        sn, cs = np.sin(w * t), np.cos(w * t)
+        q = qc + a @ sn + b @ cs
+        dq = a @ (w * cs) - b @ (w * sn)
+        ddq = -(a @ (w ** 2 * sn) + b @ (w ** 2 * cs))
+        return q, dq, ddq
+
+    return traj
+
+
+def _draw(effect: str, magnitude: float, rng: np.random.Generator) -> tuple[ModelConfig, RigidBody | None,
+                                                                             float, dict[str, Any]]:
+    """Plant configuration, undeclared payload, measurement delay (s) and the answer parameters."""
+    cfg = ModelConfig()
+    u = rng.uniform(0.7, 1.3, 7)
+    payload = None
+    delay = 0.0
+    ans: dict[str, Any] = {}
+    if effect == "viscous_friction":
+        v = _SIZES[effect] * magnitude * u
+        cfg = cfg.copy(friction=Friction(viscous=v))
+        ans = {"viscous_Nms_per_rad": v.tolist()}
+    elif effect == "coulomb_friction":
+        c = _SIZES[effect] * magnitude * u
+        cfg = cfg.copy(friction=Friction(coulomb=c))
+        ans = {"coulomb_Nm": c.tolist()}
+    elif effect == "sigmoid_friction":
+        base = Friction()
+        phi1 = base.phi1 * (1 + 0.8 * magnitude * u)
+        phi2 = base.phi2 * rng.uniform(0.6, 1.4, 7)
+        cfg = cfg.copy(friction=Friction(phi1, phi2, base.phi3.copy()))
+        ans = {"phi1_Nm": phi1.tolist(), "phi2_s_per_rad": phi2.tolist(), "phi3_rad_per_s": base.phi3.tolist()}
+    elif effect == "torque_offset":
+        o = _SIZES[effect] * magnitude * u * rng.choice([-1.0, 1.0], 7)
+        cfg = cfg.copy(torque_offset=o)
+        ans = {"offset_Nm": o.tolist()}
+    elif effect == "armature":
+        a = _SIZES[effect] * magnitude * u
+        cfg = cfg.copy(armature=a)
+        ans = {"armature_kgm2": a.tolist()}
+    elif effect == "payload":
+        m = 0.8 * magnitude * float(u[0])
+        com = np.array([rng.uniform(-0.03, 0.03), rng.uniform(-0.03, 0.03), rng.uniform(0.03, 0.1)])
+        side = 0.06
+        inertia = np.eye(3) * m * side ** 2 / 6
+        payload = RigidBody(m, com, inertia)
+        ans = {"mass_kg": m, "com_flange_m": com.tolist()}
+    elif effect == "gravity_tilt":
+        ang = math.radians(4.0 * magnitude * float(u[0]))
+        az = rng.uniform(0, 2 * math.pi)
+        axis = np.array([math.cos(az), math.sin(az), 0.0])
+        g0 = params.as_array(params.GRAVITY)
+        # Rodrigues rotation of g0 about axis
+        g = g0 * math.cos(ang) + np.cross(axis, g0) * math.sin(ang) + axis * (axis @ g0) * (1 - math.cos(ang))
+        cfg = cfg.copy(gravity=g)
+        ans = {"tilt_deg": math.degrees(ang), "gravity_m_per_s2": g.tolist()}
+    elif effect == "delay":
+        delay = 0.006 * magnitude * float(u[0])
+        ans = {"delay_s": delay}
+    elif effect != "none":
+        raise ValueError(f"unknown effect {effect!r}: choose from {', '.join(EFFECTS)}, none or random")
+    return cfg, payload, delay, ans
+
+
+def make_hidden_effect_log(effect: str, seed: int = 0, *, duration: float = 20.0, magnitude: float = 1.0,
+                           noise_scale: float = 1.0) -> tuple[MeasurementLog, dict[str, Any]]:
+    """Simulate the FER with one hidden effect (or "none", or "random": effect and magnitude drawn from the seed).
+
+    Returns the log (1 kHz; declared tool the Franka Hand, declared gravity vertical, controller eq. (2) with its
+    gains and model) and the answer ``{"effect", "magnitude", "params", "seed"}``.
+    """
+    from franka_vs_gym.control.computed_torque import ComputedTorque
+    from franka_vs_gym.model.franka_model import FrankaModel
+    from franka_vs_gym.sim.robot import FORCE_TORQUE, JOINT_STATE, FrankaSim
+
+    if not duration > 2.0:
+        raise ValueError(f"duration must be > 2 s, got {duration}")
+    if not magnitude > 0:
+        raise ValueError(f"magnitude must be > 0, got {magnitude}")
+    rng = np.random.default_rng(seed)
+    if effect == "random":
+        effect = str(rng.choice(list(EFFECTS) + ["none"]))
+        magnitude = float(rng.uniform(0.5, 2.0))
+    plant_cfg, payload, delay, ans = _draw(effect, magnitude, rng)
+    traj = fourier_trajectory(rng, duration)
+    sig_tau = TORQUE_NOISE * noise_scale * rng.uniform(0.8, 1.2, 7)
+    sim = FrankaSim(model=plant_cfg, camera=False, table=False, undeclared_payload=payload)
+    q0, dq0, _ = traj(0.0)
+    sim.reset(q0, dq0)
+    sim.set_robot_state(FORCE_TORQUE)
+    believed = ModelConfig()
+    ctrl = ComputedTorque(FrankaModel(believed), mu=4.0)
+    dt = sim.dt
+    n = int(round(duration / dt))
+    t = np.arange(n) * dt
+    q = np.empty((n, 7))
+    dq = np.empty((n, 7))
+    tau = np.empty((n, 7))
+    cmd = np.empty((n, 7))
+    qd = np.empty((n, 7))
+    dqd = np.empty((n, 7))
+    ddqd = np.empty((n, 7))
+    for k in range(n):
+        q[k] = sim.get_position() + rng.normal(0, Q_NOISE * noise_scale, 7)
+        dq[k] = sim.get_velocity() + rng.normal(0, DQ_NOISE * noise_scale, 7)
+        qd[k], dqd[k], ddqd[k] = traj(t[k])
+        cmd[k] = ctrl(float(t[k]), q[k], dq[k], qd[k], dqd[k], ddqd[k])
+        sim.set_force_torque(JOINT_STATE, cmd[k])
+        sim.step()
+        tau[k] = sim.get_force_torque()
+    tau_mid = tau.copy()
+    tau_mid[1:] = 0.5 * (tau[1:] + tau[:-1])
+    if delay > 0:  # the measured torque lags the motion
+        tau_mid = np.column_stack([np.interp(t - delay, t, tau_mid[:, j]) for j in range(7)])
+    tau_meas = tau_mid + rng.normal(0, 1, (n, 7)) * sig_tau
+    controller = {"law": "computed_torque_eq2", "kp": ctrl.kp.tolist(), "kd": ctrl.kd.tolist(),
+                  "ki": ctrl.ki.tolist(), "mu": ctrl.mu, "friction": True, "model": None}
+    log = MeasurementLog(t, q, dq, tau_meas, tau_J_d=cmd, q_d=qd, dq_d=dqd, ddq_d=ddqd, tool="franka_hand",
+                         controller=controller, extra={"generator": "franka_vs_gym.validation.hidden"})
+    answer = {"effect": effect, "magnitude": magnitude, "params": ans, "seed": seed,
+              "torque_noise_Nm": sig_tau.tolist()}
+    return log, answer
+
+
+__all__ = ["EFFECTS", "fourier_trajectory", "make_hidden_effect_log"]
