@@ -116,6 +116,11 @@ class ComputedTorquePolicy(_TorquePolicy):
 class JointImpedancePolicy(_TorquePolicy):
     """Joint impedance (spring-damper to the desired trajectory, Coriolis and inertial feed-forward) as a policy.
 
+    Designed, as libfranka's impedance examples, for a 1 kHz loop (``control_period=0.001``): its default wrist
+    stiffness (50-250 Nm/rad on low-inertia joints) is too fast for a 100 Hz zero-order hold, where it goes
+    unstable; at 100 Hz lower ``k`` on joints 5-7 by about 10x, or use :class:`ComputedTorquePolicy`, whose gains
+    scale with the inertia.
+
     Parameters
     ----------
     model : FrankaModel, ModelConfig, model-file path or None

@@ -326,3 +326,23 @@ def test_computed_torque_policy_equals_controller_and_checks_input():
     far = dict(obs, q_desired=(obs["q"] + 1.0).astype(np.float32))
     a, _ = clipped.predict(far)
     assert np.all(np.abs(a) <= FrankaModel.limits()["tau_max"] + 1e-4)
+
+
+@pytest.mark.parametrize("policy_cls", [ComputedTorquePolicy, JointImpedancePolicy])
+def test_torque_policies_succeed_on_the_tracking_env(policy_cls):
+    gym = pytest.importorskip("gymnasium")
+    import franka_vs_gym.envs  # noqa: F401  (registers the environments)
+
+    env = gym.make("FrankaTorqueTracking-v0", control_period=0.001, time_limit=2.0)
+    policy = policy_cls(env.unwrapped.sim.model)
+    obs, _ = env.reset(seed=1)
+    start, done = True, False
+    while not done:
+        action, _ = policy.predict(obs, episode_start=np.array([start]))
+        start = False
+        assert env.action_space.contains(action)
+        obs, _, term, trunc, info = env.step(action)
+        done = term or trunc
+    env.close()
+    assert not term and info["is_success"], info
+    assert info["rms_error"] < 5e-3
