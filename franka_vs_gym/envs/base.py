@@ -154,7 +154,8 @@ class FrankaEnv(gym.Env):
         if self.render_width < 1 or self.render_height < 1:
             raise ValueError(f"render size must be >= 1 pixel, got {render_width}x{render_height}")
         self.config: ModelConfig = resolve_config(model)
-        payload = RigidBody(1.0, (0.0, 0.0, 0.05)) if self.payload_mass_range is not None else None
+        payload = (RigidBody(1.0, (0.0, 0.0, 0.05), np.full(3, 0.4 * 0.03**2))
+                   if self.payload_mass_range is not None else None)
         self.sim = FrankaSim(self.config, camera=camera, tags=tags, timestep=self.physics_step,
                              undeclared_payload=payload)
         self.world = self.sim.world
@@ -325,6 +326,8 @@ class FrankaEnv(gym.Env):
         options = dict(options or {})
         self._randomise_dynamics()
         q0 = self._reset_task(options)
+        # a fresh MjData state (time 0, no solver warm start) so that a seed fully determines the episode
+        mujoco.mj_resetData(self._m, self._d)
         self.sim.reset(q0)
         self._start_control()
         self._t0 = self.sim.time
@@ -352,7 +355,8 @@ class FrankaEnv(gym.Env):
             self._diverged = str(e)
             info = {"time": self.episode_time, "is_success": False, "failure": f"diverged: {e}",
                     **self._episode_params}
-            return self._last_obs, -self._failure_cost(), True, False, info
+            obs = {k: v.copy() for k, v in self._last_obs.items()}  # the last valid state, never NaN
+            return obs, -self._failure_cost(), True, False, info
         self._steps += 1
         obs = self._get_obs()
         self._last_obs = obs

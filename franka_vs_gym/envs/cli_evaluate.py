@@ -1,0 +1,107 @@
+"""``franka-vs evaluate``: run a scripted policy or a trained agent on an environment and print its scores.
+
+Policies:
+  ``ibvs`` / ``pbvs``           baselines.IBVSPolicy / PBVSPolicy (visual-servoing envs, cartesian_velocity)
+  ``computed-torque`` / ``impedance``   baselines torque policies (FrankaTorqueTracking-v0)
+  ``zero``                      a zero action (a reference: what doing nothing scores)
+  ``path/to/agent.zip``         a stable-baselines3 agent saved by baselines/train_sb3.py (with its .json)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+SCRIPTED = ("ibvs", "pbvs", "computed-torque", "impedance", "zero")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("policy", help=f"one of {', '.join(SCRIPTED)}, or the path of an agent .zip")
+    parser.add_argument("--env", default=None, help="environment id (default: the agent's, or FrankaIBVS-v0 for "
+                        "ibvs/pbvs/zero, FrankaTorqueTracking-v0 for the torque policies)")
+    parser.add_argument("--episodes", type=int, default=20)
+    parser.add_argument("--seed", type=int, default=0, help="episode i uses seed + i")
+    parser.add_argument("--env-kwargs", default="{}", help="JSON object of gymnasium.make keyword arguments")
+    parser.add_argument("--json", default=None, help="also write the summary to this JSON file")
+    parser.add_argument("--force", action="store_true", help="overwrite the --json file if it exists")
+    parser.add_argument("--quiet", action="store_true", help="no per-episode lines")
+
+
+def _scripted(name: str, env_kwargs: dict[str, Any]) -> tuple[Any, str, dict[str, Any]]:
+    import baselines
+
+    if name in ("ibvs", "pbvs"):
+        cls = getattr(baselines, "IBVSPolicy" if name == "ibvs" else "PBVSPolicy", None)
+        if cls is None:
+            raise ValueError(f"baselines does not provide the {name.upper()} policy in this installation")
+        kw = {"action_type": "cartesian_velocity", "observation_type": "features"} | env_kwargs
+        return cls(), "FrankaIBVS-v0" if name == "ibvs" else "FrankaPBVS-v0", kw
+    from baselines import torque
+
+    cls = torque.ComputedTorquePolicy if name == "computed-torque" else torque.JointImpedancePolicy
+    return cls(env_kwargs.get("model")), "FrankaTorqueTracking-v0", {"action_type": "torque"} | env_kwargs
+
+
+def _zero_policy(env_id: str, env_kwargs: dict[str, Any]):
+    import gymnasium as gym
+    import numpy as np
+
+    env = gym.make(env_id, **env_kwargs)
+    shape, dtype = env.action_space.shape, env.action_space.dtype
+    env.close()
+    return lambda obs: np.zeros(shape, dtype=dtype)
+
+
+def main(args: argparse.Namespace) -> int:
+    import franka_vs_gym
+
+    try:
+        env_kwargs = json.loads(args.env_kwargs)
+    except json.JSONDecodeError as e:
+        raise ValueError(f"--env-kwargs is not valid JSON: {e}") from None
+    if not isinstance(env_kwargs, dict):
+        raise ValueError("--env-kwargs must be a JSON object")
+    if args.episodes < 1:
+        raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
+    if args.json and Path(args.json).exists() and not args.force:
+        raise FileExistsError(f"{args.json} exists; pass --force to overwrite it")
+    name = args.policy
+    if name.endswith(".zip") or Path(name).suffix == ".zip" or Path(name + ".zip").is_file():
+        from franka_vs_gym.envs.wrappers import AgentPolicy
+
+        policy = AgentPolicy.load(name)
+        env_id = args.env or policy.env_id
+        kw = {"observation_type": "features", "action_type": "joint_velocity"} | policy.env_kwargs | env_kwargs
+    elif name == "zero":
+        env_id = args.env or "FrankaIBVS-v0"
+        kw = env_kwargs
+        policy = _zero_policy(env_id, kw)
+    elif name in SCRIPTED:
+        policy, default_env, kw = _scripted(name, env_kwargs)
+        env_id = args.env or default_env
+    else:
+        raise ValueError(f"unknown policy {name!r}: use one of {', '.join(SCRIPTED)} or an agent .zip path")
+    r = franka_vs_gym.evaluate(policy, env_id, args.episodes, args.seed, env_kwargs=kw, progress=not args.quiet)
+    t = r["mean_time_to_converge"]
+    print(f"{name} on {env_id} ({args.episodes} episodes, seeds {args.seed}..{args.seed + args.episodes - 1}): "
+          f"success rate {r['success_rate']:.2f}, mean time to converge "
+          f"{'n/a' if math.isnan(t) else f'{t:.2f} s'}, median final error {r['median_final_error']:.4g}, "
+          f"mean return {r['mean_return']:.3f}, failures {r['failures'] or 'none'}")
+    if args.json:
+        def clean(x: Any) -> Any:
+            if isinstance(x, float) and not math.isfinite(x):
+                return None
+            if isinstance(x, dict):
+                return {k: clean(v) for k, v in x.items()}
+            if isinstance(x, list):
+                return [clean(v) for v in x]
+            return x
+
+        p = Path(args.json)
+        p.parent.mkdir(parents=True, exist_ok=True)
+        p.write_text(json.dumps(clean({"policy": name, "env_id": env_id, "env_kwargs": kw, **r}), indent=2))
+        print(f"wrote {p}")
+    return 0

@@ -1,0 +1,136 @@
+"""Wrappers and adapters for learning agents on the visual-servoing environments.
+
+RL algorithms learn best with actions in [-1, 1] and a flat, roughly unit-scaled observation vector, while the
+environments speak physical units and the dict contract shared with the classical baselines. This module bridges
+the two, in both directions:
+
+- :class:`ScaledAction` and :class:`ServoVectorObservation` wrap an environment for training;
+- :class:`AgentPolicy` wraps a trained stable-baselines3 model so that it takes the *contract* observation and
+  returns a *physical* action, exactly like ``baselines.IBVSPolicy``; ``evaluate(agent, "FrankaIBVS-v0")`` then
+  runs the agent and the classical controller on the same, unwrapped environment.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+OBS_LAYOUT = "servo-vector/1"
+# (key, scale): the agent sees (obs[key] - reference) * scale, see servo_vector
+_VECTOR_KEYS = ("feature_error", "features", "depth_error", "q", "dq", "visible")
+VECTOR_SIZE = 8 + 8 + 4 + 7 + 7 + 1
+
+
+def servo_vector(obs: dict[str, Any]) -> np.ndarray:
+    """Flat float32 vector (35,) from a visual-servoing contract observation (one env, not batched):
+    4 (s - s*), s, Z - Z*, q, 0.5 dq, visible. The scales bring each part to about unit size."""
+    s = np.asarray(obs["features"], dtype=np.float32)
+    sd = np.asarray(obs["features_desired"], dtype=np.float32)
+    z = np.asarray(obs["feature_depth"], dtype=np.float32)
+    # the desired depth of every corner is the goal tag depth (translation z of tag_pose_desired)
+    zd = np.float32(np.asarray(obs["tag_pose_desired"], dtype=np.float32)[2])
+    return np.concatenate([4.0 * (s - sd), s, 5.0 * (z - zd), np.asarray(obs["q"], np.float32),
+                           0.5 * np.asarray(obs["dq"], np.float32),
+                           np.asarray(obs["visible"], np.float32)]).astype(np.float32)
+
+
+class ServoVectorObservation(gym.ObservationWrapper):
+    """Dict contract observation -> the flat vector of :func:`servo_vector` (Box (35,), float32)."""
+
+    def __init__(self, env: gym.Env) -> None:
+        super().__init__(env)
+        needed = {"features", "features_desired", "feature_depth", "tag_pose_desired", "q", "dq", "visible"}
+        have = set(getattr(env.observation_space, "spaces", {}))
+        if not needed <= have:
+            raise ValueError(f"ServoVectorObservation needs the observation keys {sorted(needed)} "
+                             f"(observation_type 'features' or 'state'); the env has {sorted(have)}")
+        self.observation_space = spaces.Box(-np.inf, np.inf, (VECTOR_SIZE,), dtype=np.float32)
+
+    def observation(self, observation: dict[str, Any]) -> np.ndarray:
+        return servo_vector(observation)
+
+
+class ScaledAction(gym.ActionWrapper):
+    """Actions in [-1, 1]^n mapped linearly to [-scale, scale] in the env's units (e.g. rad/s).
+
+    ``scale`` is a number or an (n,) array; it must lie within the env's action bounds (symmetric Box)."""
+
+    def __init__(self, env: gym.Env, scale: Any) -> None:
+        super().__init__(env)
+        box = env.action_space
+        if not isinstance(box, spaces.Box) or not np.allclose(box.low, -box.high):
+            raise ValueError("ScaledAction needs a symmetric Box action space")
+        s = np.broadcast_to(np.asarray(scale, dtype=np.float64), box.shape).copy()
+        if not np.isfinite(s).all() or (s <= 0).any() or (s > box.high + 1e-6).any():
+            raise ValueError(f"scale must be > 0 and within the action bounds {box.high}, got {scale!r}")
+        self.scale = s
+        self.action_space = spaces.Box(-1.0, 1.0, box.shape, dtype=np.float32)
+
+    def action(self, action: Any) -> np.ndarray:
+        a = np.asarray(action, dtype=np.float64)
+        if not np.isfinite(a).all():
+            raise ValueError(f"action contains NaN or inf: {a}")
+        return (np.clip(a, -1.0, 1.0) * self.scale).astype(np.float32)
+
+
+def make_agent_env(env_id: str = "FrankaIBVS-v0", action_scale: Any = 0.5, **env_kwargs: Any) -> gym.Env:
+    """The training environment of :mod:`baselines.train_sb3`: ``env_id`` with features observations and
+    joint-velocity actions by default, actions scaled from [-1, 1] to +-``action_scale`` rad/s, flat observation."""
+    import franka_vs_gym  # noqa: F401  (registers the ids)
+
+    env_kwargs.setdefault("observation_type", "features")
+    env_kwargs.setdefault("action_type", "joint_velocity")
+    env = gym.make(env_id, **env_kwargs)
+    return ServoVectorObservation(ScaledAction(env, action_scale))
+
+
+class AgentPolicy:
+    """A trained stable-baselines3 agent behind the scripted-policy interface: ``predict(obs) -> action`` with the
+    contract observation (dict) in and the physical action (e.g. joint velocities, rad/s) out.
+
+    Load with :meth:`load` from a model zip and its JSON sidecar (same name, ``.json``) written by
+    ``baselines/train_sb3.py``; the sidecar records the env id, env kwargs and action scale used in training.
+    """
+
+    def __init__(self, model: Any, action_scale: Any, env_id: str = "FrankaIBVS-v0",
+                 env_kwargs: dict[str, Any] | None = None) -> None:
+        self.model = model
+        self.action_scale = np.asarray(action_scale, dtype=np.float64)
+        self.env_id = env_id
+        self.env_kwargs = dict(env_kwargs or {})
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> AgentPolicy:
+        p = Path(path)
+        if p.suffix != ".zip":
+            p = p.with_suffix(".zip")
+        if not p.is_file():
+            raise FileNotFoundError(f"agent file not found: {p}")
+        meta_path = p.with_suffix(".json")
+        if not meta_path.is_file():
+            raise FileNotFoundError(f"agent metadata not found: {meta_path} (written next to the zip by "
+                                    "baselines/train_sb3.py)")
+        meta = json.loads(meta_path.read_text())
+        if meta.get("observation_layout") != OBS_LAYOUT:
+            raise ValueError(f"{meta_path}: observation layout {meta.get('observation_layout')!r} is not "
+                             f"{OBS_LAYOUT!r}")
+        import stable_baselines3 as sb3
+
+        algo = getattr(sb3, str(meta.get("algo", "")).upper(), None)
+        if algo is None:
+            raise ValueError(f"{meta_path}: unknown algorithm {meta.get('algo')!r}")
+        model = algo.load(str(p), device="cpu")
+        return cls(model, meta["action_scale"], meta.get("env_id", "FrankaIBVS-v0"), meta.get("env_kwargs", {}))
+
+    def predict(self, observation: dict[str, Any], deterministic: bool = True) -> np.ndarray:
+        a, _ = self.model.predict(servo_vector(observation), deterministic=deterministic)
+        return (np.clip(np.asarray(a, dtype=np.float64), -1.0, 1.0) * self.action_scale).astype(np.float32)
+
+    def reset(self) -> None:
+        """Nothing to forget between episodes (the agent is memoryless)."""
