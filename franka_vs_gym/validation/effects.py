@@ -40,6 +40,7 @@ from franka_vs_gym.validation.signals import ProcessedLog
 TAU_MAX = P.as_array(P.TAU_MAX)
 SIG_PHI2 = np.geomspace(2.0, 100.0, 12)  # s/rad
 SIG_PHI3 = np.array([-0.08, -0.04, 0.0, 0.04, 0.08])  # rad/s
+COULOMB_VC = (0.005, 0.01, 0.02, 0.05, 0.1)  # rad/s, Coulomb smoothing velocities tried
 MAX_PAYLOAD = 3.5  # kg (FER rated payload 3 kg, plus margin)
 MAX_DELAY = 0.1  # s
 MAX_TILT = math.radians(30.0)
@@ -165,11 +166,31 @@ class ViscousFriction(_LinearJointEffect):
 
 class CoulombFriction(_LinearJointEffect):
     name, key, unit = "coulomb_friction", "coulomb", "Nm"
-    description = "Coulomb joint friction tau_f = F_c tanh(dq / v_c) (v_c the model's smoothing velocity)"
+    description = ("Coulomb joint friction tau_f = F_c tanh(dq / v_c); the smoothing velocity v_c (common to all "
+                   "joints) is chosen from COULOMB_VC unless the model already has Coulomb friction")
     signature = "a step of constant height where the joint velocity changes sign"
 
-    def column(self, ctx):
-        return np.tanh(ctx.data.dq / ctx.config.friction.coulomb_vel)
+    def _vcs(self, ctx):
+        fr = ctx.config.friction
+        return [fr.coulomb_vel] if fr.coulomb.any() else list(COULOMB_VC)
+
+    def fit(self, ctx, y, idx):
+        best = None
+        for vc in self._vcs(ctx):
+            X = np.tanh(ctx.data.dq[idx] / vc)
+            th = _lstsq_joints(X, y[idx])
+            sse = float(np.sum((y[idx] - X * th) ** 2))
+            if best is None or sse < best[0]:
+                best = (sse, th, vc)
+        return Fit(self.name, {"coulomb": best[1], "coulomb_vel": best[2]})
+
+    def contribution(self, ctx, fit):
+        th = np.zeros(7)
+        th[fit.joints] = fit.theta["coulomb"][fit.joints]
+        return np.tanh(ctx.data.dq / fit.theta["coulomb_vel"]) * th
+
+    def public(self, fit):
+        return super().public(fit) | {"coulomb_vel_rad_per_s": fit.theta["coulomb_vel"]}
 
     def problems(self, ctx, fit):
         tot = ctx.config.friction.coulomb + fit.theta["coulomb"]
@@ -180,6 +201,7 @@ class CoulombFriction(_LinearJointEffect):
     def apply(self, config, fit):
         fr = Friction.from_dict(config.friction.to_dict())
         fr.coulomb[fit.joints] += fit.theta["coulomb"][fit.joints]
+        fr.coulomb_vel = float(fit.theta["coulomb_vel"])
         return config.copy(friction=fr)
 
 

@@ -97,7 +97,7 @@ def evaluate(config: ModelConfig, data: ProcessedLog, regressors: bool = False) 
         for k in range(n):
             rigid[k] = rnea(model, d, q[k], dq[k], ddq[k])
             grav[k] = ggrav(model, d, q[k])
-    rigid += config.armature * ddq
+    # pinocchio's rnea includes the joint armature (model.armature) in B ddq
     fr = friction_torque(config.friction, dq)
     total = rigid + fr + config.torque_offset
     pred = shift(total, data.time, config.delay)

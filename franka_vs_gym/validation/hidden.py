@@ -9,13 +9,13 @@ Effects and their size at ``magnitude = 1`` (each value scaled per joint by a se
 
 =====================  ================================================================================
 ``viscous_friction``   extra viscous friction [0.5, 0.5, 0.4, 0.4, 0.15, 0.15, 0.08] Nm s/rad
-``coulomb_friction``   extra Coulomb friction [0.8, 0.8, 0.6, 0.6, 0.25, 0.25, 0.15] Nm
+``coulomb_friction``   extra Coulomb friction [0.8, 0.8, 0.6, 0.6, 0.25, 0.25, 0.15] Nm, v_c 0.05 rad/s
 ``sigmoid_friction``   Gaz sigmoid heights x (1 + 0.8 m), widths phi2 x [0.6, 1.4]
 ``torque_offset``      torque-sensor bias of random sign, [0.6, 0.6, 0.5, 0.5, 0.2, 0.2, 0.1] Nm
 ``armature``           rotor inertia [0.25, 0.25, 0.2, 0.2, 0.06, 0.06, 0.03] kg m^2
 ``payload``            undeclared 0.8 m kg body, centre of mass 3-10 cm beyond the flange
 ``gravity_tilt``       base tilted by 4 m degrees about a random horizontal axis
-``delay``              measured torque lagging the motion by 6 m ms
+``delay``              measured torque lagging the motion by 10 m ms
 ``none``               nothing hidden
 =====================  ================================================================================
 
@@ -43,6 +43,9 @@ EFFECTS = ("viscous_friction", "coulomb_friction", "sigmoid_friction", "torque_o
 TORQUE_NOISE = np.array([0.25, 0.25, 0.2, 0.2, 0.08, 0.08, 0.05])
 DQ_NOISE = 2e-3
 Q_NOISE = 1e-5
+# Smoothing velocity of the hidden Coulomb friction: the plant applies friction explicitly, and a steeper tanh on the
+# light wrist joints would chatter at a 1 ms step (a simulator limit, not a property of the workbench).
+COULOMB_VEL = 0.05
 _SIZES = {
     "viscous_friction": np.array([0.5, 0.5, 0.4, 0.4, 0.15, 0.15, 0.08]),
     "coulomb_friction": np.array([0.8, 0.8, 0.6, 0.6, 0.25, 0.25, 0.15]),
@@ -93,8 +96,8 @@ def _draw(effect: str, magnitude: float, rng: np.random.Generator) -> tuple[Mode
         ans = {"viscous_Nms_per_rad": v.tolist()}
     elif effect == "coulomb_friction":
         c = _SIZES[effect] * magnitude * u
-        cfg = cfg.copy(friction=Friction(coulomb=c))
-        ans = {"coulomb_Nm": c.tolist()}
+        cfg = cfg.copy(friction=Friction(coulomb=c, coulomb_vel=COULOMB_VEL))
+        ans = {"coulomb_Nm": c.tolist(), "coulomb_vel_rad_per_s": COULOMB_VEL}
     elif effect == "sigmoid_friction":
         base = Friction()
         phi1 = base.phi1 * (1 + 0.8 * magnitude * u)
@@ -126,7 +129,7 @@ def _draw(effect: str, magnitude: float, rng: np.random.Generator) -> tuple[Mode
         cfg = cfg.copy(gravity=g)
         ans = {"tilt_deg": math.degrees(ang), "gravity_m_per_s2": g.tolist()}
     elif effect == "delay":
-        delay = 0.006 * magnitude * float(u[0])
+        delay = 0.010 * magnitude * float(u[0])
         ans = {"delay_s": delay}
     elif effect != "none":
         raise ValueError(f"unknown effect {effect!r}: choose from {', '.join(EFFECTS)}, none or random")

@@ -1,0 +1,35 @@
+"""``franka-vs compare LOG [--model FILE]``: inverse-dynamics residual, replay and noise floor per joint."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from franka_vs_gym.validation.cli_common import add_common, settings_from
+from franka_vs_gym.validation.compare import compare, format_compare, progress
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_common(parser)
+    parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    parser.add_argument("--no-replay", action="store_true", help="skip the simulation replay")
+    parser.add_argument("--replay-mode", choices=("controller", "torque", "tracking"), default=None,
+                        help="replay the logged controller, the logged commanded torques, or eq. (2) tracking the "
+                             "measured motion (default: the first available in that order)")
+
+
+def main(args: argparse.Namespace) -> int:
+    verbose = not args.quiet
+    res = compare(args.log, args.model, rigid_body=args.rigid_body, settings=settings_from(args),
+                  do_replay=not args.no_replay, replay_mode=args.replay_mode, verbose=verbose)
+    if args.report:
+        from franka_vs_gym.validation.report import markdown_report
+
+        progress("writing the report and figures", verbose)
+        path = markdown_report(res, args.report, overwrite=args.force)
+        progress(f"report: {path}", verbose)
+    if args.json:
+        print(json.dumps(res.to_dict()))
+    else:
+        print(format_compare(res))
+    return 0

@@ -1,0 +1,56 @@
+"""``franka-vs fit LOG --add EFFECT[,EFFECT...] -o FILE``: fit effects, apply them to the model and the plant, save
+the calibrated model file, and show the error before and after per joint."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+from franka_vs_gym.validation.cli_common import add_common, settings_from
+from franka_vs_gym.validation.compare import progress
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_common(parser)
+    parser.add_argument("--add", required=True, metavar="EFFECT[,EFFECT...]",
+                        help="effects to fit (see 'franka-vs diagnose'), or 'auto' for the diagnosis' selection")
+    parser.add_argument("-o", "--output", required=True, metavar="FILE", help="calibrated model file to write (JSON)")
+    parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+
+
+def main(args: argparse.Namespace) -> int:
+    from franka_vs_gym.validation.diagnose import fit_effects
+
+    out = Path(args.output)
+    if out.exists() and not args.force:
+        raise FileExistsError(f"{out} exists; pass --force to replace it")
+    effects = [e for e in args.add.split(",") if e.strip()]
+    if not effects:
+        raise ValueError("--add needs at least one effect")
+    verbose = not args.quiet
+    res = fit_effects(args.log, effects, args.model, rigid_body=args.rigid_body, settings=settings_from(args),
+                      verbose=verbose)
+    res.after.save(out, overwrite=args.force)
+    progress(f"calibrated model written to {out}", verbose)
+    if args.report:
+        from franka_vs_gym.validation.compare import compare
+        from franka_vs_gym.validation.report import markdown_report
+
+        progress("writing the report and figures", verbose)
+        cmp_after = compare(res.data, res.after, do_replay=False)
+        path = markdown_report(cmp_after, args.report, fit=res, overwrite=args.force)
+        progress(f"report: {path}", verbose)
+    if args.json:
+        print(json.dumps({**res.to_dict(), "model_file": str(out)}))
+        return 0
+    print("joint   before   after   noise floor  (torque RMSE, Nm)")
+    for j in range(7):
+        print(f"{j:5d}  {res.rmse_before[j]:7.3f}  {res.rmse_after[j]:6.3f}  {res.noise_floor[j]:8.3f}")
+    tb, ta = float(np.sqrt(np.mean(res.rmse_before ** 2))), float(np.sqrt(np.mean(res.rmse_after ** 2)))
+    print(f"total  {tb:7.3f}  {ta:6.3f}")
+    print(f"effects: {', '.join(res.effects) or 'none'}; parameters: {json.dumps(res.params)}")
+    print(f"calibrated model: {out}")
+    return 0
