@@ -255,7 +255,10 @@ def diagnose(log: MeasurementLog | ProcessedLog | str, model: Any = None, *, rig
             if den > 0 and abs(float(np.sum(ca * cb))) / den > COLLINEAR:
                 progress(f"collinear pair: fitting {sig[a].effect} and {sig[b].effect} together", verbose)
                 g = _evaluate_candidate(ctx, [LIBRARY[sig[a].effect], LIBRARY[sig[b].effect]], y, fl, noise)
-                if g.score > max(sig[a].score, sig[b].score) + SCORE_MIN and g.significant:
+                best = sig[a] if sig[a].score >= sig[b].score else sig[b]
+                # the group must beat its best member statistically AND by an error of practical size
+                extra = np.sqrt(np.maximum(best.rmse_tau_after ** 2 - g.rmse_tau_after ** 2, 0.0))
+                if g.score > best.score + SCORE_MIN and g.significant and np.any(extra >= PRACTICAL * noise):
                     groups.append(g)
     ranking += groups
     ranking.sort(key=_order)
@@ -336,7 +339,7 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
         progress(f"auto: selected {names or 'nothing (verdict none)'}", verbose)
     else:
         names = []
-        for e in effects:
+        for e in (part for item in effects for part in item.split("+")):
             n = get_effect(e).name
             if n in names:
                 raise ValueError(f"effect {n!r} given twice")

@@ -243,6 +243,45 @@ class Armature(_LinearJointEffect):
         return config.copy(armature=np.maximum(a, 0.0))
 
 
+def _sig(u):
+    return 1.0 / (1.0 + np.exp(-np.clip(u, -60, 60)))
+
+
+def _sigmoid_lm(dq: np.ndarray, y: np.ndarray, p1: np.ndarray, p2: np.ndarray, p3: np.ndarray,
+                iters: int = 8) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Levenberg-Marquardt steps on (phi1, phi2, phi3) of every joint at once (dq, y: (m, 7)); keeps phi1 >= 0,
+    phi2 in [0.5, 400] s/rad, |phi3| <= 0.3 rad/s."""
+    p = np.stack([p1, p2, p3], axis=1).astype(float)  # (7, 3)
+    lam = np.full(7, 1e-2)
+
+    def model(p):
+        u = p[:, 1] * (dq + p[:, 2])
+        u0 = p[:, 1] * p[:, 2]
+        s, s0 = _sig(u), _sig(u0)
+        return p[:, 0] * (s - s0), s, s0, u, u0
+
+    f, s, s0, u, u0 = model(p)
+    sse = np.sum((y - f) ** 2, axis=0)
+    lo, hi = np.array([0.0, 0.5, -0.3]), np.array([np.inf, 400.0, 0.3])
+    for _ in range(iters):
+        ds, ds0 = s * (1 - s), s0 * (1 - s0)
+        J = np.stack([s - s0, p[:, 0] * (ds * (dq + p[:, 2]) - ds0 * p[:, 2]), p[:, 0] * p[:, 1] * (ds - ds0)],
+                     axis=2)  # (m, 7, 3)
+        A = np.einsum("mja,mjb->jab", J, J)
+        g = np.einsum("mja,mj->ja", J, y - f)
+        D = np.einsum("jaa->ja", A)
+        step = np.linalg.solve(A + lam[:, None, None] * np.einsum("ja,ab->jab", D + 1e-12, np.eye(3)), g[..., None])
+        cand = np.clip(p + step[..., 0], lo, hi)
+        fc, sc, s0c, uc, u0c = model(cand)
+        ssec = np.sum((y - fc) ** 2, axis=0)
+        ok = ssec < sse
+        p[ok] = cand[ok]
+        lam = np.where(ok, lam * 0.3, lam * 10.0)
+        f, s, s0, u, u0 = model(p)
+        sse = np.sum((y - f) ** 2, axis=0)
+    return p[:, 0], p[:, 1], p[:, 2]
+
+
 class SigmoidFriction(Effect):
     name = "sigmoid_friction"
     n_params = 3
@@ -266,6 +305,7 @@ class SigmoidFriction(Effect):
         p1 = np.where(np.isfinite(gain[best, cols]), num[best, cols] / den[best, cols], 0.0)
         p2 = SIG_PHI2[best // len(SIG_PHI3)]
         p3 = SIG_PHI3[best % len(SIG_PHI3)]
+        p1, p2, p3 = _sigmoid_lm(ctx.data.dq[coarse][sel], target, p1, p2, p3)
         return Fit(self.name, {"phi1": p1, "phi2": p2, "phi3": p3})
 
     def refine(self, ctx, y, fit):
