@@ -74,6 +74,38 @@ def substeps(control_period: float, physics_step: float) -> int:
     return k
 
 
+class ObservationPacker:
+    """Turns a dict of float arrays into the float32 observation of a Dict of Box spaces, clipped to the bounds,
+    with one clip and one cast for all keys (the observation is rebuilt at every step, so this is on the hot path).
+    The returned arrays are views of one fresh buffer per call: never shared between two observations."""
+
+    def __init__(self, space: spaces.Dict, skip: tuple[str, ...] = ("image",)) -> None:
+        self.keys = [k for k in space.spaces if k not in skip]
+        lows, highs = [], []
+        self.items: list[tuple[str, slice, tuple[int, ...]]] = []
+        i = 0
+        for k in self.keys:
+            box = space[k]
+            n = int(np.prod(box.shape))
+            lows.append(np.broadcast_to(box.low, box.shape).ravel().astype(np.float64))
+            highs.append(np.broadcast_to(box.high, box.shape).ravel().astype(np.float64))
+            self.items.append((k, slice(i, i + n), box.shape))
+            i += n
+        self.low, self.high = np.concatenate(lows), np.concatenate(highs)
+        self._work = np.zeros(i)
+
+    def __call__(self, raw: dict[str, Any]) -> dict[str, np.ndarray]:
+        v = self._work
+        for k, sl, _ in self.items:
+            v[sl] = raw[k]
+        np.maximum(v, self.low, out=v)
+        np.minimum(v, self.high, out=v)
+        if v.sum() != v.sum():  # NaN somewhere (defensive: a NaN never reaches the agent)
+            v[np.isnan(v)] = 0.0
+        buf = v.astype(np.float32)
+        return {k: buf[sl] if len(sh) == 1 else buf[sl].reshape(sh) for k, sl, sh in self.items}
+
+
 class FrankaEnv(gym.Env):
     """Base class: a FER (FrankaSim) driven through one of three action types.
 
@@ -163,6 +195,8 @@ class FrankaEnv(gym.Env):
         self._nominal = self._nominal_dynamics()
         self.q_min, self.q_max = _LIMITS["q_min"], _LIMITS["q_max"]
         self.dq_max, self.tau_max = _LIMITS["dq_max"], _LIMITS["tau_max"]
+        # a joint within 1 mrad of its limit has hit the hard stop
+        self._q_lo_fail, self._q_hi_fail = self.q_min + 1e-3, self.q_max - 1e-3
         if action_type == "torque":
             hi = self.tau_max
         elif action_type == "joint_velocity":
@@ -173,6 +207,8 @@ class FrankaEnv(gym.Env):
         self._act_lo = self.action_space.low.astype(np.float64)
         self._act_hi = self.action_space.high.astype(np.float64)
         self._act_tol = 1e-6 * np.maximum(1.0, self._act_hi)
+        self._act_lo_tol, self._act_hi_tol = self._act_lo - self._act_tol, self._act_hi + self._act_tol
+        self._act_shape = self.action_space.shape
         self._arm_geoms: frozenset[int] = self._arm_geom_ids()
         self._steps = 0
         self._t0 = 0.0
@@ -227,6 +263,8 @@ class FrankaEnv(gym.Env):
         except (TypeError, ValueError):
             raise ValueError(f"action must be a numeric array of shape {self.action_space.shape}, "
                              f"got {type(action).__name__}") from None
+        if a.shape == self._act_shape and (a >= self._act_lo_tol).all() and (a <= self._act_hi_tol).all():
+            return a  # the common case, kept cheap: finite (NaN fails the comparisons) and inside the space
         if a.shape != self.action_space.shape:
             if a.size == self.action_space.shape[0]:
                 a = a.reshape(self.action_space.shape)
@@ -289,9 +327,8 @@ class FrankaEnv(gym.Env):
     def _robot_failure(self) -> str | None:
         """Joint limit reached or the arm in contact with the environment."""
         q = self.sim._qpos
-        margin = 1e-3
-        low = q < self.q_min + margin
-        high = q > self.q_max - margin
+        low = q < self._q_lo_fail
+        high = q > self._q_hi_fail
         if low.any() or high.any():
             i = int(np.flatnonzero(low | high)[0])
             return f"joint limit: joint {i} at {q[i]:.4f} rad (limits [{self.q_min[i]:.4f}, {self.q_max[i]:.4f}])"

@@ -7,7 +7,7 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 
-from franka_vs_gym.envs.base import FrankaEnv, _positive
+from franka_vs_gym.envs.base import FrankaEnv, ObservationPacker, _positive
 from franka_vs_gym.model import params
 
 
@@ -93,7 +93,7 @@ class FrankaTorqueTrackingEnv(FrankaEnv):
             "ddq_desired": spaces.Box(f32(-100.0), f32(100.0), (7,), dtype=f32),
             "time": spaces.Box(f32(0.0), f32(self.time_limit + 1.0), (1,), dtype=f32),
         })
-        self._bounds = {k: (s.low, s.high) for k, s in self.observation_space.spaces.items()}
+        self._pack = ObservationPacker(self.observation_space)
         self._q0 = np.array(params.Q_NEUTRAL)
         self._A = np.zeros(7)
         self._w = np.zeros(7)
@@ -125,14 +125,13 @@ class FrankaTorqueTrackingEnv(FrankaEnv):
 
     def _get_obs(self) -> dict[str, np.ndarray]:
         q, dq = self._noisy_joint_state()
-        qd, dqd, ddqd = self.desired(self.episode_time)
+        qd, dqd, ddqd = self._desired_now = self.desired(self.episode_time)
         raw = {"q": q, "dq": dq, "q_desired": qd, "dq_desired": dqd, "ddq_desired": ddqd,
                "time": np.array([self.episode_time])}
-        b = self._bounds
-        return {k: np.clip(v, b[k][0], b[k][1]).astype(np.float32) for k, v in raw.items()}
+        return self._pack(raw)
 
     def _evaluate(self, action: np.ndarray) -> tuple[float, bool, str | None, dict[str, Any]]:
-        qd, _, _ = self.desired(self.episode_time)
+        qd = self._desired_now[0]  # computed for this step's observation
         err = float(np.linalg.norm(self.sim._qpos - qd))
         self._sq_err += err * err
         rms = float(np.sqrt(self._sq_err / max(self._steps, 1)))
