@@ -2,7 +2,7 @@
 
     a    = a_d + Kd (v_d - v) + Kp e                                 task acceleration (6,), base frame f
     ddq  = Jbar (a - dJ dq) + N (kp_n (q_n - q) - kd_n dq)           Jbar = B^-1 J^T Lambda, N = I - Jbar J
-    tau  = B(q) ddq + C(q, dq) dq + F(dq)                            gravity-free (the robot adds g(q))
+    tau  = B(q) ddq + C(q, dq) dq + F(dq) [+ g(q) - g_internal(q)]   gravity-free (the robot adds g_internal(q))
 
 e is :func:`~franka_vs_gym.control.impedance.pose_error` (m, rad), v = J dq with J = fJe (6, 7) the end-effector
 twist [v; w] in f. With the exact model the closed loop is ``de'' + Kd de' + Kp e = 0`` per task coordinate; the
@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from franka_vs_gym.control.impedance import _check_model, _check_pose, _gains, _vec, pose_error
-from franka_vs_gym.model.franka_model import FrankaModel  # noqa: F401  (type in docstrings)
+from franka_vs_gym.model.franka_model import FrankaModel
 
 
 class CartesianComputedTorque:
@@ -37,6 +37,10 @@ class CartesianComputedTorque:
         Preferred posture; None: the joint position at the first call.
     friction : bool
         Compensate the model friction F(dq).
+    internal : FrankaModel or None
+        The robot's own model (what its gravity compensation knows, e.g. ``FrankaSim.model``). When given, the
+        command adds ``g_model(q) - g_internal(q)``: the gravity of a payload the controller knows about and the
+        robot does not. None: the two agree.
     mu : float
         Smooth-start rate, 1/s: the command at the first call, tau0, is subtracted with weight exp(-mu t), so the
         command starts from zero as in eq. (2). 0 disables it.
@@ -46,8 +50,10 @@ class CartesianComputedTorque:
     """
 
     def __init__(self, model: FrankaModel, kp: Any = 400.0, kd: Any = None, kp_null: Any = 25.0,
-                 kd_null: Any = 10.0, q_nullspace: Any = None, friction: bool = True, mu: float = 0.0) -> None:
+                 kd_null: Any = 10.0, q_nullspace: Any = None, friction: bool = True,
+                 internal: FrankaModel | None = None, mu: float = 0.0) -> None:
         self.model = _check_model(model)
+        self.internal = None if internal is None else _check_model(internal, "internal")
         self.kp = _gains(kp, 6, "kp")
         self.kd = _gains(2.0 * np.sqrt(self.kp) if kd is None else kd, 6, "kd")
         self.kp_null = _gains(kp_null, 7, "kp_null")
@@ -90,6 +96,8 @@ class CartesianComputedTorque:
         tau = B @ ddq + m.coriolis(q, dq)
         if self.friction:
             tau += m.friction(dq)
+        if self.internal is not None:
+            tau += m.gravity(q) - self.internal.gravity(q)
         if self.mu > 0:
             if self._t0 is None:
                 self._t0, self._tau0 = float(t), tau.copy()
