@@ -78,7 +78,8 @@ def rmse(x: np.ndarray, axis: int = 0) -> np.ndarray:
 @dataclass
 class ReplayResult:
     """Simulation replay: mode ("controller", "torque" or "tracking"), RMSE_q (7,) rad, RMSE_tau (7,) Nm and the
-    simulated q, tau_J (N, 7)."""
+    simulated q, tau_J (N, 7) (NaN where not replayed: before the start of a controller replay, after a
+    divergence)."""
 
     mode: str
     rmse_q: np.ndarray
@@ -149,6 +150,24 @@ def concentration_table(data: ProcessedLog, residual: np.ndarray, n_windows: int
     return rows
 
 
+class _SteadyEq2:
+    """Eq. (2) without the smooth-start term: tau = B (Kp e + Kd de + Ki int e + ddq_d) + C dq [+ F(dq)]."""
+
+    def __init__(self, model, kp, kd, ki, friction: bool) -> None:
+        self.m, self.kp, self.kd, self.ki, self.friction = model, kp, kd, ki, friction
+        self._int = np.zeros(7)
+        self._t: float | None = None
+
+    def __call__(self, t, q, dq, q_d, dq_d, ddq_d):
+        e = q_d - q
+        if self._t is not None:
+            self._int += e * (t - self._t)
+        self._t = t
+        v = self.kp * e + self.kd * (dq_d - dq) + self.ki * self._int + ddq_d
+        tau = self.m.mass_matrix(q) @ v + self.m.coriolis(q, dq)
+        return tau + self.m.friction(dq) if self.friction else tau
+
+
 def replay(data: ProcessedLog, config: ModelConfig, mode: str | None = None) -> ReplayResult:
     """Re-run the logged experiment in the MuJoCo plant built from ``config`` (see the module docstring)."""
     from franka_vs_gym.control.computed_torque import ComputedTorque
@@ -168,27 +187,42 @@ def replay(data: ProcessedLog, config: ModelConfig, mode: str | None = None) -> 
         raise ValueError("replay mode 'torque' needs tau_J_d columns in the log")
     # the configuration's delay is a measurement lag of tau_J (see ModelConfig.delay): the plant runs without it and
     # the simulated torque measurement is shifted afterwards
-    sim = FrankaSim(model=config.copy(delay=0.0), camera=False, table=False, timestep=data.dt)
+    # a payload in the configuration is a body the robot did not know about while logging (its gravity
+    # compensation used the declared tool only): it enters the plant as an undeclared body
+    sim = FrankaSim(model=config.copy(delay=0.0, payload=None), camera=False, table=False, timestep=data.dt,
+                    undeclared_payload=config.payload)
     lim_lo, lim_hi = sim.q_min + 1e-6, sim.q_max - 1e-6
-    sim.reset(np.clip(data.q[0], lim_lo, lim_hi), data.dq[0])
+    start = 0
+    if mode == "controller":
+        # eq. (2)'s smooth start (tau0 exp(-mu t)) cannot be re-run from a state in the middle of the transient:
+        # the replay starts once the transient has decayed (5 / mu after the log's start) with mu = 0
+        mu = float(ctrl_meta.get("mu", 4.0))
+        t_abs = data.time  # seconds since the log's first sample
+        if mu > 0:
+            later = np.nonzero(t_abs >= 5.0 / mu)[0]
+            if len(later) and later[0] < data.n - 100:
+                start = int(later[0])
+    sim.reset(np.clip(data.q[start], lim_lo, lim_hi), data.dq[start])
     sim.set_robot_state(FORCE_TORQUE)
     n = data.n
-    q_sim = np.empty((n, 7))
-    tau_sim = np.empty((n, 7))
+    q_sim = np.full((n, 7), np.nan)
+    tau_sim = np.full((n, 7), np.nan)
     if mode == "controller":
         ctrl_cfg = ctrl_meta.get("model")
         cmodel = FrankaModel(ModelConfig.from_dict(ctrl_cfg) if isinstance(ctrl_cfg, dict) else
                              baseline_config(log))
-        law = ComputedTorque(cmodel, kp=ctrl_meta.get("kp"), kd=ctrl_meta.get("kd"), ki=ctrl_meta.get("ki", 0.0),
-                             mu=ctrl_meta.get("mu", 4.0), friction=ctrl_meta.get("friction", True))
+        # the gains and model of the logged eq. (2); the smooth start is over, so its term is left out
+        ref = ComputedTorque(cmodel, kp=ctrl_meta.get("kp"), kd=ctrl_meta.get("kd"), ki=ctrl_meta.get("ki", 0.0))
+        law = _SteadyEq2(cmodel, ref.kp, ref.kd, ref.ki, bool(ctrl_meta.get("friction", True)))
         qd, dqd, ddqd = opt["q_d"], opt["dq_d"], opt["ddq_d"]
     elif mode == "tracking":
-        law = ComputedTorque(FrankaModel(config), mu=0.0)
+        ref = ComputedTorque(FrankaModel(config))
+        law = _SteadyEq2(FrankaModel(config), ref.kp, ref.kd, ref.ki, True)
         qd, dqd, ddqd = data.q, data.dq, data.ddq
     diverged = None
     t = data.time
     try:
-        for k in range(n):
+        for k in range(start, n):
             q, dq = sim.get_position(), sim.get_velocity()
             q_sim[k] = q
             if mode == "torque":
@@ -202,9 +236,13 @@ def replay(data: ProcessedLog, config: ModelConfig, mode: str | None = None) -> 
         diverged = f"diverged at t = {t[k]:.3f} s: {e}"
         q_sim[k:] = np.nan
         tau_sim[k:] = np.nan
+    except ValueError as e:  # the plant refused a state or command (e.g. outside the joint limits)
+        diverged = f"stopped at t = {t[k]:.3f} s: {e}"
+        q_sim[k:] = np.nan
+        tau_sim[k:] = np.nan
     if config.delay > 0:
-        tau_sim = shift(tau_sim, t, config.delay)
-    ok = np.isfinite(q_sim[:, 0])
+        tau_sim[start:] = shift(tau_sim[start:], t[start:], config.delay)
+    ok = np.isfinite(q_sim[:, 0]) & np.isfinite(tau_sim[:, 0])
     return ReplayResult(mode, rmse(q_sim[ok] - data.q[ok]), rmse(tau_sim[ok] - data.tau[ok]), q_sim, tau_sim,
                         diverged)
 

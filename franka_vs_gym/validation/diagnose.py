@@ -20,7 +20,8 @@ Method (all on the inverse-dynamics residual ``r = tau_J - tau_model`` of the ba
    after the plausible ones and cannot be the verdict.
 5. **Collinear groups.** Two significant effects whose fitted contributions are strongly correlated
    (|cos| > ``COLLINEAR``) are also fitted together (alternating least squares); the group enters the ranking when it
-   beats its best member by ``SCORE_MIN``.
+   beats its best member by ``SCORE_MIN`` and removes an extra error of at least ``GROUP_PRACTICAL`` times the
+   noise floor on some joint.
 6. **Selection.** Starting from the baseline, significant effects are added greedily while each one is significant
    with respect to the model that already has the previous ones, and stopping when the held-out RMSE of every joint
    is within ``FLOOR_STOP`` of the noise floor.
@@ -42,7 +43,8 @@ from franka_vs_gym.validation.signals import CleanSettings, ProcessedLog
 
 SCORE_MIN = 10.0
 JOINT_SCORE_MIN = 2.0
-PRACTICAL = 0.25
+PRACTICAL = 0.1
+GROUP_PRACTICAL = 0.25
 COLLINEAR = 0.8
 FLOOR_STOP = 1.05
 FOLDS = 5
@@ -258,7 +260,7 @@ def diagnose(log: MeasurementLog | ProcessedLog | str, model: Any = None, *, rig
                 best = sig[a] if sig[a].score >= sig[b].score else sig[b]
                 # the group must beat its best member statistically AND by an error of practical size
                 extra = np.sqrt(np.maximum(best.rmse_tau_after ** 2 - g.rmse_tau_after ** 2, 0.0))
-                if g.score > best.score + SCORE_MIN and g.significant and np.any(extra >= PRACTICAL * noise):
+                if g.score > best.score + SCORE_MIN and g.significant and np.any(extra >= GROUP_PRACTICAL * noise):
                     groups.append(g)
     ranking += groups
     ranking.sort(key=_order)

@@ -426,8 +426,15 @@ def _payload_body(th: np.ndarray) -> tuple[RigidBody, list[str]]:
     Ixx, Ixy, Iyy, Ixz, Iyz, Izz = th[4:10]
     Io = np.array([[Ixx, Ixy, Ixz], [Ixy, Iyy, Iyz], [Ixz, Iyz, Izz]])
     Ic = Io - m * (c7 @ c7 * np.eye(3) - np.outer(c7, c7))
+    # project onto a physically consistent inertia: principal moments >= 1e-6 kg m^2 satisfying the triangle
+    # inequality (the simulator rejects anything else)
     w, V = np.linalg.eigh(0.5 * (Ic + Ic.T))
-    Ic = (V * np.maximum(w, 0.0)) @ V.T
+    w = np.maximum(w, 1e-6)
+    if w[0] + w[1] < w[2]:
+        lift = 0.5 * (w[2] - w[0] - w[1])
+        w[0] += lift
+        w[1] += lift
+    Ic = (V * w) @ V.T
     com = c7 - FLANGE_OFFSET
     if m > MAX_PAYLOAD:
         problems.append(f"payload mass {m:.3g} kg exceeds {MAX_PAYLOAD} kg")

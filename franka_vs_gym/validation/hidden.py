@@ -154,7 +154,7 @@ def make_hidden_effect_log(effect: str, seed: int = 0, *, duration: float = 20.0
     rng = np.random.default_rng(seed)
     if effect == "random":
         effect = str(rng.choice(list(EFFECTS) + ["none"]))
-        magnitude = float(rng.uniform(0.5, 2.0))
+        magnitude = float(rng.uniform(1.0, 2.0))
     plant_cfg, payload, delay, ans = _draw(effect, magnitude, rng)
     traj = fourier_trajectory(rng, duration)
     sig_tau = TORQUE_NOISE * noise_scale * rng.uniform(0.8, 1.2, 7)
