@@ -29,6 +29,7 @@ Method (all on the inverse-dynamics residual ``r = tau_J - tau_model`` of the ba
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -253,8 +254,8 @@ def diagnose(log: MeasurementLog | ProcessedLog | str, model: Any = None, *, rig
     for a in range(len(sig)):
         for b in range(a + 1, len(sig)):
             ca, cb = contribs[sig[a].effect], contribs[sig[b].effect]
-            den = np.linalg.norm(ca) * np.linalg.norm(cb)
-            if den > 0 and abs(float(np.sum(ca * cb))) / den > COLLINEAR:
+            den = math.sqrt(float(np.einsum("ij,ij->", ca, ca)) * float(np.einsum("ij,ij->", cb, cb)))
+            if den > 0 and abs(float(np.einsum("ij,ij->", ca, cb))) / den > COLLINEAR:
                 progress(f"collinear pair: fitting {sig[a].effect} and {sig[b].effect} together", verbose)
                 g = _evaluate_candidate(ctx, [LIBRARY[sig[a].effect], LIBRARY[sig[b].effect]], y, fl, noise)
                 best = sig[a] if sig[a].score >= sig[b].score else sig[b]

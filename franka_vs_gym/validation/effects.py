@@ -61,6 +61,17 @@ class Context:
         # decimated sample set for the sigmoid shape grid (the signals are low-passed far below 1 kHz)
         self.coarse = np.arange(0, self.n, max(1, int(round(data.settings.rate / 250.0))))
         self._sig_basis: np.ndarray | None = None
+        self._grams: dict[tuple, np.ndarray] = {}
+
+    def gram(self, key: str, X: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        """X[idx]^T X[idx] summed over samples and joints, (p, p), cached per effect and sample set."""
+        k = (key, len(idx), int(idx[0]), int(idx[-1]), int(idx.sum()))
+        A = self._grams.get(k)
+        if A is None:
+            Xi = X[idx].reshape(-1, X.shape[2])
+            A = np.einsum("mp,mq->pq", Xi, Xi)
+            self._grams[k] = A
+        return A
 
     def sigmoid_basis(self) -> np.ndarray:
         """(n_grid, n_coarse, 7) sigmoid shapes s(dq) = 1/(1+exp(-phi2 (dq+phi3))) - 1/(1+exp(-phi2 phi3))."""
@@ -370,8 +381,9 @@ class _SharedLinearEffect(Effect):
         raise NotImplementedError
 
     def fit(self, ctx, y, idx):
-        X = self.design(ctx)[idx]
-        A = np.einsum("mjp,mjq->pq", X, X)
+        Xall = self.design(ctx)
+        A = ctx.gram(self.name, Xall, idx)
+        X = Xall[idx]
         b = np.einsum("mjp,mj->p", X, y[idx])
         scale = np.sqrt(np.maximum(np.diag(A), 1e-300))
         An = A / np.outer(scale, scale)
