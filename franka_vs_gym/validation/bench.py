@@ -13,7 +13,8 @@ def bench_compare_diagnose(seconds: float = 30.0, seed: int = 0, replay: bool = 
     ``diagnose`` (the whole library, groups and selection), ``total`` = clean + compare + replay + diagnose, and
     ``budget_s`` = 5 (the target on one core).
     """
-    from franka_vs_gym.validation.compare import compare, replay as run_replay
+    from franka_vs_gym.validation.compare import compare
+    from franka_vs_gym.validation.compare import replay as run_replay
     from franka_vs_gym.validation.diagnose import diagnose
     from franka_vs_gym.validation.hidden import make_hidden_effect_log
     from franka_vs_gym.validation.signals import clean

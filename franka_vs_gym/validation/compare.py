@@ -29,9 +29,9 @@ from franka_vs_gym.validation.evaluate import ModelEvaluation, evaluate, shift
 from franka_vs_gym.validation.logs import MeasurementLog, load_log
 from franka_vs_gym.validation.signals import CleanSettings, ProcessedLog, clean
 
-VELOCITY_REGIMES = ((0.0, 0.05, "|dq| < 0.05 rad/s (near rest: stiction, offsets)"),
-                    (0.05, 0.5, "0.05 <= |dq| < 0.5 rad/s"),
-                    (0.5, math.inf, "|dq| >= 0.5 rad/s (viscous regime)"))
+VELOCITY_REGIMES = ((0.0, 0.05, "abs(dq) < 0.05 rad/s (near rest: stiction, offsets)"),
+                    (0.05, 0.5, "0.05 <= abs(dq) < 0.5 rad/s"),
+                    (0.5, math.inf, "abs(dq) >= 0.5 rad/s (viscous regime)"))
 
 
 def progress(msg: str, enabled: bool = True) -> None:

@@ -182,7 +182,7 @@ def _evaluate_candidate(ctx: Context, members: list[Effect], y: np.ndarray, fold
     fits, _ = _fit_set(ctx, spec, y, np.arange(ctx.n))
     problems: list[str] = []
     joint_bad: set[int] = set()
-    for e, f in zip(members, fits):
+    for e, f in zip(members, fits, strict=True):
         for j, msg in e.problems(ctx, f).items():
             if j < 0:
                 problems.append(f"{e.name}: {msg}")
@@ -213,7 +213,7 @@ def _evaluate_candidate(ctx: Context, members: list[Effect], y: np.ndarray, fold
         plausible = not problems
         practical = bool(joints)
     params: dict[str, Any] = {}
-    for e, f in zip(members, fits):
+    for e, f in zip(members, fits, strict=True):
         pub = e.public(f)
         if len(members) > 1:
             params[e.name] = pub
@@ -372,13 +372,13 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
         if spec[i][1] is not None:
             fits[i].joints = list(spec[i][1])
     new = cfg
-    for e, f in zip(members, fits):
+    for e, f in zip(members, fits, strict=True):
         new = e.apply(new, f)
     new = new.copy(notes={**cfg.notes, "calibrated_on": str(data.log.source), "effects": names})
     progress("re-comparing with the calibrated model", verbose)
     ev = evaluate(new, data)
     r_after = data.tau - ev.predicted
-    params = {e.name: {**e.public(f), "joints": list(map(int, f.joints))} for e, f in zip(members, fits)}
+    params = {e.name: {**e.public(f), "joints": list(map(int, f.joints))} for e, f in zip(members, fits, strict=True)}
     return FitResult(cfg, new, names, fits, params, rmse(y), rmse(r_after), noise.copy(), data, y, r_after)
 
 

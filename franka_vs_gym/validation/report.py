@@ -13,13 +13,14 @@ Figures (PNG, one panel per joint):
 
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from franka_vs_gym.validation.compare import CompareResult
+from franka_vs_gym.validation.compare import VELOCITY_REGIMES, CompareResult
 from franka_vs_gym.validation.diagnose import Diagnosis, FitResult
 
 
@@ -153,9 +154,7 @@ def markdown_report(res: CompareResult, outdir: str | os.PathLike, diagnosis: Di
         L += [f"| replay RMSE_tau ({rp.mode}) | {_row(rp.rmse_tau)} | |",
               f"| replay RMSE_q (mrad) | {_row(rp.rmse_q * 1e3)} | |"]
     L += ["", "## Where the error concentrates", "",
-          "| joint | RMSE | worst window (s) | " + " | ".join(r[2] for r in
-                                                             __import__("franka_vs_gym.validation.compare",
-                                                                        fromlist=["x"]).VELOCITY_REGIMES) + " |",
+          "| joint | RMSE | worst window (s) | " + " | ".join(r[2] for r in VELOCITY_REGIMES) + " |",
           "|---" * 6 + "|"]
     for row in res.concentration:
         w = row["worst_window"]
@@ -185,7 +184,7 @@ def markdown_report(res: CompareResult, outdir: str | os.PathLike, diagnosis: Di
         for name, vals in (published or {}).items():
             L.append(f"| {name} | {_row(vals)} |")
         L += ["", f"![before and after]({p.name})", "", "Fitted parameters:", "", "```",
-              __import__("json").dumps(fit.params, indent=1), "```", ""]
+              json.dumps(fit.params, indent=1), "```", ""]
     md.write_text("\n".join(L))
     return md
 

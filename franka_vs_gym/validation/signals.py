@@ -42,7 +42,7 @@ class CleanSettings:
     cutoff: float = 10.0
     order: int = 4
     max_gap: float = 0.05
-    trim: float = 0.1
+    trim: float = 0.3
 
     def __post_init__(self) -> None:
         if not self.rate > 0:
