@@ -62,8 +62,10 @@ Q_SEED_RIGHT = np.array([0.3, 0.0, -0.2, -2.25, 1.65, 1.66, -1.48])
 # Desired tag pose in the right camera: centred, 0.20 m ahead, facing the camera (x_o = x_c, z_o = -z_c).
 cdMo = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0.0, 0.0, -1.0, PBVS_DEPTH], [0.0, 0.0, 0.0, 1.0]])
 # Obstacle: a box on the table under the lowest part of the right gripper's path (contype 1 / conaffinity 2).
-OBSTACLE_POS = np.array([0.5, -0.19, 0.1425])
-OBSTACLE_HALF = np.array([0.09, 0.06, 0.1425])
+# Its y extent covers the hand and fingers (flange at y ~ -0.24, finger tips at y ~ -0.14) but not link 7; its top
+# (0.30 m) is ~1.7 cm above the lowest point the hand reaches when following the circle.
+OBSTACLE_POS = np.array([0.5, -0.16, 0.15])
+OBSTACLE_HALF = np.array([0.09, 0.05, 0.15])
 OBSTACLE_SOLREF = "0.05 1"  # MuJoCo contact time constant (s) and damping ratio: a slightly compliant surface
 
 
