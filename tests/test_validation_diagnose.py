@@ -57,8 +57,6 @@ def test_hidden_effect_is_named_first_and_fit_reaches_noise_floor(effect, magnit
     d = diagnose(data, select=False)
     assert d.verdict == effect, [(c.effect, round(c.score, 1), c.significant) for c in d.ranking[:3]]
     assert d.ranking[0].effect == effect
-    # the effect was visible: the baseline is above the floor somewhere
-    assert np.any(d.rmse_tau > 1.03 * d.noise_floor)
     f = fit_effects(data, [effect])
     assert np.all(f.rmse_after <= 1.2 * f.noise_floor), (f.rmse_after / f.noise_floor).round(3)
     assert f.rmse_after.sum() < f.rmse_before.sum()

@@ -365,12 +365,20 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
         spec.append((e, joints_of.get(e.name) if e.per_joint else None))
     progress(f"fitting {names} on all samples", verbose)
     fits, _ = _fit_set(ctx, spec, y, np.arange(ctx.n)) if names else ([], None)
-    # non-linear refinement (sigmoid shape, exact delay), with the other effects' contributions removed
-    for i, (e, _) in enumerate(spec):
-        others = sum((spec[m][0].contribution(ctx, fits[m]) for m in range(len(spec)) if m != i), np.zeros_like(y))
-        fits[i] = e.refine(ctx, y - others, fits[i])
-        if spec[i][1] is not None:
-            fits[i].joints = list(spec[i][1])
+    # alternating fits with the non-linear refinement (sigmoid shape, exact delay) inside, each effect fitted to
+    # the residual left by the others
+    everything = np.arange(ctx.n)
+    for _ in range(3 if len(spec) > 1 else 1):
+        for i, (e, joints) in enumerate(spec):
+            others = sum((spec[m][0].contribution(ctx, fits[m]) for m in range(len(spec)) if m != i),
+                         np.zeros_like(y))
+            f = e.fit(ctx, y - others, everything)
+            if joints is not None:
+                f.joints = list(joints)
+            f = e.refine(ctx, y - others, f)
+            if joints is not None:
+                f.joints = list(joints)
+            fits[i] = f
     new = cfg
     for e, f in zip(members, fits, strict=True):
         new = e.apply(new, f)

@@ -442,8 +442,8 @@ def _payload_body(th: np.ndarray) -> tuple[RigidBody, list[str]]:
     # inequality (the simulator rejects anything else)
     w, V = np.linalg.eigh(0.5 * (Ic + Ic.T))
     w = np.maximum(w, 1e-6)
-    if w[0] + w[1] < w[2]:
-        lift = 0.5 * (w[2] - w[0] - w[1])
+    if w[0] + w[1] < 1.001 * w[2]:  # with a margin: the simulator re-checks after its own eigen-decomposition
+        lift = 0.5 * (1.001 * w[2] - w[0] - w[1])
         w[0] += lift
         w[1] += lift
     Ic = (V * w) @ V.T
