@@ -95,11 +95,11 @@ def main(args: argparse.Namespace) -> int:
 
         folder = make_run_dir(args.out, "dual-arm")
         print(f"dual-arm: writing into {folder}", file=sys.stderr)
-        result = run_dual_arm(args.duration, camera_rate=args.camera_rate, vision=args.vision,
-                              obstacle=not args.no_obstacle, seed=args.seed, progress=progress,
-                              video=None if args.no_video else folder / "video.mp4")
-        write_dual_arm(result, folder)
-        m = result.metrics()
+        dual = run_dual_arm(args.duration, camera_rate=args.camera_rate, vision=args.vision,
+                            obstacle=not args.no_obstacle, seed=args.seed, progress=progress,
+                            video=None if args.no_video else folder / "video.mp4")
+        write_dual_arm(dual, folder)
+        m = dual.metrics()
         keys = ("circle_rmse_m", "pbvs_translation_rmse_m", "contact_force_peak_n")
         print("dual-arm: " + json.dumps({k: m[k] for k in keys if k in m}))
         print(f"run folder: {folder}")

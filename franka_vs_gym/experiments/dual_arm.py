@@ -51,7 +51,7 @@ CIRCLE_FREQUENCY = 0.3  # Hz
 TAG_SIZE = 0.08  # m, black square
 TAG_ID = 0
 PBVS_DEPTH = 0.20  # m, camera to tag
-TAG_HOLDER = RigidBody(0.2, (0.0, 0.0, 0.12), np.diag([2e-4, 2e-4, 2e-4]))  # flange frame
+TAG_HOLDER = RigidBody(0.2, np.array([0.0, 0.0, 0.12]), np.diag([2e-4, 2e-4, 2e-4]))  # flange frame
 # Held tag, world orientation: x_o up, z_o towards the right arm (-y). The left end effector holds it with z_e = z_o
 # and x_e down (the tag turned by pi about its normal), the tag 1.2 cm beyond the finger tips.
 W_R_TAG = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
@@ -220,6 +220,8 @@ class _TagMeasurement:
         if self.mode == "ideal":
             # the tag is seen when its four corners project inside the image and it faces the camera
             return (cMo if _in_view(cMo, self.world.model, self.cam, self.width, self.height) else None), None
+        if self._detector is None:
+            raise RuntimeError("no tag detector (the measurement was built in 'ideal' mode)")
         img = self.world.render(self.right.camera_name(), self.width, self.height)
         return self._detector(img), img
 
@@ -260,9 +262,10 @@ def _make_detector(m: Any, cam: int, width: int, height: int):
     def detect(img: np.ndarray) -> np.ndarray | None:
         gray = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
         corners, ids, _ = det.detectMarkers(gray)
-        if ids is None or TAG_ID not in ids.ravel():
+        found = [] if ids is None else [int(i) for i in ids.ravel()]
+        if TAG_ID not in found:
             return None
-        c = corners[list(ids.ravel()).index(TAG_ID)].reshape(4, 2).astype(np.float64)
+        c = corners[found.index(TAG_ID)].reshape(4, 2).astype(np.float64)
         ok, rvec, tvec = cv2.solvePnP(obj, c, K, None, flags=cv2.SOLVEPNP_IPPE_SQUARE)
         if not ok:
             return None
@@ -459,7 +462,7 @@ def run_dual_arm(duration: float = 20.0, *, camera_rate: float = 30.0, vision: s
                 if img is not None:
                     wrist_img = img
                 visible = cMo is not None
-                if visible:
+                if cMo is not None:
                     fMc = right.get_fMc()
                     f_to = fMc[:3, :3] @ cMo[:3, 3] + fMc[:3, 3]  # the tag's origin in the right base frame
                     if feedforward and last_f_to is not None and t > last_cam_t:

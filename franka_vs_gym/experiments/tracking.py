@@ -52,7 +52,7 @@ def pid_gains(kp: Any, integral_rate: float = 4.0) -> tuple[np.ndarray, np.ndarr
 
 KD, KI = pid_gains(KP)
 MODEL_ERRORS = ("none", "no-friction", "payload")
-UNKNOWN_PAYLOAD = RigidBody(1.0, (0.0, 0.0, 0.08), np.diag([2e-3, 2e-3, 1e-3]))
+UNKNOWN_PAYLOAD = RigidBody(1.0, np.array([0.0, 0.0, 0.08]), np.diag([2e-3, 2e-3, 1e-3]))
 
 
 def desired_trajectory(t: float, q0: np.ndarray = Q0, amplitude: np.ndarray = AMPLITUDE,
