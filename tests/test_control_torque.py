@@ -346,3 +346,14 @@ def test_torque_policies_succeed_on_the_tracking_env(policy_cls):
     env.close()
     assert not term and info["is_success"], info
     assert info["rms_error"] < 5e-3
+
+
+def test_computed_torque_rejects_bad_input():
+    ctrl = ComputedTorque(FrankaModel())
+    z = np.zeros(7)
+    with pytest.raises(ValueError, match="q_d"):
+        ctrl(0.0, Q0, z, np.zeros(6), z, z)
+    with pytest.raises(ValueError, match="ddq_d"):
+        ctrl(0.0, Q0, z, Q0, z, np.full(7, np.inf))
+    with pytest.raises(ValueError, match="kp"):
+        ComputedTorque(FrankaModel(), kp=-1.0)

@@ -23,6 +23,15 @@ def _gains(x: Any, name: str) -> np.ndarray:
     return a
 
 
+def _joint(x: Any, name: str) -> np.ndarray:
+    a = np.asarray(x, dtype=np.float64)
+    if a.shape != (7,):
+        raise ValueError(f"{name} must have shape (7,), got {a.shape}")
+    if not np.isfinite(a).all():
+        raise ValueError(f"{name} contains NaN or inf: {a}")
+    return a
+
+
 class ComputedTorque:
     """Computed-torque controller of eq. (2).
 
@@ -60,7 +69,14 @@ class ComputedTorque:
 
     def __call__(self, t: float, q: np.ndarray, dq: np.ndarray, q_d: np.ndarray, dq_d: np.ndarray,
                  ddq_d: np.ndarray) -> np.ndarray:
-        """Gravity-free joint torque command (7,), Nm, at time t (s)."""
+        """Gravity-free joint torque command (7,), Nm, at time t (s).
+
+        q, q_d in rad, dq, dq_d in rad/s, ddq_d in rad/s^2, each (7,); wrong shapes or NaN raise ValueError.
+        """
+        if not math.isfinite(t):
+            raise ValueError(f"t must be finite, got {t}")
+        q, dq, q_d, dq_d, ddq_d = (_joint(x, n) for x, n in ((q, "q"), (dq, "dq"), (q_d, "q_d"), (dq_d, "dq_d"),
+                                                              (ddq_d, "ddq_d")))
         e = q_d - q
         de = dq_d - dq
         if self._t_last is not None:
