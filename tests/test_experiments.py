@@ -118,7 +118,9 @@ def test_dual_arm_obstacle_bends_the_path_into_a_d(dual_runs):
     with_obs, free = dual_runs[True], dual_runs[False]
     m = with_obs.metrics()
     assert m["contact_force_peak_n"] > 2.0 and m["contact_time_s"] > 0.05
-    # the contact is on the hand, so the wrist F/T sensor sees it too
+    # the contact is on the hand (not the arm behind the sensor), so the wrist F/T sensor sees it too
+    touched = set(with_obs.settings["bodies_touching_obstacle"])
+    assert touched and touched <= {"right_hand", "right_hand_geoms", "right_leftfinger", "right_rightfinger"}, touched
     assert m["ft_force_peak_n"] > 0.5 * m["contact_force_peak_n"]
     # the free path dips below where the obstacle stops the gripper: the obstacle flattens the bottom ("D")
     zmin_free = free.metrics()["right_path_min_z_m"]

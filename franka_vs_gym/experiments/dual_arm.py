@@ -33,6 +33,7 @@ from __future__ import annotations
 import json
 import math
 import sys
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -392,9 +393,10 @@ def run_dual_arm(duration: float = 20.0, *, camera_rate: float = 30.0, vision: s
     v_axis = np.array([1.0, 0.0, 0.0])
 
     obstacle_geom = mujoco.mj_name2id(world.model, mujoco.mjtObj.mjOBJ_GEOM, "obstacle") if obstacle else -1
-    right_bodies = {b for b in range(world.model.nbody) if mujoco.mj_id2name(world.model, mujoco.mjtObj.mjOBJ_BODY,
-                                                                               b) and mujoco.mj_id2name(
-        world.model, mujoco.mjtObj.mjOBJ_BODY, b).startswith("right_")}
+    body_names = [mujoco.mj_id2name(world.model, mujoco.mjtObj.mjOBJ_BODY, b) or "" for b in range(world.model.nbody)]
+    right_bodies = {b for b, name in enumerate(body_names) if name.startswith("right_")}
+    touched: set[str] = set()  # bodies that touched the obstacle
+    ctrl_time = 0.0  # wall-clock seconds in the two controllers and the tag measurement
     eRc = right.get_eMc()[:3, :3]
 
     rows: dict[str, list] = {k: [] for k in ("time", "phase", "left_ee", "left_ref", "right_ee", "tag", "pbvs_error",
@@ -429,6 +431,7 @@ def run_dual_arm(duration: float = 20.0, *, camera_rate: float = 30.0, vision: s
                       mininterval=0.5, unit_scale=True):
             t = k * dt
             # ---------------- left arm: gravity compensation, reach, circle (1 kHz)
+            c0 = time.perf_counter()
             ql, dql = left.get_position(), left.get_velocity()
             if t < gc_time:
                 phase = 0
@@ -486,6 +489,7 @@ def run_dual_arm(duration: float = 20.0, *, camera_rate: float = 30.0, vision: s
             if nv > 0.5:
                 v_cmd[:3] *= 0.5 / nv
             right.set_velocity(CAMERA_FRAME, v_cmd)
+            ctrl_time += time.perf_counter() - c0
 
             # ---------------- video, log
             if writer is not None and k % frame_every == 0:
@@ -504,6 +508,7 @@ def run_dual_arm(duration: float = 20.0, *, camera_rate: float = 30.0, vision: s
                         c = d.contact[i]
                         if obstacle_geom in (c.geom1, c.geom2):
                             other = c.geom2 if c.geom1 == obstacle_geom else c.geom1
+                            touched.add(body_names[int(world.model.geom_bodyid[other])])
                             if int(world.model.geom_bodyid[other]) in right_bodies:
                                 mujoco.mj_contactForce(world.model, d, i, cfr)
                                 force += float(np.linalg.norm(cfr[:3]))
@@ -529,7 +534,9 @@ def run_dual_arm(duration: float = 20.0, *, camera_rate: float = 30.0, vision: s
                 "reach_time_s": reach_time, "circle_start_s": circle_start_t, "circle_ramp_s": circle_ramp,
                 "circle_radius_m": CIRCLE_RADIUS, "circle_frequency_hz": CIRCLE_FREQUENCY, "pbvs_gain": pbvs_gain,
                 "pbvs_depth_m": PBVS_DEPTH, "admittance_m_per_s_per_n": admittance,
-                "force_filter_s": force_filter, "command_filter_s": command_filter, "seed": seed,
+                "controllers_wall_time_us_per_tick": 1e6 * ctrl_time / n,
+                "bodies_touching_obstacle": sorted(touched), "force_filter_s": force_filter,
+                "command_filter_s": command_filter, "seed": seed,
                 "tag_holder_kg": TAG_HOLDER.mass, "control_rate_hz": 1.0 / dt, "log_rate_hz": log_rate,
                 "obstacle_top_z_m": float(OBSTACLE_POS[2] + OBSTACLE_HALF[2]) if obstacle else None}
     return DualArmResult(arr["time"], arr["phase"].astype(int), arr["left_ee"], arr["left_ref"], arr["right_ee"],
