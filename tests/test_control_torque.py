@@ -357,3 +357,20 @@ def test_computed_torque_rejects_bad_input():
         ctrl(0.0, Q0, z, Q0, z, np.full(7, np.inf))
     with pytest.raises(ValueError, match="kp"):
         ComputedTorque(FrankaModel(), kp=-1.0)
+
+
+def test_cartesian_computed_torque_compensates_an_undeclared_payload():
+    payload = RigidBody(0.8, np.array([0.0, 0.0, 0.1]), np.eye(3) * 1e-3)
+
+    def hold_error(knows_payload: bool) -> float:
+        sim = FrankaSim(camera=False, q0=Q0, undeclared_payload=payload)
+        sim.set_robot_state(FORCE_TORQUE)
+        model = FrankaModel(sim.model.config.copy(payload=payload)) if knows_payload else sim.model
+        ctrl = CartesianComputedTorque(model, internal=sim.model)
+        M0 = sim.get_fMe()
+        _loop(sim, 1500, lambda t, q, dq: ctrl(t, q, dq, M0))
+        return float(np.linalg.norm(sim.get_fMe()[:3, 3] - M0[:3, 3]))
+
+    sag, held = hold_error(False), hold_error(True)
+    assert sag > 1e-3, sag  # the robot's gravity compensation ignores the 0.8 kg: the hand sags by millimetres
+    assert held < 1e-5, held  # with the payload in the controller's model (and the robot's as internal) it holds
