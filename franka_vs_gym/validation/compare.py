@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from franka_vs_gym.model.config import Friction, ModelConfig, Tool, resolve_config
-from franka_vs_gym.validation.evaluate import ModelEvaluation, evaluate, shift
+from franka_vs_gym.validation.evaluate import ModelEvaluation, delay_channel, evaluate, shift
 from franka_vs_gym.validation.logs import MeasurementLog, load_log
 from franka_vs_gym.validation.signals import CleanSettings, ProcessedLog, clean
 
@@ -185,12 +185,14 @@ def replay(data: ProcessedLog, config: ModelConfig, mode: str | None = None) -> 
                          "q_d, dq_d, ddq_d columns")
     if mode == "torque" and "tau_J_d" not in opt:
         raise ValueError("replay mode 'torque' needs tau_J_d columns in the log")
-    # the configuration's delay is a measurement lag of tau_J (see ModelConfig.delay): the plant runs without it and
-    # the simulated torque measurement is shifted afterwards
-    # a payload in the configuration is a body the robot did not know about while logging (its gravity
-    # compensation used the declared tool only): it enters the plant as an undeclared body
-    sim = FrankaSim(model=config.copy(delay=0.0, payload=None), camera=False, table=False, timestep=data.dt,
-                    undeclared_payload=config.payload)
+    # a delay of the "command" channel is the plant's own (commands reach the joints late); a "measurement" delay
+    # (tau_J lags the motion) is not a property of the plant: it runs without it and the simulated torque
+    # measurement is shifted afterwards.
+    # A payload in the configuration is a body the robot did not know about while logging (its gravity
+    # compensation used the declared tool only): it enters the plant as an undeclared body.
+    measured_lag = config.delay if delay_channel(config) == "measurement" else 0.0
+    sim = FrankaSim(model=config.copy(delay=config.delay - measured_lag, payload=None), camera=False, table=False,
+                    timestep=data.dt, undeclared_payload=config.payload)
     lim_lo, lim_hi = sim.q_min + 1e-6, sim.q_max - 1e-6
     start = 0
     if mode == "controller":
@@ -240,8 +242,8 @@ def replay(data: ProcessedLog, config: ModelConfig, mode: str | None = None) -> 
         diverged = f"stopped at t = {t[k]:.3f} s: {e}"
         q_sim[k:] = np.nan
         tau_sim[k:] = np.nan
-    if config.delay > 0:
-        tau_sim[start:] = shift(tau_sim[start:], t[start:], config.delay)
+    if measured_lag > 0:
+        tau_sim[start:] = shift(tau_sim[start:], t[start:], measured_lag)
     ok = np.isfinite(q_sim[:, 0]) & np.isfinite(tau_sim[:, 0])
     return ReplayResult(mode, rmse(q_sim[ok] - data.q[ok]), rmse(tau_sim[ok] - data.tau[ok]), q_sim, tau_sim,
                         diverged)

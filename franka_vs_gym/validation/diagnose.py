@@ -37,7 +37,7 @@ import numpy as np
 
 from franka_vs_gym.model.config import ModelConfig
 from franka_vs_gym.validation.compare import as_processed, baseline_config, progress, rmse
-from franka_vs_gym.validation.effects import LIBRARY, Context, Effect, Fit, get_effect
+from franka_vs_gym.validation.effects import COMMAND_DELAY, LIBRARY, Context, Effect, Fit, get_effect
 from franka_vs_gym.validation.evaluate import evaluate
 from franka_vs_gym.validation.logs import MeasurementLog
 from franka_vs_gym.validation.signals import CleanSettings, ProcessedLog
@@ -226,6 +226,25 @@ def _evaluate_candidate(ctx: Context, members: list[Effect], y: np.ndarray, fold
                      significant, plausible, problems, removed, js, fits)
 
 
+def _is_command(c: Candidate) -> bool:
+    return c.params.get("channel") == "command"
+
+
+def _pick_delay_channel(ctx: Context, measured: Candidate, fl, noise: np.ndarray) -> Candidate:
+    """The delay seen on the inverse-dynamics residual (the measured torque lags the motion) or, when that is not
+    significant, on the command channel (the measured torque lags the logged command)."""
+    if measured.significant and measured.plausible:
+        return measured
+    cmd = _evaluate_candidate(ctx, [COMMAND_DELAY], ctx.cmd_residual, fl, noise)
+    if not (cmd.significant and cmd.plausible):
+        return measured
+    # a command delay leaves the inverse-dynamics prediction unchanged: report both residuals
+    cmd.params["command_rmse_before"] = np.round(rmse(ctx.cmd_residual), 4).tolist()
+    cmd.params["command_rmse_after"] = np.round(cmd.rmse_tau_after, 4).tolist()
+    cmd.rmse_tau_after = rmse(ctx.residual)
+    return cmd
+
+
 def _order(c: Candidate) -> tuple:
     return (not (c.significant and c.plausible), not c.plausible, -c.score)
 
@@ -246,9 +265,12 @@ def diagnose(log: MeasurementLog | ProcessedLog | str, model: Any = None, *, rig
     ranking = []
     for i, name in enumerate(names):
         progress(f"[{i + 1}/{len(names)}] held-out fit of {name}", verbose)
-        ranking.append(_evaluate_candidate(ctx, [LIBRARY[name]], y, fl, noise))
-    # collinear groups among significant effects
-    sig = [c for c in ranking if c.significant]
+        cand = _evaluate_candidate(ctx, [LIBRARY[name]], y, fl, noise)
+        if name == "delay" and ctx.cmd_residual is not None:
+            cand = _pick_delay_channel(ctx, cand, fl, noise)
+        ranking.append(cand)
+    # collinear groups among significant effects (on the inverse-dynamics residual)
+    sig = [c for c in ranking if c.significant and not _is_command(c)]
     contribs = {c.effect: LIBRARY[c.effect].contribution(ctx, c.fits[0]) for c in sig}
     groups = []
     for a in range(len(sig)):
@@ -277,7 +299,8 @@ def diagnose(log: MeasurementLog | ProcessedLog | str, model: Any = None, *, rig
 def _select(ctx: Context, ranking: list[Candidate], y: np.ndarray, fl, noise: np.ndarray, verbose: bool,
             max_effects: int = 4) -> list[str]:
     """Greedy forward selection among the significant plausible singles, stopping at the noise floor."""
-    pool = [c for c in ranking if c.significant and c.plausible and len(c.members) == 1]
+    pool = [c for c in ranking if c.significant and c.plausible and len(c.members) == 1 and not _is_command(c)]
+    command = [c.effect for c in ranking if c.significant and c.plausible and _is_command(c)]
     chosen: list[Candidate] = []
     mse_cur = np.mean(y ** 2, axis=0)
     while pool and len(chosen) < max_effects:
@@ -298,7 +321,8 @@ def _select(ctx: Context, ranking: list[Candidate], y: np.ndarray, fl, noise: np
         chosen.append(best)
         mse_cur = best_s[1]
         pool.remove(best)
-    return [c.effect for c in chosen]
+    # a command delay does not interact with the inverse-dynamics effects
+    return [c.effect for c in chosen] + command
 
 
 @dataclass
@@ -353,6 +377,13 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
     y = ctx.residual
     noise = data.noise
     fl = _folds(ctx.n, FOLDS)
+    command_fit = None
+    if "delay" in names and ctx.cmd_residual is not None:
+        progress("delay: choosing the channel (measured torque vs motion, or vs command)", verbose)
+        c = _pick_delay_channel(ctx, _evaluate_candidate(ctx, [LIBRARY["delay"]], y, fl, noise), fl, noise)
+        if _is_command(c):
+            command_fit = COMMAND_DELAY.fit(ctx, ctx.cmd_residual, np.arange(ctx.n))
+            names = [n for n in names if n != "delay"]
     members = [LIBRARY[n] for n in names]
     # joints of per-joint effects: those where the held-out fit of the whole set helps and is plausible
     spec = []
@@ -382,7 +413,10 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
     new = cfg
     for e, f in zip(members, fits, strict=True):
         new = e.apply(new, f)
-    new = new.copy(notes={**cfg.notes, "calibrated_on": str(data.log.source), "effects": names})
+    if command_fit is not None:
+        new = COMMAND_DELAY.apply(new, command_fit)
+        members, fits, names = members + [COMMAND_DELAY], fits + [command_fit], names + ["delay"]
+    new = new.copy(notes={**new.notes, "calibrated_on": str(data.log.source), "effects": names})
     progress("re-comparing with the calibrated model", verbose)
     ev = evaluate(new, data)
     r_after = data.tau - ev.predicted

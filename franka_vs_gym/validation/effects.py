@@ -62,6 +62,18 @@ class Context:
         self.coarse = np.arange(0, self.n, max(1, int(round(data.settings.rate / 250.0))))
         self._sig_basis: np.ndarray | None = None
         self._grams: dict[tuple, np.ndarray] = {}
+        # command channel (when the commanded torque is logged): r_cmd = tau_J - g(q) - tau_J_d, which a command
+        # delay d turns into ~ -d d(tau_J_d)/dt; both centred per joint (offsets are another effect)
+        cmd = data.optional.get("tau_J_d")
+        self.cmd_residual = self.dcmd = None
+        if cmd is not None:
+            from scipy import signal
+
+            sos = signal.butter(data.settings.order, data.settings.cutoff, fs=data.settings.rate, output="sos")
+            dcmd = np.gradient(signal.sosfiltfilt(sos, cmd, axis=0), data.time, axis=0)
+            r = data.tau - self.ev.gravity - cmd
+            self.cmd_residual = r - r.mean(axis=0)
+            self.dcmd = dcmd - dcmd.mean(axis=0)
 
     def gram(self, key: str, X: np.ndarray, idx: np.ndarray) -> np.ndarray:
         """X[idx]^T X[idx] summed over samples and joints, (p, p), cached per effect and sample set."""
@@ -382,7 +394,7 @@ class _SharedLinearEffect(Effect):
 
     def fit(self, ctx, y, idx):
         Xall = self.design(ctx)
-        A = ctx.gram(self.name, Xall, idx)
+        A = ctx.gram(type(self).__name__, Xall, idx)
         X = Xall[idx]
         b = np.einsum("mjp,mj->p", X, y[idx])
         scale = np.sqrt(np.maximum(np.diag(A), 1e-300))
@@ -522,17 +534,47 @@ class Delay(_SharedLinearEffect):
         d = float(fit.theta["theta"][0])
         if d < 0:
             return {-1: f"negative delay {d * 1000:.2f} ms (the torque would lead the motion)"}
+        if d < 1.5 * ctx.data.dt:
+            return {-1: f"delay {d * 1000:.2f} ms is below 1.5 sample periods: within the alignment uncertainty of "
+                        "logged signals"}
         if d > MAX_DELAY:
             return {-1: f"delay {d * 1000:.1f} ms exceeds {MAX_DELAY * 1000:.0f} ms"}
         return {}
 
     def apply(self, config, fit):
-        return config.copy(delay=max(0.0, config.delay + float(fit.theta["theta"][0])))
+        return config.copy(delay=max(0.0, config.delay + float(fit.theta["theta"][0])),
+                           notes={**config.notes, "delay_channel": "measurement"})
 
     def public(self, fit):
-        return {"delay_s": round(float(fit.theta["theta"][0]), 6)}
+        return {"delay_s": round(float(fit.theta["theta"][0]), 6), "channel": "measurement"}
 
 
+class CommandDelay(Delay):
+    """The ``delay`` effect seen on the command channel: torque commands reach the joints late (as FrankaSim's plant
+    applies ``ModelConfig.delay``), so the measured torque lags the *commanded* torque, not the motion. Fitted on
+    ``tau_J - g(q) - tau_J_d`` (needs the logged ``tau_J_d``)."""
+
+    description = "torque commands reach the joints late: the measured torque lags the commanded torque"
+    signature = "tau_J - g(q) - tau_J_d ~ -delay x d(tau_J_d)/dt"
+
+    def design(self, ctx):
+        return -ctx.dcmd[:, :, None]
+
+    def refine(self, ctx, y, fit):
+        return fit
+
+    def contribution(self, ctx, fit):
+        return -ctx.dcmd * float(fit.theta["theta"][0])
+
+    def apply(self, config, fit):
+        return config.copy(delay=max(0.0, config.delay + float(fit.theta["theta"][0])),
+                           notes={**config.notes, "delay_channel": "command"})
+
+    def public(self, fit):
+        return {"delay_s": round(float(fit.theta["theta"][0]), 6), "channel": "command"}
+
+
+COMMAND_DELAY = CommandDelay()
 LIBRARY: dict[str, Effect] = {e.name: e for e in (
     ViscousFriction(), CoulombFriction(), SigmoidFriction(), TorqueOffset(), Armature(), Payload(),
     GravityTilt(), Delay())}
@@ -549,4 +591,4 @@ def get_effect(name: str) -> Effect:
     return LIBRARY[key]
 
 
-__all__ = ["ALIASES", "Context", "Effect", "Fit", "FRICTION_EFFECTS", "LIBRARY", "get_effect"]
+__all__ = ["ALIASES", "COMMAND_DELAY", "Context", "Effect", "Fit", "FRICTION_EFFECTS", "LIBRARY", "get_effect"]

@@ -1,9 +1,9 @@
 """Vectorised evaluation of a model configuration on a processed log.
 
 ``predict_torque(config, data)`` gives the predicted measured torque ``tau_J = B ddq + C dq + g + tau_f(dq) +
-offset`` at every sample, shifted by the configuration's delay (the measured torque lags the motion by ``delay``
-seconds: ``tau_pred(t) = tau(t - delay)``). :class:`ModelEvaluation` also keeps the pieces the effect library needs:
-the friction parts, the gravity torque per unit gravity vector ``G`` (so ``g(q) = G @ g0``), and the joint-torque
+offset`` at every sample, shifted by the configuration's delay when it is a measurement lag (the measured torque
+lags the motion by ``delay`` seconds: ``tau_pred(t) = tau(t - delay)``; see :func:`delay_channel`).
+:class:`ModelEvaluation` also keeps the pieces the effect library needs: the friction parts, the gravity torque per unit gravity vector ``G`` (so ``g(q) = G @ g0``), and the joint-torque
 regressor of the last body (for a payload).
 """
 
@@ -36,6 +36,17 @@ def friction_torque(fr: Friction, dq: np.ndarray) -> np.ndarray:
     if fr.coulomb.any():
         out = out + fr.coulomb * np.tanh(dq / fr.coulomb_vel)
     return out
+
+
+def delay_channel(config: ModelConfig) -> str:
+    """How a configuration's ``delay`` acts: ``"measurement"`` (the measured torque lags the motion; the default,
+    ModelConfig's documented meaning) or ``"command"`` (torque commands reach the joints late, as FrankaSim's plant
+    applies it; the measured torque then matches the motion). Recorded by the workbench in
+    ``config.notes["delay_channel"]``."""
+    ch = str(config.notes.get("delay_channel", "measurement"))
+    if ch not in ("measurement", "command"):
+        raise ValueError(f"notes.delay_channel must be 'measurement' or 'command', got {ch!r}")
+    return ch
 
 
 def shift(x: np.ndarray, time: np.ndarray, delay: float) -> np.ndarray:
@@ -100,7 +111,7 @@ def evaluate(config: ModelConfig, data: ProcessedLog, regressors: bool = False) 
     # pinocchio's rnea includes the joint armature (model.armature) in B ddq
     fr = friction_torque(config.friction, dq)
     total = rigid + fr + config.torque_offset
-    pred = shift(total, data.time, config.delay)
+    pred = shift(total, data.time, config.delay) if delay_channel(config) == "measurement" else total
     return ModelEvaluation(config, rigid, fr, config.torque_offset.copy(), pred, grav, G, Y)
 
 
@@ -109,5 +120,5 @@ def predict_torque(config: ModelConfig, data: ProcessedLog) -> np.ndarray:
     return evaluate(config, data).predicted
 
 
-__all__ = ["ModelEvaluation", "evaluate", "friction_torque", "predict_torque", "shift", "sigmoid_friction",
-           "FLANGE_OFFSET"]
+__all__ = ["delay_channel", "ModelEvaluation", "evaluate", "friction_torque", "predict_torque", "shift",
+           "sigmoid_friction", "FLANGE_OFFSET"]
