@@ -3,8 +3,8 @@
 ``predict_torque(config, data)`` gives the predicted measured torque ``tau_J = B ddq + C dq + g + tau_f(dq) +
 offset`` at every sample, shifted by the configuration's delay when it is a measurement lag (the measured torque
 lags the motion by ``delay`` seconds: ``tau_pred(t) = tau(t - delay)``; see :func:`delay_channel`).
-:class:`ModelEvaluation` also keeps the pieces the effect library needs: the friction parts, the gravity torque per unit gravity vector ``G`` (so ``g(q) = G @ g0``), and the joint-torque
-regressor of the last body (for a payload).
+:class:`ModelEvaluation` also keeps the pieces the effect library needs: the friction parts, the gravity torque per
+unit gravity vector ``G`` (so ``g(q) = G @ g0``), and the joint-torque regressor of the last body (for a payload).
 """
 
 from __future__ import annotations
