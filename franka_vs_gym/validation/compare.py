@@ -198,7 +198,7 @@ def replay(data: ProcessedLog, config: ModelConfig, mode: str | None = None) -> 
     if mode == "controller":
         # eq. (2)'s smooth start (tau0 exp(-mu t)) cannot be re-run from a state in the middle of the transient:
         # the replay starts once the transient has decayed (5 / mu after the log's start) with mu = 0
-        mu = float(ctrl_meta.get("mu", 4.0))
+        mu = float(ctrl_meta.get("mu") if ctrl_meta.get("mu") is not None else 4.0)
         t_abs = data.time  # seconds since the log's first sample
         if mu > 0:
             later = np.nonzero(t_abs >= 5.0 / mu)[0]
@@ -214,8 +214,11 @@ def replay(data: ProcessedLog, config: ModelConfig, mode: str | None = None) -> 
         cmodel = FrankaModel(ModelConfig.from_dict(ctrl_cfg) if isinstance(ctrl_cfg, dict) else
                              baseline_config(log))
         # the gains and model of the logged eq. (2); the smooth start is over, so its term is left out
-        ref = ComputedTorque(cmodel, kp=ctrl_meta.get("kp"), kd=ctrl_meta.get("kd"), ki=ctrl_meta.get("ki", 0.0))
-        law = _SteadyEq2(cmodel, ref.kp, ref.kd, ref.ki, bool(ctrl_meta.get("friction", True)))
+        ki = ctrl_meta.get("ki")
+        ref = ComputedTorque(cmodel, kp=ctrl_meta.get("kp"), kd=ctrl_meta.get("kd"), ki=0.0 if ki is None else ki)
+        # friction compensation: "friction": false, or the tracking experiment's "model_error": "no-friction"
+        comp = ctrl_meta.get("friction", ctrl_meta.get("model_error") != "no-friction")
+        law = _SteadyEq2(cmodel, ref.kp, ref.kd, ref.ki, bool(comp))
         qd, dqd, ddqd = opt["q_d"], opt["dq_d"], opt["ddq_d"]
     elif mode == "tracking":
         ref = ComputedTorque(FrankaModel(config))
