@@ -221,7 +221,8 @@ def scene_xml(scene: SceneSpec) -> str:
         world = world[:end] + "".join(items) + world[end:]
     table = ""
     if scene.table:
-        table = (f'<geom name="table" type="box" size="0.8 0.8 0.02" pos="0.3 0 -0.02" material="table_mat" '
+        # table top 1 mm below z = 0, so that objects lying "on" it at z = 0 (tags) are rendered above it
+        table = (f'<geom name="table" type="box" size="0.8 0.8 0.02" pos="0.3 0 -0.021" material="table_mat" '
                  f'{ENV_COLLISION}/>')
     return f"""<mujoco model="franka_vs_gym">
 <compiler angle="radian" meshdir="{mesh_dir()}" inertiafromgeom="false" autolimits="true"/>

@@ -50,9 +50,9 @@ STOP, POSITION, VELOCITY, FORCE_TORQUE = (RobotState.STATE_STOP, RobotState.STAT
 JOINT_STATE, END_EFFECTOR_FRAME, CAMERA_FRAME, REFERENCE_FRAME = (
     ControlFrame.JOINT_STATE, ControlFrame.END_EFFECTOR_FRAME, ControlFrame.CAMERA_FRAME, ControlFrame.REFERENCE_FRAME)
 
-# Default wrist camera mount: optical axis along the end-effector z axis, 6 cm to the side of the fingers (x_e)
-# and 6 cm behind the finger tips, so the fingers stay out of the image.
-DEFAULT_eMc = np.array([[1.0, 0.0, 0.0, 0.06], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, -0.06], [0.0, 0.0, 0.0, 1.0]])
+# Default wrist camera mount: optical axis along the end-effector z axis, 9 cm to the side of the fingers (x_e)
+# and 5 cm behind the finger tips, so the fingers stay out of the image.
+DEFAULT_eMc = np.array([[1.0, 0.0, 0.0, 0.09], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, -0.05], [0.0, 0.0, 0.0, 1.0]])
 # Gains of the joint velocity servo (Nm s/rad) used in velocity and position control.
 VELOCITY_GAINS = np.array([120.0, 120.0, 80.0, 80.0, 15.0, 15.0, 6.0])
 _R_CV = np.diag([1.0, -1.0, -1.0])  # ViSP camera (z forward, y down) -> MuJoCo camera (-z forward, y up)

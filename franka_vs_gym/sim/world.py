@@ -86,8 +86,10 @@ class SimWorld:
                 r = mujoco.Renderer(self.model, height, width)
             except Exception as e:  # pragma: no cover - depends on the machine
                 raise RuntimeError(
-                    f"offscreen rendering failed with MUJOCO_GL={os.environ.get('MUJOCO_GL')!r}: {e}. On a machine "
-                    "without a display install Mesa (EGL or OSMesa) and set MUJOCO_GL=egl or MUJOCO_GL=osmesa.") from e
+                    f"offscreen rendering failed (MUJOCO_GL={os.environ.get('MUJOCO_GL')!r}): {e}. MuJoCo picks its "
+                    "OpenGL backend when it is first imported: on a machine without a display install Mesa (EGL or "
+                    "OSMesa) and set MUJOCO_GL=egl (or osmesa) in the environment, or import franka_vs_gym before "
+                    "mujoco so that it can choose EGL for you.") from e
             scene_option = mujoco.MjvOption()
             self._renderers[key] = r
             r._fvs_option = scene_option  # type: ignore[attr-defined]

@@ -1,0 +1,133 @@
+"""AprilTag 36h11 targets: geometry, detection in images, pose by PnP, and the fast "ideal features" mode.
+
+Tag frame o: origin at the tag centre, z out of the tag's printed face (towards a camera that sees it), x to the
+right and y up as the tag is printed. Corners are ordered as OpenCV's detector returns them and as its IPPE-square
+PnP expects: 0 top-left (-s/2, +s/2), 1 top-right (+s/2, +s/2), 2 bottom-right (+s/2, -s/2),
+3 bottom-left (-s/2, -s/2), with s the side of the black square (the tag "size", as in ViSP).
+
+Detector choice: OpenCV's aruco module (DICT_APRILTAG_36h11) with AprilTag corner refinement. It ships with the
+opencv-python-headless dependency (no extra compiled package), decodes the same 36h11 family, and on the rendered
+images used here detects the tag in well under the 15 ms budget per 320x240 frame (see scripts/bench.py).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from franka_vs_gym.vision.camera import CameraIntrinsics
+
+
+def tag_corners(size: float) -> np.ndarray:
+    """Corners (4, 3) of a tag of side ``size`` (m) in the tag frame, in detection order."""
+    if not size > 0:
+        raise ValueError(f"tag size must be > 0 m, got {size}")
+    h = size / 2
+    return np.array([[-h, h, 0.0], [h, h, 0.0], [h, -h, 0.0], [-h, -h, 0.0]])
+
+
+@dataclass
+class TagDetection:
+    """One detected tag: its id and its 4 corners (4, 2) in pixels, in detection order."""
+
+    tag_id: int
+    corners: np.ndarray
+
+
+class TagDetector:
+    """AprilTag 36h11 detector on RGB or grayscale uint8 images."""
+
+    def __init__(self, refine: bool = True) -> None:
+        import cv2
+
+        self._cv2 = cv2
+        params = cv2.aruco.DetectorParameters()
+        if refine:
+            params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
+        self._det = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_APRILTAG_36h11),
+                                            params)
+
+    def detect(self, image: np.ndarray) -> list[TagDetection]:
+        img = np.asarray(image)
+        if img.dtype != np.uint8 or img.ndim not in (2, 3):
+            raise ValueError(f"expected a uint8 image (H, W) or (H, W, 3), got {img.dtype} {img.shape}")
+        gray = self._cv2.cvtColor(img, self._cv2.COLOR_RGB2GRAY) if img.ndim == 3 else img
+        corners, ids, _ = self._det.detectMarkers(gray)
+        if ids is None:
+            return []
+        return [TagDetection(int(i), c.reshape(4, 2).astype(np.float64)) for i, c in zip(ids.ravel(), corners,
+                                                                                          strict=True)]
+
+    def find(self, image: np.ndarray, tag_id: int) -> TagDetection | None:
+        for d in self.detect(image):
+            if d.tag_id == tag_id:
+                return d
+        return None
+
+
+def estimate_pose(corners_px: np.ndarray, size: float, intrinsics: CameraIntrinsics) -> np.ndarray:
+    """cMo (4, 4) of a tag from its 4 detected corners (4, 2) in pixels, by IPPE-square PnP (no distortion)."""
+    import cv2
+
+    c = np.asarray(corners_px, dtype=np.float64).reshape(4, 2)
+    if not np.isfinite(c).all():
+        raise ValueError("tag corners contain NaN or inf")
+    ok, rvec, tvec = cv2.solvePnP(tag_corners(size), c, intrinsics.K, None, flags=cv2.SOLVEPNP_IPPE_SQUARE)
+    if not ok:
+        raise ValueError("PnP failed for these corners")
+    M = np.eye(4)
+    M[:3, :3] = cv2.Rodrigues(rvec)[0]
+    M[:3, 3] = tvec.ravel()
+    return M
+
+
+@dataclass
+class TagMeasurement:
+    """What the camera measures of one tag: corners (4, 2) in pixels and in normalized coordinates, depths Z (4,)
+    of the corners in m, the pose cMo (4, 4), and whether the tag is seen (all 4 corners in the image)."""
+
+    corners_px: np.ndarray
+    corners_xy: np.ndarray
+    depths: np.ndarray
+    cMo: np.ndarray
+    visible: bool
+
+
+def ideal_measurement(cMo: np.ndarray, size: float, intrinsics: CameraIntrinsics, *, noise_px: float = 0.0,
+                      dropout: float = 0.0, margin_px: float = 0.0,
+                      rng: np.random.Generator | None = None) -> TagMeasurement:
+    """The "ideal features" mode: project the true tag corners with the camera model, orders of magnitude faster
+    than rendering and detecting. Optional white pixel noise (std ``noise_px``) and dropout (probability the tag is
+    missed in this frame). The tag is visible when it is in front of the camera, faces it, and all corners are in
+    the image (``margin_px`` from the border)."""
+    cMo = np.asarray(cMo, dtype=np.float64)
+    if cMo.shape != (4, 4) or not np.isfinite(cMo).all():
+        raise ValueError("cMo must be a finite 4x4 pose")
+    P = tag_corners(size) @ cMo[:3, :3].T + cMo[:3, 3]
+    Z = P[:, 2]
+    facing = cMo[2, 2] < 0  # the tag's z axis points towards the camera
+    if (Z <= 1e-6).any() or not facing:
+        return TagMeasurement(np.zeros((4, 2)), np.zeros((4, 2)), Z, cMo, False)
+    xy = P[:, :2] / Z[:, None]
+    uv = intrinsics.to_pixels(xy)
+    visible = bool(intrinsics.in_image(uv, margin_px).all())
+    if rng is not None and dropout > 0 and rng.random() < dropout:
+        visible = False
+    if noise_px > 0:
+        if rng is None:
+            raise ValueError("pixel noise needs a random generator (rng)")
+        uv = uv + rng.normal(0.0, noise_px, uv.shape)
+        xy = intrinsics.to_normalized(uv)
+    return TagMeasurement(uv, xy, Z, cMo, visible)
+
+
+def detected_measurement(image: np.ndarray, detector: TagDetector, tag_id: int, size: float,
+                         intrinsics: CameraIntrinsics) -> TagMeasurement:
+    """Measurement from a rendered image: detection, then pose by PnP; depths from the estimated pose."""
+    det = detector.find(image, tag_id)
+    if det is None:
+        return TagMeasurement(np.zeros((4, 2)), np.zeros((4, 2)), np.zeros(4), np.eye(4), False)
+    cMo = estimate_pose(det.corners, size, intrinsics)
+    Z = (tag_corners(size) @ cMo[:3, :3].T + cMo[:3, 3])[:, 2]
+    return TagMeasurement(det.corners, intrinsics.to_normalized(det.corners), Z, cMo, True)
