@@ -6,7 +6,7 @@ Typical use::
     log = load_log("run.csv")
     print(compare(log).rmse_tau)                  # per-joint torque RMSE of the default model, Nm
     d = diagnose(log)                             # ranking of the candidate effects, verdict
-    f = fit_effects(log, d.selected or ["none"])  # fit, apply to the model and the plant, re-compare
+    f = fit_effects(log, d.selected)              # fit, apply to the model and the plant, re-compare
     f.after.save("calibrated.json")               # loads in FrankaModel, FrankaSim, gymnasium.make(model=...)
 """
 
