@@ -89,9 +89,13 @@ class ReplayResult:
     diverged: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        return {"mode": self.mode, "rmse_q": self.rmse_q.round(6).tolist(), "rmse_tau": self.rmse_tau.round(4).tolist(),
-                "rmse_q_total": float(rmse(self.rmse_q)), "rmse_tau_total": float(rmse(self.rmse_tau)),
-                "diverged": self.diverged}
+        def clean_list(a: np.ndarray, nd: int) -> list:
+            return [None if not np.isfinite(x) else round(float(x), nd) for x in a]
+
+        tot_q, tot_tau = float(rmse(self.rmse_q)), float(rmse(self.rmse_tau))
+        return {"mode": self.mode, "rmse_q": clean_list(self.rmse_q, 6), "rmse_tau": clean_list(self.rmse_tau, 4),
+                "rmse_q_total": tot_q if np.isfinite(tot_q) else None,
+                "rmse_tau_total": tot_tau if np.isfinite(tot_tau) else None, "diverged": self.diverged}
 
 
 @dataclass
