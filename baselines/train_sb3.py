@@ -33,6 +33,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--env-id", default="FrankaIBVS-v0")
     p.add_argument("--timesteps", type=int, default=60_000, help="environment steps to train for")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--n-envs", type=int, default=0, help="environments stepped together (default: 1 for SAC, 8 for "
+                   "PPO; one process)")
     p.add_argument("--action-scale", type=float, default=0.5, help="joint speed (rad/s) of an action of 1")
     p.add_argument("--out", default="runs/sb3/ibvs_agent", help="output path without .zip")
     p.add_argument("--tensorboard", default="runs/sb3", help="TensorBoard log folder ('' to disable)")
@@ -59,6 +61,7 @@ def _progress_callback(log_every: int, total: int):
             self.episodes = 0
             self.t0 = time.perf_counter()
             self._ret = None
+            self.next_log = log_every
 
         def _on_step(self) -> bool:
             rewards = self.locals["rewards"]
@@ -74,7 +77,8 @@ def _progress_callback(log_every: int, total: int):
             if self.successes:
                 self.logger.record("rollout/success_rate", float(np.mean(self.successes)))
             n = self.num_timesteps
-            if n % log_every == 0 or n == total:
+            if n >= self.next_log or n >= total:
+                self.next_log += log_every
                 dt = time.perf_counter() - self.t0
                 sr = np.mean(self.successes) if self.successes else float("nan")
                 ret = np.mean(self.returns) if self.returns else float("nan")
@@ -107,8 +111,14 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
     timesteps = 400 if args.smoke else int(args.timesteps)
     if timesteps < 1:
         raise ValueError(f"--timesteps must be >= 1, got {timesteps}")
-    env = Monitor(make_agent_env(args.env_id, args.action_scale, **env_kwargs))
-    env.reset(seed=args.seed)
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    n_envs = args.n_envs if args.n_envs else (1 if args.algo == "sac" else 8)
+    if n_envs < 1:
+        raise ValueError(f"--n-envs must be >= 1, got {n_envs}")
+    env = DummyVecEnv([lambda: Monitor(make_agent_env(args.env_id, args.action_scale, **env_kwargs))
+                       for _ in range(n_envs)])
+    env.seed(args.seed)
     tb = args.tensorboard or None
     if args.algo == "sac":
         model = SAC("MlpPolicy", env, learning_rate=3e-4, buffer_size=200_000,
@@ -116,11 +126,11 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
                     train_freq=1, gradient_steps=1, policy_kwargs={"net_arch": [128, 128]}, seed=args.seed,
                     tensorboard_log=tb, device="cpu", verbose=0)
     else:
-        model = PPO("MlpPolicy", env, learning_rate=3e-4, n_steps=128 if args.smoke else 2048, batch_size=64,
+        model = PPO("MlpPolicy", env, learning_rate=3e-4, n_steps=32 if args.smoke else 256, batch_size=256,
                     n_epochs=10, gamma=0.98, gae_lambda=0.95, clip_range=0.2, ent_coef=0.0,
-                    policy_kwargs={"net_arch": [128, 128]}, seed=args.seed, tensorboard_log=tb, device="cpu",
-                    verbose=0)
-    print(f"training {args.algo.upper()} on {args.env_id} for {timesteps} steps (action scale "
+                    policy_kwargs={"net_arch": [128, 128], "log_std_init": -1.0}, seed=args.seed,
+                    tensorboard_log=tb, device="cpu", verbose=0)
+    print(f"training {args.algo.upper()} on {args.env_id} for {timesteps} steps with {n_envs} env(s) (action scale "
           f"{args.action_scale} rad/s, TensorBoard: {tb or 'off'})", flush=True)
     t0 = time.perf_counter()
     model.learn(total_timesteps=timesteps, callback=_progress_callback(100 if args.smoke else args.log_every,
@@ -131,7 +141,7 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
     model.save(str(zip_path), exclude=["replay_buffer"])
     meta = {"algo": args.algo, "env_id": args.env_id, "env_kwargs": env_kwargs, "action_scale": args.action_scale,
             "action_type": "joint_velocity", "observation_layout": OBS_LAYOUT, "timesteps": timesteps,
-            "seed": args.seed, "train_time_s": round(train_time, 1),
+            "seed": args.seed, "n_envs": n_envs, "train_time_s": round(train_time, 1),
             "command": "python " + " ".join(sys.argv)}
     meta_path.write_text(json.dumps(meta, indent=2))
     print(f"saved {zip_path} ({zip_path.stat().st_size / 1e6:.2f} MB) and {meta_path}; "

@@ -190,6 +190,7 @@ class FrankaEnv(gym.Env):
                    if self.payload_mass_range is not None else None)
         self.sim = FrankaSim(self.config, camera=camera, tags=tags, timestep=self.physics_step,
                              undeclared_payload=payload)
+        self.robot = self.sim  # the FrankaSim (vpRobotFranka-style API): env.unwrapped.robot.model is its FrankaModel
         self.world = self.sim.world
         self._m, self._d = self.world.model, self.world.data
         self._nominal = self._nominal_dynamics()

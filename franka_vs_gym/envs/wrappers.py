@@ -21,27 +21,29 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-OBS_LAYOUT = "servo-vector/1"
-# (key, scale): the agent sees (obs[key] - reference) * scale, see servo_vector
-_VECTOR_KEYS = ("feature_error", "features", "depth_error", "q", "dq", "visible")
-VECTOR_SIZE = 8 + 8 + 4 + 7 + 7 + 1
+OBS_LAYOUT = "servo-vector/2"
+VECTOR_SIZE = 8 + 8 + 1 + 8 + 4 + 7 + 7 + 1
 
 
 def servo_vector(obs: dict[str, Any]) -> np.ndarray:
-    """Flat float32 vector (35,) from a visual-servoing contract observation (one env, not batched):
-    4 (s - s*), s, Z - Z*, q, 0.5 dq, visible. The scales bring each part to about unit size."""
-    s = np.asarray(obs["features"], dtype=np.float32)
-    sd = np.asarray(obs["features_desired"], dtype=np.float32)
-    z = np.asarray(obs["feature_depth"], dtype=np.float32)
+    """Flat float32 vector (44,) from a visual-servoing contract observation (one env, not batched):
+
+    ``4 e``, ``e / (||e|| + 0.005)`` (the error direction, which stays informative close to the goal),
+    ``log10(||e|| + 0.001) / 3``, ``s``, ``5 (Z - Z*)``, ``q``, ``0.5 dq``, ``visible``, with ``e = s - s*``. The
+    scales bring each part to about unit size."""
+    s = np.asarray(obs["features"], dtype=np.float64)
+    e = s - np.asarray(obs["features_desired"], dtype=np.float64)
+    n = float(np.sqrt(e @ e))
+    z = np.asarray(obs["feature_depth"], dtype=np.float64)
     # the desired depth of every corner is the goal tag depth (translation z of tag_pose_desired)
-    zd = np.float32(np.asarray(obs["tag_pose_desired"], dtype=np.float32)[2])
-    return np.concatenate([4.0 * (s - sd), s, 5.0 * (z - zd), np.asarray(obs["q"], np.float32),
-                           0.5 * np.asarray(obs["dq"], np.float32),
-                           np.asarray(obs["visible"], np.float32)]).astype(np.float32)
+    zd = float(obs["tag_pose_desired"][2])
+    return np.concatenate([4.0 * e, e / (n + 0.005), [np.log10(n + 0.001) / 3.0], s, 5.0 * (z - zd),
+                           np.asarray(obs["q"], np.float64), 0.5 * np.asarray(obs["dq"], np.float64),
+                           np.asarray(obs["visible"], np.float64)]).astype(np.float32)
 
 
 class ServoVectorObservation(gym.ObservationWrapper):
-    """Dict contract observation -> the flat vector of :func:`servo_vector` (Box (35,), float32)."""
+    """Dict contract observation -> the flat vector of :func:`servo_vector` (Box (44,), float32)."""
 
     def __init__(self, env: gym.Env) -> None:
         super().__init__(env)

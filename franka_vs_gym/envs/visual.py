@@ -1,0 +1,319 @@
+"""Shared part of the visual-servoing tasks: an AprilTag on the table, the wrist camera, the observation contract.
+
+The task classes (``ibvs.py``, ``pbvs.py``, ``visual_torque.py``) only choose the error, reward and defaults. The
+camera model, projection, detection and pose estimation are :mod:`franka_vs_gym.vision`'s; this module decides
+*when* the camera sees (its own period, independent of the control period) and what the agent observes.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import mujoco
+import numpy as np
+from gymnasium import spaces
+
+from franka_vs_gym.assets.mjcf import TagSpec, mat2quat
+from franka_vs_gym.envs.base import FrankaEnv, ObservationPacker, _nonneg, _positive, _range, substeps
+from franka_vs_gym.model import params
+from franka_vs_gym.sim import pose_vector
+
+FEATURE_SOURCES = ("ideal", "detection")
+
+
+def rot_x(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[1.0, 0, 0], [0, c, -s], [0, s, c]])
+
+
+def rot_y(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, 0, s], [0, 1.0, 0], [-s, 0, c]])
+
+
+def rot_z(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
+
+
+def homogeneous(R: np.ndarray, t: Any) -> np.ndarray:
+    M = np.eye(4)
+    M[:3, :3] = R
+    M[:3, 3] = t
+    return M
+
+
+def inv_h(M: np.ndarray) -> np.ndarray:
+    R, t = M[:3, :3], M[:3, 3]
+    out = np.eye(4)
+    out[:3, :3] = R.T
+    out[:3, 3] = -R.T @ t
+    return out
+
+
+def desired_tag_pose(distance: float) -> np.ndarray:
+    """cdMo: the tag centred, ``distance`` m in front of the camera, facing it (tag z towards the camera, tag x
+    along the camera x), as in ViSP's Franka visual-servoing examples."""
+    return homogeneous(rot_x(math.pi), (0.0, 0.0, distance))
+
+
+class VisualServoEnv(FrankaEnv):
+    """Base of the visual-servoing tasks. See :class:`~franka_vs_gym.envs.ibvs.FrankaIBVSEnv` for the tables."""
+
+    def __init__(self, *, observation_type: str = "features", camera_period: float = 0.05,
+                 tag_size: float = params.TAG_SIZE, tag_id: int = 0, tag_x_range: Any = (0.45, 0.60),
+                 tag_y_range: Any = (-0.10, 0.10), tag_yaw_range: Any = (-0.5, 0.5), desired_distance: float = 0.20,
+                 start_distance_range: Any = (0.26, 0.40), start_offset: float = 0.05, start_roll: float = 0.5,
+                 start_tilt: float = 0.15, feature_noise: float = 0.0, feature_source: str = "ideal",
+                 image_width: int = 128, image_height: int = 96, detection_width: int = 320,
+                 detection_height: int = 240, terminate_on_tag_lost: bool = True, success_bonus: float = 1.0,
+                 **kwargs: Any) -> None:
+        self.tag_size = _positive(tag_size, "tag_size")
+        if not isinstance(tag_id, (int, np.integer)) or tag_id < 0:
+            raise ValueError(f"tag_id must be an integer >= 0, got {tag_id!r}")
+        self.tag_id = int(tag_id)
+        self.tag_x_range = _range(tag_x_range, "tag_x_range")
+        self.tag_y_range = _range(tag_y_range, "tag_y_range")
+        self.tag_yaw_range = _range(tag_yaw_range, "tag_yaw_range")
+        self.desired_distance = _positive(desired_distance, "desired_distance")
+        self.start_distance_range = _range(start_distance_range, "start_distance_range", positive=True)
+        self.start_offset = _nonneg(start_offset, "start_offset")
+        self.start_roll = _nonneg(start_roll, "start_roll")
+        self.start_tilt = _nonneg(start_tilt, "start_tilt")
+        self.feature_noise = _nonneg(feature_noise, "feature_noise")
+        if feature_source not in FEATURE_SOURCES:
+            raise ValueError(f"feature_source must be one of {FEATURE_SOURCES}, got {feature_source!r}")
+        self.feature_source = feature_source
+        self.image_width, self.image_height = int(image_width), int(image_height)
+        self.detection_width, self.detection_height = int(detection_width), int(detection_height)
+        for name, v in (("image_width", self.image_width), ("image_height", self.image_height),
+                        ("detection_width", self.detection_width), ("detection_height", self.detection_height)):
+            if v < 8:
+                raise ValueError(f"{name} must be >= 8 pixels, got {v}")
+        self.terminate_on_tag_lost = bool(terminate_on_tag_lost)
+        self.success_bonus = _nonneg(success_bonus, "success_bonus")
+        tag = TagSpec(tag_id=self.tag_id, size=self.tag_size, pos=(0.55, 0.0, 0.0))
+        super().__init__(observation_type=observation_type, camera=True, tags=[tag], **kwargs)
+        self.camera_period = _positive(camera_period, "camera_period")
+        self.camera_substeps = substeps(self.camera_period, self.physics_step)
+        m = self._m
+        self._tag_body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, tag.name)
+        self._cam_name = self.sim.camera_name()
+        self._setup_camera()
+        self.cdMo = desired_tag_pose(self.desired_distance)
+        self.features_desired, self.depth_desired, ok = self._project(self.cdMo)
+        if not ok:
+            raise ValueError(f"the goal pose does not show the whole tag (tag_size {self.tag_size} m at "
+                             f"desired_distance {self.desired_distance} m)")
+        self.tag_pose_desired = pose_vector(self.cdMo)
+        self._q_goal_guess = np.array(params.Q_NEUTRAL)
+        self._k = 0  # physics steps since the episode start
+        self._frame: dict[str, np.ndarray] = {}
+        self._truth_cache: tuple[int, dict[str, np.ndarray]] = (-1, {})
+        self.observation_space = self._make_observation_space()
+        self._pack = ObservationPacker(self.observation_space)
+        self._fMo = self.get_fMo()
+
+    # ------------------------------------------------------------------ camera (franka_vs_gym.vision)
+    def _setup_camera(self) -> None:
+        """The camera model, detector and renderers are franka_vs_gym.vision's; features are measured with the
+        intrinsics of the detection_width x detection_height camera (feature noise is in its pixels)."""
+        from franka_vs_gym.vision import CameraIntrinsics, TagDetector, WristCamera, set_mujoco_camera
+
+        self.intrinsics = CameraIntrinsics.default(self.detection_width, self.detection_height)
+        set_mujoco_camera(self._m, self._cam_name, self.intrinsics)
+        self._start_margin_px = 0.1 * min(self.detection_width, self.detection_height)
+        self._image_camera = self._detection_camera = self._detector = None
+        if self.observation_type in ("image", "features+image"):
+            self._image_camera = WristCamera(self.sim, self.intrinsics.scaled(self.image_width, self.image_height),
+                                             self.camera_period)
+        if self.feature_source == "detection" and self.observation_type != "image":
+            self._detection_camera = WristCamera(self.sim, self.intrinsics, self.camera_period)
+            self._detector = TagDetector()
+
+    def _project(self, cMo: np.ndarray, margin_px: float = 0.0) -> tuple[np.ndarray, np.ndarray, bool]:
+        """(features (8,) normalized coordinates, depths (4,) m, whole tag in the image) for a tag pose."""
+        from franka_vs_gym.vision import ideal_measurement
+
+        m = ideal_measurement(cMo, self.tag_size, self.intrinsics, margin_px=margin_px)
+        return m.corners_xy.ravel(), m.depths, m.visible
+
+    def _measure(self) -> dict[str, np.ndarray]:
+        """A camera measurement now: ideal projection + pixel noise, or detection on a rendered image."""
+        from franka_vs_gym.vision import detected_measurement, ideal_measurement
+
+        if self.feature_source == "ideal":
+            m = ideal_measurement(self.get_cMo(), self.tag_size, self.intrinsics, noise_px=self.feature_noise,
+                                  rng=self.np_random if self.feature_noise else None)
+        else:
+            image = self._detection_camera.render()
+            m = detected_measurement(image, self._detector, self.tag_id, self.tag_size, self.intrinsics)
+        return {"features": m.corners_xy.ravel(), "feature_depth": m.depths, "tag_pose": pose_vector(m.cMo),
+                "visible": np.array([1.0 if m.visible else 0.0])}
+
+    # ------------------------------------------------------------------ spaces
+    def _make_observation_space(self) -> spaces.Dict:
+        f32 = np.float32
+        q_lo, q_hi = self.q_min - 0.2, self.q_max + 0.2
+        dq_hi = 2.0 * self.dq_max
+        sp: dict[str, spaces.Space] = {
+            "q": spaces.Box(q_lo.astype(f32), q_hi.astype(f32), dtype=f32),
+            "dq": spaces.Box((-dq_hi).astype(f32), dq_hi.astype(f32), dtype=f32),
+        }
+        if self.observation_type != "image":
+            sp.update({
+                "features": spaces.Box(f32(-2.0), f32(2.0), (8,), dtype=f32),
+                "features_desired": spaces.Box(f32(-2.0), f32(2.0), (8,), dtype=f32),
+                "feature_depth": spaces.Box(f32(0.0), f32(5.0), (4,), dtype=f32),
+                "tag_pose": spaces.Box(np.array([-5, -5, -5, -4, -4, -4], f32), np.array([5, 5, 5, 4, 4, 4], f32),
+                                       dtype=f32),
+                "tag_pose_desired": spaces.Box(np.array([-5, -5, -5, -4, -4, -4], f32),
+                                               np.array([5, 5, 5, 4, 4, 4], f32), dtype=f32),
+                "visible": spaces.Box(f32(0.0), f32(1.0), (1,), dtype=f32),
+            })
+        if self.observation_type in ("image", "features+image"):
+            sp["image"] = spaces.Box(0, 255, (self.image_height, self.image_width, 3), dtype=np.uint8)
+        return spaces.Dict(sp)
+
+    # ------------------------------------------------------------------ geometry
+    def get_fMo(self) -> np.ndarray:
+        """Pose of the tag in the robot base frame f (4, 4)."""
+        d, b = self._d, self._tag_body
+        wMo = homogeneous(d.xmat[b].reshape(3, 3), d.xpos[b])
+        return inv_h(self.sim.get_wMf()) @ wMo
+
+    def get_cMo(self) -> np.ndarray:
+        """True pose of the tag in the camera frame c (4, 4)."""
+        return inv_h(self.sim.get_fMc()) @ self._fMo
+
+    # ------------------------------------------------------------------ episode
+    def _place_tag(self) -> None:
+        rng, m = self.np_random, self._m
+        x = rng.uniform(*self.tag_x_range) if self.tag_x_range else 0.55
+        y = rng.uniform(*self.tag_y_range) if self.tag_y_range else 0.0
+        yaw = rng.uniform(*self.tag_yaw_range) if self.tag_yaw_range else 0.0
+        m.body_pos[self._tag_body] = (x, y, 0.0)
+        m.body_quat[self._tag_body] = mat2quat(rot_z(yaw))
+        mujoco.mj_kinematics(m, self._d)
+
+    def _sample_start(self) -> np.ndarray | None:
+        """One draw of the start camera pose c0Mo; None if the tag would not be fully visible with a margin."""
+        rng = self.np_random
+        Z = rng.uniform(*self.start_distance_range)
+        tx, ty = rng.uniform(-self.start_offset, self.start_offset, 2) * Z / self.desired_distance
+        roll = rng.uniform(-self.start_roll, self.start_roll)
+        ax, ay = rng.uniform(-self.start_tilt, self.start_tilt, 2)
+        # camera-frame rotation applied to the goal orientation: c0Mo = [R, t] with the tag at depth Z
+        R = rot_x(ax) @ rot_y(ay) @ rot_z(roll) @ self.cdMo[:3, :3]
+        cMo = homogeneous(R, (tx, ty, Z))
+        if not self._project(cMo, self._start_margin_px)[2]:
+            return None
+        return cMo
+
+    def _reset_task(self, options: dict[str, Any]) -> np.ndarray:
+        self._place_tag()
+        fMo = self._fMo = self.get_fMo()  # the tag is static during an episode
+        eMc = self.sim.get_eMc()
+        cMe = inv_h(eMc)
+        model = self.sim.model
+        # goal posture first (a good IK start for the start posture; computed from the neutral pose)
+        fMe_goal = fMo @ inv_h(self.cdMo) @ cMe
+        try:
+            q_goal = model.inverse_kinematics(fMe_goal, self._q_goal_guess, restarts=0, tol=1e-6)
+        except ValueError:
+            q_goal = self._q_goal_guess
+        if "q0" in options:
+            return np.asarray(options["q0"], dtype=np.float64)
+        margin = 0.1
+        for _ in range(50):
+            c0Mo = self._sample_start()
+            if c0Mo is None:
+                continue
+            fMe0 = fMo @ inv_h(c0Mo) @ cMe
+            try:
+                q0 = model.inverse_kinematics(fMe0, q_goal, restarts=0, tol=1e-6)
+            except ValueError:
+                continue
+            if (q0 > self.q_min + margin).all() and (q0 < self.q_max - margin).all():
+                self._q_goal = q_goal
+                return q0
+        raise RuntimeError("could not draw a start pose with the tag in view and the arm within its limits after "
+                           "50 tries: check the tag pose and start ranges")
+
+    def _after_reset(self) -> None:
+        self._k = 0
+        self._truth_cache = (-1, {})
+        self._capture()
+
+    def _advance(self) -> None:
+        n, c = self.n_substeps, self.camera_substeps
+        k0, k1 = self._k, self._k + n
+        last = (k1 // c) * c  # the last camera frame of this control period
+        if last > k0:
+            self.world.step(last - k0)
+            self._k = last
+            self._capture()
+            if k1 > last:
+                self.world.step(k1 - last)
+        else:
+            self.world.step(n)
+        self._k = k1
+
+    # ------------------------------------------------------------------ observation
+    def _measure_true(self) -> dict[str, np.ndarray]:
+        cMo = self.get_cMo()
+        feats, depth, visible = self._project(cMo)
+        return {"features": feats, "feature_depth": depth, "tag_pose": pose_vector(cMo),
+                "visible": np.array([1.0 if visible else 0.0]), "cMo": cMo}
+
+    def _capture(self) -> None:
+        """Take a camera frame now: the measured features and/or the image."""
+        frame: dict[str, np.ndarray] = {}
+        if self.observation_type != "image":
+            if self.feature_source == "ideal" and not self.feature_noise:
+                truth = self._measure_true()
+                self._truth_cache = (self._k, truth)
+                frame.update(truth)
+            else:
+                frame.update(self._measure())
+            if not frame["visible"][0]:
+                frame["features"] = np.zeros(8)
+                frame["feature_depth"] = self.depth_desired.copy()
+                frame["tag_pose"] = np.zeros(6)
+        if self._image_camera is not None:
+            frame["image"] = self._image_camera.render()
+        self._frame = frame
+
+    def _get_obs(self) -> dict[str, np.ndarray]:
+        q, dq = self._noisy_joint_state()
+        raw: dict[str, np.ndarray] = {"q": q, "dq": dq}
+        # ground truth now, also used by the reward and the checks of this step (reused if a frame was just taken)
+        k, truth = self._truth_cache
+        self._truth = truth if k == self._k else self._measure_true()
+        if self.observation_type == "state":
+            m = dict(self._truth)
+            if not m["visible"][0]:
+                m["features"], m["feature_depth"], m["tag_pose"] = np.zeros(8), self.depth_desired.copy(), np.zeros(6)
+            raw.update(m)
+        else:
+            raw.update(self._frame)
+        if self.observation_type != "image":
+            raw["features_desired"] = self.features_desired
+            raw["tag_pose_desired"] = self.tag_pose_desired
+        obs = self._pack(raw)
+        if "image" in self.observation_space.spaces:
+            obs["image"] = raw["image"].copy()  # a held frame must not be shared between observations
+        return obs
+
+    def _reset_info(self) -> dict[str, Any]:
+        return {"error": self._task_error()}
+
+    # ------------------------------------------------------------------ task error
+    def _task_error(self) -> float:
+        raise NotImplementedError
+
+    def _seen(self) -> bool:
+        """Whether the whole tag is in the camera's field of view now (ground truth, so that a missed detection or
+        a noisy measurement does not end an episode)."""
+        return bool(self._truth["visible"][0])
