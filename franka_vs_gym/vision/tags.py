@@ -73,8 +73,13 @@ def estimate_pose(corners_px: np.ndarray, size: float, intrinsics: CameraIntrins
     c = np.asarray(corners_px, dtype=np.float64).reshape(4, 2)
     if not np.isfinite(c).all():
         raise ValueError("tag corners contain NaN or inf")
-    ok, rvec, tvec = cv2.solvePnP(tag_corners(size), c, intrinsics.K, None, flags=cv2.SOLVEPNP_IPPE_SQUARE)
-    if not ok:
+    obj = tag_corners(size)
+    ok, rvec, tvec = cv2.solvePnP(obj, c, intrinsics.K, None, flags=cv2.SOLVEPNP_IPPE_SQUARE)
+    if not (ok and np.isfinite(rvec).all() and np.isfinite(tvec).all()):
+        # IPPE-square degenerates to NaN for an exactly fronto-parallel square (the very pose servoing converges
+        # to); the globally optimal SQPnP solves that case exactly.
+        ok, rvec, tvec = cv2.solvePnP(obj, c, intrinsics.K, None, flags=cv2.SOLVEPNP_SQPNP)
+    if not (ok and np.isfinite(rvec).all() and np.isfinite(tvec).all()):
         raise ValueError("PnP failed for these corners")
     M = np.eye(4)
     M[:3, :3] = cv2.Rodrigues(rvec)[0]
