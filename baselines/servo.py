@@ -13,10 +13,16 @@ from typing import Any
 
 import numpy as np
 
-from franka_vs_gym.control.visual_servo import (AdaptiveGain, InteractionMatrixType, camera_to_joint_velocity,
-                                                ibvs_velocity, pbvs_velocity)
+from franka_vs_gym.control.visual_servo import (
+    AdaptiveGain,
+    InteractionMatrixType,
+    camera_to_joint_velocity,
+    ibvs_velocity,
+    pbvs_velocity,
+)
 from franka_vs_gym.model.config import resolve_config
 from franka_vs_gym.model.franka_model import FrankaModel
+from franka_vs_gym.model.geometry import pose_from_vector
 from franka_vs_gym.sim.robot import DEFAULT_eMc
 from franka_vs_gym.vision.tags import tag_corners
 
@@ -24,16 +30,6 @@ ACTION_TYPES = ("joint_velocity", "cartesian_velocity")
 CARTESIAN_BOUNDS = np.array([0.5, 0.5, 0.5, 1.0, 1.0, 1.0])
 _KEYS = {"q": 7, "features": 8, "features_desired": 8, "feature_depth": 4, "tag_pose": 6, "tag_pose_desired": 6,
          "visible": 1}
-
-
-def pose_from_vector(p: np.ndarray) -> np.ndarray:
-    """4x4 pose from (t, theta u) (6,)."""
-    import pinocchio as pin
-
-    M = np.eye(4)
-    M[:3, :3] = pin.exp3(np.asarray(p[3:], dtype=np.float64))
-    M[:3, 3] = p[:3]
-    return M
 
 
 def _read(observation: Any) -> dict[str, np.ndarray]:

@@ -8,8 +8,15 @@ import pytest
 
 from franka_vs_gym.assets.mjcf import TagSpec
 from franka_vs_gym.sim import FrankaSim
-from franka_vs_gym.vision import (CameraIntrinsics, TagDetector, WristCamera, detected_measurement, estimate_pose,
-                                  ideal_measurement, tag_corners)
+from franka_vs_gym.vision import (
+    CameraIntrinsics,
+    TagDetector,
+    WristCamera,
+    detected_measurement,
+    estimate_pose,
+    ideal_measurement,
+    tag_corners,
+)
 
 
 def _inv(M):

@@ -4,12 +4,15 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from franka_vs_gym.control.visual_servo import (AdaptiveGain, camera_to_joint_velocity, ibvs_velocity,
-                                                pbvs_velocity)
+from franka_vs_gym.control.visual_servo import AdaptiveGain, camera_to_joint_velocity, ibvs_velocity, pbvs_velocity
 from franka_vs_gym.model import FrankaModel
 from franka_vs_gym.sim.robot import DEFAULT_eMc, twist_transform
-from franka_vs_gym.vision.features import (pbvs_features, point_interaction_matrix, points_interaction_matrix,
-                                           thetau_interaction_matrix)
+from franka_vs_gym.vision.features import (
+    pbvs_features,
+    point_interaction_matrix,
+    points_interaction_matrix,
+    thetau_interaction_matrix,
+)
 
 
 def _move(cMo, v, h):

@@ -9,6 +9,14 @@ from franka_vs_gym.control.impedance import (
     null_space_projector,
     pose_error,
 )
+from franka_vs_gym.control.visual_servo import (
+    AdaptiveGain,
+    InteractionMatrixType,
+    camera_to_joint_velocity,
+    ibvs_velocity,
+    pbvs_velocity,
+)
 
-__all__ = ["CartesianComputedTorque", "CartesianImpedance", "ComputedTorque", "GravityCompensation",
-           "JointImpedance", "circle_reference", "null_space_projector", "pose_error"]
+__all__ = ["AdaptiveGain", "CartesianComputedTorque", "CartesianImpedance", "ComputedTorque", "GravityCompensation",
+           "InteractionMatrixType", "JointImpedance", "camera_to_joint_velocity", "circle_reference", "ibvs_velocity",
+           "null_space_projector", "pbvs_velocity", "pose_error"]

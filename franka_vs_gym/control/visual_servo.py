@@ -16,7 +16,7 @@ from enum import Enum
 
 import numpy as np
 
-from franka_vs_gym.sim.robot import twist_transform
+from franka_vs_gym.model.geometry import twist_transform
 from franka_vs_gym.vision.features import pbvs_features, points_interaction_matrix
 
 

@@ -24,9 +24,15 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from franka_vs_gym.assets.mjcf import TagSpec
-from franka_vs_gym.sim import JOINT_STATE, VELOCITY, FrankaSim, pose_vector
-from franka_vs_gym.vision import (CameraIntrinsics, TagDetector, WristCamera, detected_measurement,
-                                  ideal_measurement, tag_corners)
+from franka_vs_gym.model.geometry import inverse_pose, pose_vector
+from franka_vs_gym.sim import JOINT_STATE, VELOCITY, FrankaSim
+from franka_vs_gym.vision import (
+    CameraIntrinsics,
+    TagDetector,
+    WristCamera,
+    detected_measurement,
+    ideal_measurement,
+)
 
 TAG_POS = (0.50, 0.0, 0.0)
 PX_TOL = 1.0  # IBVS success: corner error, pixels
@@ -75,13 +81,6 @@ class ServoResult:
                                                "detections")}
 
 
-def _inv(M: np.ndarray) -> np.ndarray:
-    out = np.eye(4)
-    out[:3, :3] = M[:3, :3].T
-    out[:3, 3] = -M[:3, :3].T @ M[:3, 3]
-    return out
-
-
 def _draw(image: np.ndarray, meas, desired_px: np.ndarray, trail: list[np.ndarray]) -> np.ndarray:
     import cv2
 
@@ -110,8 +109,8 @@ def setup(seed: int, *, tag_size: float = 0.08, desired_distance: float = 0.20, 
     fMo = np.eye(4)
     fMo[:3, 3] = TAG_POS
     cdMo = desired_pose(desired_distance)
-    cMe = _inv(sim.get_eMc())
-    fMe_goal = fMo @ _inv(cdMo) @ cMe
+    cMe = inverse_pose(sim.get_eMc())
+    fMe_goal = fMo @ inverse_pose(cdMo) @ cMe
     q_goal = sim.model.inverse_kinematics(fMe_goal, sim.get_position())
     rng = np.random.default_rng(seed)
     lim = sim.model.limits()
@@ -122,11 +121,11 @@ def setup(seed: int, *, tag_size: float = 0.08, desired_distance: float = 0.20, 
         cdMc = np.eye(4)
         cdMc[:3, :3] = _rot(rng.normal(size=3), angle) if angle > 0 else np.eye(3)
         cdMc[:3, 3] = direction / np.linalg.norm(direction) * offset
-        cMo = _inv(cdMc) @ cdMo
+        cMo = inverse_pose(cdMc) @ cdMo
         if not ideal_measurement(cMo, tag_size, intr, margin_px=10).visible:
             continue
         try:
-            q0 = sim.model.inverse_kinematics(fMo @ _inv(cMo) @ cMe, q_goal, restarts=0, tol=1e-8)
+            q0 = sim.model.inverse_kinematics(fMo @ inverse_pose(cMo) @ cMe, q_goal, restarts=0, tol=1e-8)
         except ValueError:
             continue
         if (q0 > lim["q_min"] + 0.05).all() and (q0 < lim["q_max"] - 0.05).all():
@@ -169,7 +168,7 @@ def run_servo(kind: str, seed: int, *, features: str = "ideal", duration: float 
         bar = progress(n_steps, f"{kind} demo")
     for k in range(n_steps):
         if k % n_cam == 0:
-            cMo_true = _inv(sim.get_fMc()) @ fMo
+            cMo_true = inverse_pose(sim.get_fMc()) @ fMo
             truth = ideal_measurement(cMo_true, tag_size, intr)
             if features == "detect":
                 image, _ = camera.image()
@@ -184,7 +183,7 @@ def run_servo(kind: str, seed: int, *, features: str = "ideal", duration: float 
             sim.set_velocity(JOINT_STATE, dq_cmd.astype(np.float64))
             err_px = (float(np.max(np.linalg.norm(truth.corners_px - desired.corners_px, axis=1)))
                       if truth.visible else math.inf)
-            cdMc = cdMo @ _inv(cMo_true)
+            cdMc = cdMo @ inverse_pose(cMo_true)
             t_err = float(np.linalg.norm(cdMc[:3, 3]))
             r_err = math.degrees(float(np.linalg.norm(pose_vector(cdMc)[3:])))
             ok = err_px < PX_TOL if kind == "ibvs" else (t_err < T_TOL and r_err < R_TOL_DEG)

@@ -19,6 +19,7 @@ from franka_vs_gym.assets.mjcf import RobotSpec, SceneSpec, TagSpec, mat2quat
 from franka_vs_gym.model import params
 from franka_vs_gym.model.config import ModelConfig, RigidBody, Tool, resolve_config
 from franka_vs_gym.model.franka_model import FrankaModel
+from franka_vs_gym.model.geometry import pose_vector, twist_transform
 from franka_vs_gym.sim.world import SimulationDiverged, SimWorld
 
 
@@ -78,25 +79,6 @@ def _hom(M: Any, name: str) -> np.ndarray:
     if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
         raise ValueError(f"{name}: the rotation part is not a rotation matrix")
     return a
-
-
-def twist_transform(aMb: np.ndarray) -> np.ndarray:
-    """6x6 velocity twist matrix aVb mapping a twist [v; w] expressed in b to one expressed in a (ViSP's
-    vpVelocityTwistMatrix)."""
-    R, t = aMb[:3, :3], aMb[:3, 3]
-    tx = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
-    V = np.zeros((6, 6))
-    V[:3, :3] = R
-    V[:3, 3:] = tx @ R
-    V[3:, 3:] = R
-    return V
-
-
-def pose_vector(M: np.ndarray) -> np.ndarray:
-    """(tx, ty, tz, thetaux, thetauy, thetauz) of a 4x4 pose, as vpPoseVector."""
-    import pinocchio as pin
-
-    return np.concatenate([M[:3, 3], pin.log3(M[:3, :3])])
 
 
 class FrankaSim:
