@@ -55,3 +55,23 @@ def test_bad_duration_is_a_clear_error(tmp_path):
     r = run("demo", "--duration", "-1", "--out", str(tmp_path / "x"), "--quiet")
     assert r.returncode == 2
     assert "--duration" in r.stderr
+
+
+def test_demo_ibvs_with_detection_in_the_loop(tmp_path):
+    out = tmp_path / "ibvs"
+    r = run("demo", "ibvs", "--seed", "1", "--out", str(out), "--quiet")
+    assert r.returncode == 0, r.stderr
+    assert "converged" in r.stderr
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["converged"] and m["final_corner_error_px"] < 1.0 and m["features"] == "detect"
+    assert (out / "camera.mp4").stat().st_size > 5_000
+    assert (out / "servo.png").stat().st_size > 20_000
+
+
+def test_demo_pbvs_ideal_features_no_video(tmp_path):
+    out = tmp_path / "pbvs"
+    r = run("demo", "pbvs", "--features", "ideal", "--no-video", "--out", str(out), "--quiet")
+    assert r.returncode == 0, r.stderr
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["converged"] and m["final_translation_error_m"] < 1e-3 and m["final_rotation_error_deg"] < 0.5
+    assert not (out / "camera.mp4").exists()
