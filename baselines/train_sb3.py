@@ -68,7 +68,7 @@ def _progress_callback(log_every: int, total: int):
             if self._ret is None:
                 self._ret = np.zeros(len(rewards))
             self._ret += rewards
-            for i, (done, info) in enumerate(zip(self.locals["dones"], self.locals["infos"])):
+            for i, (done, info) in enumerate(zip(self.locals["dones"], self.locals["infos"], strict=True)):
                 if done:
                     self.episodes += 1
                     self.successes.append(float(info.get("is_success", False)))

@@ -1,7 +1,8 @@
 """``franka-vs evaluate``: run a scripted policy or a trained agent on an environment and print its scores.
 
 Policies:
-  ``ibvs`` / ``pbvs``           baselines.IBVSPolicy / PBVSPolicy (visual-servoing envs, cartesian_velocity)
+  ``ibvs`` / ``pbvs``           baselines.IBVSPolicy / PBVSPolicy (visual-servoing envs; joint_velocity actions, or
+                                cartesian_velocity with --env-kwargs '{"action_type": "cartesian_velocity"}')
   ``computed-torque`` / ``impedance``   baselines torque policies (FrankaTorqueTracking-v0)
   ``zero``                      a zero action (a reference: what doing nothing scores)
   ``path/to/agent.zip``         a stable-baselines3 agent saved by baselines/train_sb3.py (with its .json)
@@ -37,8 +38,14 @@ def _scripted(name: str, env_kwargs: dict[str, Any]) -> tuple[Any, str, dict[str
         cls = getattr(baselines, "IBVSPolicy" if name == "ibvs" else "PBVSPolicy", None)
         if cls is None:
             raise ValueError(f"baselines does not provide the {name.upper()} policy in this installation")
-        kw = {"action_type": "cartesian_velocity", "observation_type": "features"} | env_kwargs
-        return cls(), "FrankaIBVS-v0" if name == "ibvs" else "FrankaPBVS-v0", kw
+        kw = {"action_type": "joint_velocity", "observation_type": "features"} | env_kwargs
+        if kw["action_type"] not in ("joint_velocity", "cartesian_velocity"):
+            raise ValueError(f"the {name.upper()} policy commands joint_velocity or cartesian_velocity actions, "
+                             f"not {kw['action_type']!r}")
+        pkw: dict[str, Any] = {"action_type": kw["action_type"], "model": kw.get("model")}
+        if name == "ibvs" and "tag_size" in kw:
+            pkw["tag_size"] = kw["tag_size"]
+        return cls(**pkw), "FrankaIBVS-v0" if name == "ibvs" else "FrankaPBVS-v0", kw
     from baselines import torque
 
     cls = torque.ComputedTorquePolicy if name == "computed-torque" else torque.JointImpedancePolicy

@@ -1,4 +1,5 @@
 """FrankaIBVS-v0: image-based visual servoing of the wrist camera onto an AprilTag."""
+# ruff: noqa: E501  (the docstring tables are wider than the code line limit, as in Gymnasium's MuJoCo envs)
 
 from __future__ import annotations
 

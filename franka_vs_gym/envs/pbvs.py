@@ -1,4 +1,5 @@
 """FrankaPBVS-v0: position-based visual servoing: the same scene as FrankaIBVS-v0, judged on the camera pose."""
+# ruff: noqa: E501  (the docstring tables are wider than the code line limit, as in Gymnasium's MuJoCo envs)
 
 from __future__ import annotations
 

@@ -1,4 +1,5 @@
 """FrankaTorqueTracking-v0: track a desired joint trajectory with gravity-free torque commands."""
+# ruff: noqa: E501  (the docstring tables are wider than the code line limit, as in Gymnasium's MuJoCo envs)
 
 from __future__ import annotations
 

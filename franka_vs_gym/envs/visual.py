@@ -264,8 +264,15 @@ class VisualServoEnv(FrankaEnv):
     def _measure_true(self) -> dict[str, np.ndarray]:
         cMo = self.get_cMo()
         feats, depth, visible = self._project(cMo)
-        return {"features": feats, "feature_depth": depth, "tag_pose": pose_vector(cMo),
-                "visible": np.array([1.0 if visible else 0.0]), "cMo": cMo}
+        # tag_pose (theta-u of cMo) is added only where an observation needs it (see _with_pose)
+        return {"features": feats, "feature_depth": depth, "visible": np.array([1.0 if visible else 0.0]),
+                "cMo": cMo}
+
+    @staticmethod
+    def _with_pose(m: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        out = dict(m)
+        out["tag_pose"] = pose_vector(m["cMo"])
+        return out
 
     def _capture(self) -> None:
         """Take a camera frame now: the measured features and/or the image."""
@@ -274,7 +281,7 @@ class VisualServoEnv(FrankaEnv):
             if self.feature_source == "ideal" and not self.feature_noise:
                 truth = self._measure_true()
                 self._truth_cache = (self._k, truth)
-                frame.update(truth)
+                frame.update(self._with_pose(truth))
             else:
                 frame.update(self._measure())
             if not frame["visible"][0]:
@@ -292,7 +299,7 @@ class VisualServoEnv(FrankaEnv):
         k, truth = self._truth_cache
         self._truth = truth if k == self._k else self._measure_true()
         if self.observation_type == "state":
-            m = dict(self._truth)
+            m = self._with_pose(self._truth)
             if not m["visible"][0]:
                 m["features"], m["feature_depth"], m["tag_pose"] = np.zeros(8), self.depth_desired.copy(), np.zeros(6)
             raw.update(m)

@@ -1,4 +1,5 @@
 """FrankaVisualTorque-v0: image-based visual servoing with joint torque commands (dynamic visual servoing)."""
+# ruff: noqa: E501  (the docstring tables are wider than the code line limit, as in Gymnasium's MuJoCo envs)
 
 from __future__ import annotations
 

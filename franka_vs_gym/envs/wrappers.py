@@ -42,11 +42,12 @@ def servo_vector(obs: dict[str, Any]) -> np.ndarray:
                            np.asarray(obs["visible"], np.float64)]).astype(np.float32)
 
 
-class ServoVectorObservation(gym.ObservationWrapper):
+class ServoVectorObservation(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
     """Dict contract observation -> the flat vector of :func:`servo_vector` (Box (44,), float32)."""
 
     def __init__(self, env: gym.Env) -> None:
-        super().__init__(env)
+        gym.utils.RecordConstructorArgs.__init__(self)
+        gym.ObservationWrapper.__init__(self, env)
         needed = {"features", "features_desired", "feature_depth", "tag_pose_desired", "q", "dq", "visible"}
         have = set(getattr(env.observation_space, "spaces", {}))
         if not needed <= have:
@@ -58,13 +59,14 @@ class ServoVectorObservation(gym.ObservationWrapper):
         return servo_vector(observation)
 
 
-class ScaledAction(gym.ActionWrapper):
+class ScaledAction(gym.ActionWrapper, gym.utils.RecordConstructorArgs):
     """Actions in [-1, 1]^n mapped linearly to [-scale, scale] in the env's units (e.g. rad/s).
 
     ``scale`` is a number or an (n,) array; it must lie within the env's action bounds (symmetric Box)."""
 
     def __init__(self, env: gym.Env, scale: Any) -> None:
-        super().__init__(env)
+        gym.utils.RecordConstructorArgs.__init__(self, scale=scale)
+        gym.ActionWrapper.__init__(self, env)
         box = env.action_space
         if not isinstance(box, spaces.Box) or not np.allclose(box.low, -box.high):
             raise ValueError("ScaledAction needs a symmetric Box action space")
