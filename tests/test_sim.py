@@ -228,6 +228,23 @@ def test_delay_shifts_torque_by_whole_steps():
     assert np.argmax(np.abs(seen)) == 5
 
 
+def test_measurement_delay_makes_sensors_report_late():
+    """delay_channel="measurement": the torque applies at once but the sensors report it 5 steps later."""
+    sim = FrankaSim(ModelConfig(delay=0.005, delay_channel="measurement"), camera=False, friction=False)
+    ref = FrankaSim(camera=False, friction=False)
+    for s in (sim, ref):
+        s.set_robot_state(FORCE_TORQUE)
+    seen, truth = [], []
+    for k in range(12):
+        for s in (sim, ref):
+            s.set_force_torque(JOINT_STATE, np.full(7, 1.0) if k == 0 else np.zeros(7))
+            s.step()
+        seen.append(sim.get_force_torque()[6])
+        truth.append(ref.get_force_torque()[6])
+        np.testing.assert_allclose(sim.get_position(), ref.get_position(), atol=1e-12)  # the motion is not delayed
+    np.testing.assert_allclose(seen[5:], truth[:-5], atol=1e-9)
+
+
 def test_vpRobotFranka_camelcase_aliases(sim):
     sim.setRobotState(VELOCITY)
     sim.setVelocity(JOINT_STATE, np.zeros(7))

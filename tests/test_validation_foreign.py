@@ -66,7 +66,7 @@ def test_foreign_command_delay_is_found_on_the_command_channel():
     assert top.params["delay_s"] == pytest.approx(0.015, rel=0.15)
     f = fit_effects(data, ["delay"])
     assert f.after.delay == pytest.approx(0.015, rel=0.15)
-    assert f.after.notes["delay_channel"] == "command"
+    assert f.after.delay_channel == "command"
     # the plant built from the calibrated file delays its commands: the controller replay gets closer
     before, after = compare(data, None), compare(data, f.after)
     assert after.replay.rmse_tau.sum() < before.replay.rmse_tau.sum()

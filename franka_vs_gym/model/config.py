@@ -211,7 +211,11 @@ class ModelConfig:
     torque_offset : (7,) array
         Bias of the joint torque sensors, Nm: measured tau_J = true tau_J + torque_offset.
     delay : float
-        Time by which the measured torque lags the motion, s (a measurement property; 0 by default).
+        A time delay, s (0 by default), acting on ``delay_channel``.
+    delay_channel : "command" or "measurement"
+        "command": torque commands reach the joints ``delay`` late (the measured torque then matches the motion
+        but lags the commanded torque). "measurement": the torque sensors report ``delay`` late (the measured torque
+        lags the motion). FrankaSim implements both.
     link_mass_scale : (7,) array
         Multiplies the mass and inertia of each link (domain randomisation), 1 by default.
     """
@@ -223,6 +227,7 @@ class ModelConfig:
     armature: np.ndarray = field(default_factory=lambda: np.zeros(7))
     torque_offset: np.ndarray = field(default_factory=lambda: np.zeros(7))
     delay: float = 0.0
+    delay_channel: str = "command"
     link_mass_scale: np.ndarray = field(default_factory=lambda: np.ones(7))
     notes: dict[str, Any] = field(default_factory=dict)
 
@@ -238,6 +243,8 @@ class ModelConfig:
         self.delay = float(self.delay)
         if not math.isfinite(self.delay) or self.delay < 0:
             raise ValueError(f"delay must be a finite number >= 0 s, got {self.delay}")
+        if self.delay_channel not in ("command", "measurement"):
+            raise ValueError(f"delay_channel must be 'command' or 'measurement', got {self.delay_channel!r}")
 
     def copy(self, **changes: Any) -> ModelConfig:
         return ModelConfig.from_dict(replace(self, **changes).to_dict())
@@ -273,6 +280,7 @@ class ModelConfig:
             "armature": self.armature.tolist(),
             "torque_offset": self.torque_offset.tolist(),
             "delay": self.delay,
+            "delay_channel": self.delay_channel,
             "link_mass_scale": self.link_mass_scale.tolist(),
             "notes": self.notes,
         }
@@ -285,7 +293,7 @@ class ModelConfig:
         if fmt != FORMAT:
             raise ValueError(f"unsupported model file format {fmt!r} (expected {FORMAT!r})")
         known = {"format", "tool", "payload", "gravity", "friction", "armature", "torque_offset", "delay",
-                 "link_mass_scale", "notes"}
+                 "delay_channel", "link_mass_scale", "notes"}
         unknown = set(d) - known
         if unknown:
             raise ValueError(f"unknown keys in model file: {sorted(unknown)}")
@@ -297,6 +305,7 @@ class ModelConfig:
             armature=d.get("armature", np.zeros(7)),
             torque_offset=d.get("torque_offset", np.zeros(7)),
             delay=d.get("delay", 0.0),
+            delay_channel=d.get("delay_channel", "command"),
             link_mass_scale=d.get("link_mass_scale", np.ones(7)),
             notes=dict(d.get("notes", {})),
         )

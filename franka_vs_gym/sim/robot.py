@@ -183,7 +183,12 @@ class FrankaSim:
         self._fbuf = np.zeros(7)
         self.friction_enabled = bool(friction) and not fr.is_zero()
         self._simple_friction = not (fr.viscous.any() or fr.coulomb.any())
-        self._delay_steps = int(round(cfg.delay / self.dt))
+        n_delay = int(round(cfg.delay / self.dt))
+        self._delay_steps = n_delay if cfg.delay_channel == "command" else 0
+        self._meas_fifo: deque[np.ndarray] | None = None
+        if cfg.delay_channel == "measurement" and n_delay:
+            self._meas_fifo = deque(maxlen=n_delay + 1)
+            world.add_post_step(self._record_measurement)
         self._tau_fifo: deque[np.ndarray] = deque()
         self._tau_cmd = np.zeros(7)
         self._offset = cfg.torque_offset.copy()
@@ -213,6 +218,9 @@ class FrankaSim:
             self._tau_fifo.append(self._tau_cmd.copy())
             self._ctrl_tau[:] = self._tau_fifo.popleft() if len(self._tau_fifo) > self._delay_steps else 0.0
 
+    def _record_measurement(self) -> None:
+        self._meas_fifo.append(self._qfrc_actuator.copy())  # type: ignore[union-attr]
+
     def step(self) -> None:
         """Advance the simulation by one physics step (``dt``, 1 ms by default); all robots of the world move."""
         self.world.step()
@@ -240,6 +248,8 @@ class FrankaSim:
         self._ctrl_vel[:] = 0.0
         self._tau_cmd[:] = 0.0
         self._tau_fifo.clear()
+        if self._meas_fifo is not None:
+            self._meas_fifo.clear()
         self.set_robot_state(RobotState.STATE_STOP)
         self.world.diverged = None
         mujoco.mj_forward(self._m, self._d)
@@ -404,7 +414,9 @@ class FrankaSim:
         sensor (needs ``ft_sensor=True``), with the tool's own weight removed."""
         frame = ControlFrame(frame)
         if frame == ControlFrame.JOINT_STATE:
-            tau = self._qfrc_actuator + self._offset
+            # the sensors report the torque of delay_channel="measurement" steps ago
+            now = self._meas_fifo[0] if self._meas_fifo else self._qfrc_actuator
+            tau = now + self._offset
             if self._torque_noise:
                 tau = tau + self._rng.normal(0.0, self._torque_noise, 7)
             return np.array(tau)

@@ -41,6 +41,7 @@ class SimWorld:
         self.data = mujoco.MjData(self.model)
         self.dt = float(self.model.opt.timestep)
         self._hooks: list[Callable[[], None]] = []
+        self._post_hooks: list[Callable[[], None]] = []
         self._renderers: dict[tuple[int, int], mujoco.Renderer] = {}
         self.diverged: str | None = None
         self._wn = self.data.warning.number  # live view of MuJoCo's warning counters
@@ -50,6 +51,9 @@ class SimWorld:
 
     def add_pre_step(self, hook: Callable[[], None]) -> None:
         self._hooks.append(hook)
+
+    def add_post_step(self, hook: Callable[[], None]) -> None:
+        self._post_hooks.append(hook)
 
     @property
     def time(self) -> float:
@@ -66,6 +70,8 @@ class SimWorld:
             step(m, d)
             if wn[a] or wn[b] or wn[c]:  # MuJoCo found NaN/inf/huge values (and auto-reset the state)
                 self._diverge()
+            for h in self._post_hooks:
+                h()
 
     def _diverge(self) -> None:
         reasons = [msg for w, msg in _BAD_WARNINGS.items() if self._wn[w] > 0]

@@ -543,7 +543,7 @@ class Delay(_SharedLinearEffect):
 
     def apply(self, config, fit):
         return config.copy(delay=max(0.0, config.delay + float(fit.theta["theta"][0])),
-                           notes={**config.notes, "delay_channel": "measurement"})
+                           delay_channel="measurement")
 
     def public(self, fit):
         return {"delay_s": round(float(fit.theta["theta"][0]), 6), "channel": "measurement"}
@@ -568,7 +568,7 @@ class CommandDelay(Delay):
 
     def apply(self, config, fit):
         return config.copy(delay=max(0.0, config.delay + float(fit.theta["theta"][0])),
-                           notes={**config.notes, "delay_channel": "command"})
+                           delay_channel="command")
 
     def public(self, fit):
         return {"delay_s": round(float(fit.theta["theta"][0]), 6), "channel": "command"}

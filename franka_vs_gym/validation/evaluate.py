@@ -39,14 +39,10 @@ def friction_torque(fr: Friction, dq: np.ndarray) -> np.ndarray:
 
 
 def delay_channel(config: ModelConfig) -> str:
-    """How a configuration's ``delay`` acts: ``"measurement"`` (the measured torque lags the motion; the default,
-    ModelConfig's documented meaning) or ``"command"`` (torque commands reach the joints late, as FrankaSim's plant
-    applies it; the measured torque then matches the motion). Recorded by the workbench in
-    ``config.notes["delay_channel"]``."""
-    ch = str(config.notes.get("delay_channel", "measurement"))
-    if ch not in ("measurement", "command"):
-        raise ValueError(f"notes.delay_channel must be 'measurement' or 'command', got {ch!r}")
-    return ch
+    """How a configuration's ``delay`` acts (``ModelConfig.delay_channel``): ``"measurement"`` (the measured torque
+    lags the motion) or ``"command"`` (torque commands reach the joints late; the measured torque then matches the
+    motion). FrankaSim's plant implements both."""
+    return config.delay_channel
 
 
 def shift(x: np.ndarray, time: np.ndarray, delay: float) -> np.ndarray:
