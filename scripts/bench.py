@@ -86,10 +86,15 @@ def bench_vision(quick: bool) -> None:
 def bench_envs(quick: bool) -> None:
     from franka_vs_gym import envs
 
-    rows = envs.bench(quick=quick)
-    if isinstance(rows, dict):
-        rows = [(k, v) for k, v in rows.items()]
-    table("Environments", rows, tuple(f"col{i}" for i in range(len(rows[0]))) if rows else ("-",))
+    res = envs.bench(n_steps=100 if quick else 500, async_steps=100 if quick else 500)
+    rows = []
+    for env_id, r in res["envs"].items():
+        rows.append((env_id, r["steps_per_s"], r["us_per_step"], r["substeps"], r["physics_us_per_step"], r["ratio"],
+                     "<= 1.5 " + ("yes" if r["ratio"] <= 1.5 else "NO")))
+    table("Environments (features observations): env step vs the raw mujoco.mj_step substeps it contains, same run",
+          rows, ("env", "steps/s", "us/step", "substeps", "raw mj_step us", "ratio", "target"))
+    if "async" in res:
+        table("AsyncVectorEnv", [(k, v) for k, v in res["async"].items()], ("what", "value"))
 
 
 def bench_validation(quick: bool) -> None:
