@@ -158,18 +158,27 @@ def test_dual_arm_rejects_bad_input():
         D.run_dual_arm(1.0, admittance=-1.0, progress=False)
 
 
-def test_pbvs_twist_decreases_the_error():
+def test_pbvs_twist_decreases_the_error_and_follows_a_moving_tag():
+    from franka_vs_gym.vision.features import pbvs_features
+
     cMo = D._hom(D._exp(np.array([0.05, -0.1, 0.2])) @ D.cdMo[:3, :3], [0.02, -0.01, 0.25])
-    v = D.pbvs_twist(cMo, D.cdMo, 1.0)
-    # move the camera a small step along the twist: the pose error shrinks by about gain * dt
-    dt = 1e-3
-    cMc2 = D._hom(D._exp(v[3:] * dt), v[:3] * dt)
-    c2Mo = np.linalg.inv(cMc2) @ cMo
+    dt, gain = 1e-3, 2.0
 
-    def err(M):
-        return np.r_[M[:3, 3] - D.cdMo[:3, 3], D._rotvec(D.cdMo[:3, :3] @ M[:3, :3].T)]
+    def step(v, cMo_, tag_shift=np.zeros(3)):
+        """cMo after the camera moves with twist v (in c) for dt while the tag translates by tag_shift (in c)."""
+        cMc2 = D._hom(D._exp(v[3:] * dt), v[:3] * dt)
+        moved = cMo_.copy()
+        moved[:3, 3] += tag_shift
+        return np.linalg.inv(cMc2) @ moved
 
-    e0, e1 = err(cMo), err(c2Mo)
-    assert np.allclose(e1, e0 * (1 - dt), atol=2e-6)
+    e0 = pbvs_features(cMo, D.cdMo)[0]
+    e1 = pbvs_features(step(D.pbvs_twist(cMo, D.cdMo, gain), cMo), D.cdMo)[0]
+    assert np.allclose(e1, e0 * (1 - gain * dt), atol=2e-6)
+    # a tag translating at v_o (in c): with v_o as feed-forward the error decays as if the tag stood still
+    v_o = np.array([0.05, -0.08, 0.02])
+    e_ff = pbvs_features(step(D.pbvs_twist(cMo, D.cdMo, gain, v_o), cMo, v_o * dt), D.cdMo)[0]
+    e_noff = pbvs_features(step(D.pbvs_twist(cMo, D.cdMo, gain), cMo, v_o * dt), D.cdMo)[0]
+    assert np.allclose(e_ff, e1, atol=2e-6)
+    assert np.abs(e_noff - e1).max() > 20 * np.abs(e_ff - e1).max()
     with pytest.raises(ValueError, match="gain"):
         D.pbvs_twist(cMo, D.cdMo, 0.0)

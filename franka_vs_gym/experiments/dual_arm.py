@@ -13,16 +13,15 @@ Left arm, torque control (FORCE_TORQUE, gravity-free commands, the robot adds g 
 
 Right arm, velocity control (VELOCITY, camera-frame twists), wrist camera and wrist F/T sensor:
   PBVS keeps the tag centred at 0.20 m in front of the camera (desired cdMo: tag facing the camera, z_o = -z_c).
-  The tag pose cMo comes at the camera rate (30 Hz by default): ``vision="ideal"`` projects the true pose (no image
-  noise), ``vision="detect"`` renders the wrist image and estimates the pose from AprilTag detection. Between
-  camera frames the PBVS twist is held; at 1 kHz a visual admittance (vision-force) law adds ``A f_c`` (the F/T
-  force in the camera frame, so contact pushes the camera away) to it. A box on the table blocks the lowest part of
+  The tag pose cMo comes at the camera rate (30 Hz by default) from :mod:`franka_vs_gym.vision`:
+  ``vision="ideal"`` projects the true corners with the camera model (no image noise), ``vision="detect"`` renders
+  the wrist image and estimates the pose by AprilTag detection and PnP. The PBVS law is
+  :func:`franka_vs_gym.control.pbvs_velocity` (e = (t, theta u) of cdMc) with a constant gain, plus a feed-forward
+  d_hat of the tag's own velocity (estimated from two successive tag positions in the right robot's base frame,
+  low-pass filtered; without it a proportional law lags a moving target by v_target / lambda). Between camera
+  frames the PBVS twist is held (and smoothed); at 1 kHz a visual admittance (vision-force) law adds ``A f_c`` (the
+  F/T force in the camera frame, so contact pushes the camera away). A box on the table blocks the lowest part of
   the right gripper's path: in contact the gripper slides along its top and its circle becomes a "D".
-
-PBVS law (translation "c t_o" variant, which keeps the tag in view): with t = c t_o, e_t = t - cd t_o and
-theta u of cdRc, ``w = -lambda theta u`` and ``v = lambda e_t + [t]_x w + d_hat`` where d_hat is the tag's own
-motion seen by the camera (its measured image-space velocity minus the part due to the camera's measured twist),
-low-pass filtered: without it a proportional law lags a moving target by v_target / lambda.
 
 Outputs (:func:`write_dual_arm`): ``video.mp4`` (overview + right wrist camera), ``paths.png`` (both end-effector
 paths in the x-z plane: circle and "D"), ``contact_force.png``, ``pbvs_error.png``, ``metrics.json``.
@@ -57,6 +56,9 @@ TAG_HOLDER = RigidBody(0.2, np.array([0.0, 0.0, 0.12]), np.diag([2e-4, 2e-4, 2e-
 # and x_e down (the tag turned by pi about its normal), the tag 1.2 cm beyond the finger tips.
 W_R_TAG = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
 eMo_LEFT = np.array([[-1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.012], [0.0, 0.0, 0.0, 1.0]])
+# Right wrist camera mount (fixed here so the scene does not depend on the library default): optical axis along
+# z_e, 6 cm from the fingers along x_e and 6 cm behind the finger tips.
+RIGHT_eMc = np.array([[1.0, 0.0, 0.0, 0.06], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, -0.06], [0.0, 0.0, 0.0, 1.0]])
 # IK seeds giving comfortable postures (elbow up, far from the joint limits)
 Q_SEED_LEFT = np.array([-0.6, 0.0, 0.15, -2.3, -1.9, 1.9, 0.0])
 Q_SEED_RIGHT = np.array([0.3, 0.0, -0.2, -2.25, 1.65, 1.66, -1.48])
@@ -89,26 +91,22 @@ def _exp(w: np.ndarray) -> np.ndarray:
     return pin.exp3(w)
 
 
-def _skew(t: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
-
-
 def pbvs_twist(cMo: np.ndarray, cdMo_: np.ndarray, gain: float, target_motion: np.ndarray | None = None) -> np.ndarray:
     """PBVS camera twist [v; w] (6,) in the camera frame c (m/s, rad/s).
 
-    ``w = -gain theta u(cdRc)``, ``v = gain (t - t*) + [t]_x w + target_motion`` with t = c t_o, t* = cd t_o; the
-    error then decays as exp(-gain t) with the tag's centre moving on a straight line in the image.
-    target_motion (3,): velocity of the tag's origin in c caused by the tag itself (feed-forward), m/s.
+    :func:`franka_vs_gym.control.pbvs_velocity` (e = (t, theta u) of cdMc, ``v_c = -gain L^-1 e``) with a constant
+    gain (1/s), plus the feed-forward ``target_motion`` (3,): the velocity, in c, of the tag's own translation
+    (a camera moving with it keeps cMo constant, whatever the error definition).
     """
+    from franka_vs_gym.control.visual_servo import pbvs_velocity
+
     if not (gain > 0 and math.isfinite(gain)):
         raise ValueError(f"PBVS gain must be > 0, got {gain}")
-    t, ts = cMo[:3, 3], cdMo_[:3, 3]
-    cdRc = cdMo_[:3, :3] @ cMo[:3, :3].T
-    w = -gain * _rotvec(cdRc)
-    v = gain * (t - ts) + _skew(t) @ w
+    v, _ = pbvs_velocity(cMo, cdMo_, float(gain))
     if target_motion is not None:
-        v = v + target_motion
-    return np.concatenate([v, w])
+        v = v.copy()
+        v[:3] += target_motion
+    return v
 
 
 def minimum_jerk(t: float, T: float) -> tuple[float, float, float]:
@@ -195,19 +193,23 @@ class DualArmResult:
 
 
 class _TagMeasurement:
-    """cMo of the held tag at the camera rate: ideal (true pose) or detected in the rendered wrist image."""
+    """cMo of the held tag at the camera rate, with :mod:`franka_vs_gym.vision`: ideal (the true corners projected
+    with the camera model, visible when all four are in the image and the tag faces the camera) or detected
+    (the right wrist camera's rendered image, AprilTag detection, IPPE-square PnP)."""
 
-    def __init__(self, world: Any, right: Any, mode: str, width: int = 640, height: int = 480) -> None:
+    def __init__(self, world: Any, right: Any, mode: str, width: int = 640, height: int = 480,
+                 period: float = 1.0 / 30.0) -> None:
+        from franka_vs_gym.vision import CameraIntrinsics, TagDetector, WristCamera
+
+        if mode not in ("ideal", "detect"):
+            raise ValueError(f"vision must be 'ideal' or 'detect', got {mode!r}")
         m = world.model
         self.world, self.right, self.mode = world, right, mode
         self.tag_body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "tag")
         self.cam = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, right.camera_name())
-        self.width, self.height = width, height
-        self._detector = None
-        if mode == "detect":
-            self._detector = _make_detector(m, self.cam, width, height)
-        elif mode != "ideal":
-            raise ValueError(f"vision must be 'ideal' or 'detect', got {mode!r}")
+        self.intrinsics = CameraIntrinsics.from_fovy(width, height, float(m.cam_fovy[self.cam]))
+        self.camera = WristCamera(right, self.intrinsics, period) if mode == "detect" else None
+        self.detector = TagDetector() if mode == "detect" else None
 
     def true_cMo(self) -> np.ndarray:
         d = self.world.data
@@ -217,63 +219,14 @@ class _TagMeasurement:
 
     def measure(self) -> tuple[np.ndarray | None, np.ndarray | None]:
         """(cMo or None when the tag is not seen, the rendered image or None)."""
-        cMo = self.true_cMo()
-        if self.mode == "ideal":
-            # the tag is seen when its four corners project inside the image and it faces the camera
-            return (cMo if _in_view(cMo, self.world.model, self.cam, self.width, self.height) else None), None
-        if self._detector is None:
-            raise RuntimeError("no tag detector (the measurement was built in 'ideal' mode)")
-        img = self.world.render(self.right.camera_name(), self.width, self.height)
-        return self._detector(img), img
+        from franka_vs_gym.vision import detected_measurement, ideal_measurement
 
-
-def _intrinsics(m: Any, cam: int, width: int, height: int) -> tuple[float, float, float, float]:
-    fovy = math.radians(float(m.cam_fovy[cam]))
-    f = height / 2 / math.tan(fovy / 2)
-    return f, f, width / 2, height / 2
-
-
-def _corners_o() -> np.ndarray:
-    s = TAG_SIZE / 2
-    return np.array([[-s, -s, 0.0], [s, -s, 0.0], [s, s, 0.0], [-s, s, 0.0]])
-
-
-def _in_view(cMo: np.ndarray, m: Any, cam: int, width: int, height: int) -> bool:
-    px, py, u0, v0 = _intrinsics(m, cam, width, height)
-    P = (cMo[:3, :3] @ _corners_o().T).T + cMo[:3, 3]
-    if (P[:, 2] <= 0.01).any() or cMo[2, 2] > 0:  # behind the camera, or its back side facing the camera
-        return False
-    u = px * P[:, 0] / P[:, 2] + u0
-    v = py * P[:, 1] / P[:, 2] + v0
-    return bool(((u >= 0) & (u < width) & (v >= 0) & (v < height)).all())
-
-
-def _make_detector(m: Any, cam: int, width: int, height: int):
-    """An image -> cMo function using OpenCV's AprilTag 36h11 detector and IPPE square PnP."""
-    import cv2
-
-    px, py, u0, v0 = _intrinsics(m, cam, width, height)
-    K = np.array([[px, 0, u0], [0, py, v0], [0, 0, 1.0]])
-    det = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_APRILTAG_36h11),
-                                  cv2.aruco.DetectorParameters())
-    s = TAG_SIZE / 2
-    # OpenCV's corner order for the square PnP: top-left, top-right, bottom-right, bottom-left (x right, y down)
-    obj = np.array([[-s, s, 0.0], [s, s, 0.0], [s, -s, 0.0], [-s, -s, 0.0]])
-
-    def detect(img: np.ndarray) -> np.ndarray | None:
-        gray = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
-        corners, ids, _ = det.detectMarkers(gray)
-        found = [] if ids is None else [int(i) for i in ids.ravel()]
-        if TAG_ID not in found:
-            return None
-        c = corners[found.index(TAG_ID)].reshape(4, 2).astype(np.float64)
-        ok, rvec, tvec = cv2.solvePnP(obj, c, K, None, flags=cv2.SOLVEPNP_IPPE_SQUARE)
-        if not ok:
-            return None
-        R, _ = cv2.Rodrigues(rvec)
-        return _hom(R, tvec.ravel())
-
-    return detect
+        if self.camera is None or self.detector is None:
+            meas = ideal_measurement(self.true_cMo(), TAG_SIZE, self.intrinsics)
+            return (meas.cMo if meas.visible else None), None
+        img = self.camera.render()
+        meas = detected_measurement(img, self.detector, TAG_ID, TAG_SIZE, self.intrinsics)
+        return (meas.cMo if meas.visible else None), img
 
 
 def build_world(obstacle: bool = True, timestep: float = 0.001):
@@ -308,6 +261,8 @@ def build_world(obstacle: bool = True, timestep: float = 0.001):
     q_left, q_right = initial_configurations()
     left = FrankaSim(world=world, prefix="left_", q0=q_left)
     right = FrankaSim(world=world, prefix="right_", q0=q_right)
+    right.set_eMc(RIGHT_eMc)
+    world.forward()  # camera poses in the data follow the new mount before the first frame
     ctrl_model = FrankaModel(cfg.copy(payload=TAG_HOLDER))
     return world, left, right, ctrl_model
 
@@ -318,15 +273,14 @@ def circle_start_pose() -> np.ndarray:
     return _hom(W_R_TAG, p_tag) @ np.linalg.inv(eMo_LEFT)
 
 
-# pose of the left end effector before the reach: 8 cm lower and 6 cm back from the circle start
-REACH_OFFSET = np.array([-0.06, 0.0, -0.08])
+# pose of the left end effector before the reach: 8 cm back (-x) and 2 cm above the circle start, so the right hand
+# following the tag starts well clear of the obstacle
+REACH_OFFSET = np.array([-0.08, 0.0, 0.02])
 
 
 def initial_configurations() -> tuple[np.ndarray, np.ndarray]:
     """Joint positions (7,) of the left arm (at the pre-reach pose) and of the right arm (camera 0.2 m from the
     tag, 2 cm and a few degrees off the PBVS goal, so PBVS has something to do during gravity compensation)."""
-    from franka_vs_gym.sim.robot import DEFAULT_eMc
-
     m = FrankaModel()
     wMe_l = circle_start_pose()
     wMe_l[:3, 3] += REACH_OFFSET
@@ -336,7 +290,7 @@ def initial_configurations() -> tuple[np.ndarray, np.ndarray]:
     wMo = wMe_l @ eMo_LEFT
     off = _hom(_exp(np.array([0.0, 0.05, 0.03])), [0.02, -0.015, 0.01])
     wMc = wMo @ np.linalg.inv(cdMo) @ off
-    wMe_r = wMc @ np.linalg.inv(DEFAULT_eMc)
+    wMe_r = wMc @ np.linalg.inv(RIGHT_eMc)
     fMe_r = wMe_r.copy()
     fMe_r[:3, 3] -= RIGHT_BASE
     q_r = m.inverse_kinematics(fMe_r, Q_SEED_RIGHT)
