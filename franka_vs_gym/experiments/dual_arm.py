@@ -519,7 +519,7 @@ def plot_dual_arm(result: DualArmResult, folder: Path) -> list[Path]:
     ax.plot(r.right_ee[circ, 0], r.right_ee[circ, 2], "C3", lw=1.2, label="right end effector (PBVS + contact)")
     top = r.settings.get("obstacle_top_z_m")
     if top is not None:
-        ax.axhline(top, color="C1", ls="--", lw=1.0, label="obstacle top")
+        ax.axhline(top, color="C1", ls="--", lw=1.0, label="obstacle top (touched by the hand's lower edge)")
     ax.set_xlabel("x [m] (world)")
     ax.set_ylabel("z [m] (world)")
     ax.set_aspect("equal", adjustable="datalim")
