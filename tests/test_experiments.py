@@ -182,3 +182,16 @@ def test_pbvs_twist_decreases_the_error_and_follows_a_moving_tag():
     assert np.abs(e_noff - e1).max() > 20 * np.abs(e_ff - e1).max()
     with pytest.raises(ValueError, match="gain"):
         D.pbvs_twist(cMo, D.cdMo, 0.0)
+
+
+def test_workbench_diagnoses_the_unknown_payload_of_a_simulated_run():
+    """A peer's checker: the validation workbench, given the tracking log with an undeclared 1 kg payload,
+    names the payload as what the model lacks (and finds nothing large on the exact run's log)."""
+    from franka_vs_gym.validation.diagnose import diagnose
+
+    payload_run = to_measurement_log(run_tracking(4.0, model_error="payload", progress=False))
+    d = diagnose(payload_run)
+    assert d.verdict == "payload", d.verdict
+    assert d.rmse_tau_total > 0.5  # Nm: the payload's gravity and inertia are in the measured torques
+    exact = diagnose(to_measurement_log(run_tracking(4.0, progress=False)))
+    assert exact.rmse_tau_total < 0.01  # the simulated robot is the published model: nothing to explain
