@@ -164,11 +164,11 @@ def test_pbvs_twist_decreases_the_error_and_follows_a_moving_tag():
     cMo = D._hom(D._exp(np.array([0.05, -0.1, 0.2])) @ D.cdMo[:3, :3], [0.02, -0.01, 0.25])
     dt, gain = 1e-3, 2.0
 
-    def step(v, cMo_, tag_shift=np.zeros(3)):
+    def step(v, cMo_, tag_shift=(0.0, 0.0, 0.0)):
         """cMo after the camera moves with twist v (in c) for dt while the tag translates by tag_shift (in c)."""
         cMc2 = D._hom(D._exp(v[3:] * dt), v[:3] * dt)
         moved = cMo_.copy()
-        moved[:3, 3] += tag_shift
+        moved[:3, 3] += np.asarray(tag_shift)
         return np.linalg.inv(cMc2) @ moved
 
     e0 = pbvs_features(cMo, D.cdMo)[0]
