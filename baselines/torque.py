@@ -116,26 +116,32 @@ class ComputedTorquePolicy(_TorquePolicy):
 class JointImpedancePolicy(_TorquePolicy):
     """Joint impedance (spring-damper to the desired trajectory, Coriolis and inertial feed-forward) as a policy.
 
-    Designed, as libfranka's impedance examples, for a 1 kHz loop (``control_period=0.001``): its default wrist
-    stiffness (50-250 Nm/rad on low-inertia joints) is too fast for a 100 Hz zero-order hold, where it goes
-    unstable; at 100 Hz lower ``k`` on joints 5-7 by about 10x, or use :class:`ComputedTorquePolicy`, whose gains
-    scale with the inertia.
+    By default every joint gets the same bandwidth: ``k_i = omega^2 B_ii(q)``, ``d_i = 2 zeta omega B_ii(q)`` with
+    ``natural_frequency`` omega = 10 rad/s, stable at the tracking env's default 100 Hz as well as at 1 kHz. Pass
+    ``k`` for a fixed libfranka-style stiffness (natural_frequency is then ignored), e.g.
+    ``JointImpedance.DEFAULT_K`` (600 ... 50 Nm/rad): a 1 kHz design whose light wrist joints go unstable under a
+    100 Hz zero-order hold.
 
     Parameters
     ----------
     model : FrankaModel, ModelConfig, model-file path or None
-    k, d, zeta, friction :
-        As :class:`franka_vs_gym.control.JointImpedance` (stiffness Nm/rad, damping Nm s/rad).
+    k, d, zeta, friction, natural_frequency :
+        As :class:`franka_vs_gym.control.JointImpedance` (stiffness Nm/rad, damping Nm s/rad, omega rad/s).
     feedforward : bool
         Add ``B(q) ddq_desired`` (default True).
     clip : bool
         Clip the action to the FER torque limits.
     """
 
-    def __init__(self, model: Any = None, k: Any = JointImpedance.DEFAULT_K, d: Any = None, zeta: float = 1.0,
-                 feedforward: bool = True, friction: bool = True, clip: bool = True) -> None:
+    def __init__(self, model: Any = None, k: Any = None, d: Any = None, zeta: float = 1.0,
+                 feedforward: bool = True, friction: bool = True, natural_frequency: float | None = 10.0,
+                 clip: bool = True) -> None:
         super().__init__(clip)
-        self.controller = JointImpedance(_as_model(model), k=k, d=d, zeta=zeta, friction=friction)
+        if k is None and natural_frequency is None:
+            raise ValueError("give a stiffness k or a natural_frequency")
+        self.controller = JointImpedance(_as_model(model), k=JointImpedance.DEFAULT_K if k is None else k, d=d,
+                                         zeta=zeta, friction=friction,
+                                         natural_frequency=None if k is not None else natural_frequency)
         self.feedforward = bool(feedforward)
 
     def _controller_reset(self) -> None:

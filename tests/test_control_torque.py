@@ -329,11 +329,12 @@ def test_computed_torque_policy_equals_controller_and_checks_input():
 
 
 @pytest.mark.parametrize("policy_cls", [ComputedTorquePolicy, JointImpedancePolicy])
-def test_torque_policies_succeed_on_the_tracking_env(policy_cls):
+@pytest.mark.parametrize("control_period", [0.001, 0.01])
+def test_torque_policies_succeed_on_the_tracking_env(policy_cls, control_period):
     gym = pytest.importorskip("gymnasium")
     import franka_vs_gym.envs  # noqa: F401  (registers the environments)
 
-    env = gym.make("FrankaTorqueTracking-v0", control_period=0.001, time_limit=2.0)
+    env = gym.make("FrankaTorqueTracking-v0", control_period=control_period, time_limit=2.0)
     policy = policy_cls(env.unwrapped.sim.model)
     obs, _ = env.reset(seed=1)
     start, done = True, False
@@ -374,3 +375,35 @@ def test_cartesian_computed_torque_compensates_an_undeclared_payload():
     sag, held = hold_error(False), hold_error(True)
     assert sag > 1e-3, sag  # the robot's gravity compensation ignores the 0.8 kg: the hand sags by millimetres
     assert held < 1e-5, held  # with the payload in the controller's model (and the robot's as internal) it holds
+
+
+def test_joint_impedance_natural_frequency_and_fixed_stiffness_at_100_hz():
+    """The inertia-scaled default is stable under a 100 Hz hold; libfranka's fixed wrist stiffness is not."""
+    m = FrankaModel()
+    ji = JointImpedance(m, natural_frequency=10.0)
+    B = np.diag(m.mass_matrix(Q0))
+    assert np.allclose(ji.stiffness(Q0), 100.0 * B) and np.allclose(ji.damping(Q0), 20.0 * B)
+    with pytest.raises(ValueError, match="natural_frequency"):
+        JointImpedance(m, natural_frequency=0.0)
+
+    def hold(policy) -> tuple[float, float]:
+        """(final position error, max joint speed over the last half second), holding Q0 from Q0 + 0.05 rad."""
+        sim = FrankaSim(camera=False, q0=Q0 + 0.05, friction=False)
+        sim.set_robot_state(FORCE_TORQUE)
+        z = np.zeros(7, np.float32)
+        speed = 0.0
+        for k in range(100):  # 1 s at 100 Hz: the torque is held for 10 physics steps
+            obs = {"q": sim.get_position().astype(np.float32), "dq": sim.get_velocity().astype(np.float32),
+                   "q_desired": Q0.astype(np.float32), "dq_desired": z, "ddq_desired": z,
+                   "time": np.array([k * 0.01], np.float32)}
+            sim.set_force_torque(JOINT_STATE, policy.predict(obs)[0])
+            for _ in range(10):
+                sim.step()
+            if k >= 50:
+                speed = max(speed, float(np.abs(sim.get_velocity()).max()))
+        return float(np.abs(sim.get_position() - Q0).max()), speed
+
+    err, speed = hold(JointImpedancePolicy(m))
+    assert err < 2e-3 and speed < 0.1, (err, speed)
+    _, speed_fixed = hold(JointImpedancePolicy(m, k=JointImpedance.DEFAULT_K))
+    assert speed_fixed > 1.0, speed_fixed  # the stiff light wrist joints chatter under the 100 Hz hold

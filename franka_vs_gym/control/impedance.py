@@ -168,6 +168,11 @@ class JointImpedance:
         Compensate C(q, dq) dq.
     friction : bool
         Feed-forward the model friction at the desired velocity.
+    natural_frequency : float or None
+        omega, rad/s. When given, k and d follow the inertia: ``k_i = omega^2 B_ii(q)``, ``d_i = 2 zeta omega
+        B_ii(q)`` at each call (k and d arguments are then not used): every joint gets the same bandwidth, which
+        keeps the light wrist joints stable under a slower (e.g. 100 Hz) zero-order hold. The static stiffness is
+        then ``omega^2 B_ii(q)``, configuration-dependent.
 
     Call ``ctrl(q, dq, q_d, dq_d=None, ddq_d=None) -> tau`` (all (7,), rad, rad/s, rad/s^2); returns (7,) Nm.
     """
@@ -175,8 +180,11 @@ class JointImpedance:
     DEFAULT_K = (600.0, 600.0, 600.0, 600.0, 250.0, 150.0, 50.0)
 
     def __init__(self, model: FrankaModel, k: Any = DEFAULT_K, d: Any = None, zeta: float = 1.0,
-                 coriolis: bool = True, friction: bool = False) -> None:
+                 coriolis: bool = True, friction: bool = False, natural_frequency: float | None = None) -> None:
         self.model = _check_model(model)
+        if natural_frequency is not None and not (natural_frequency > 0 and np.isfinite(natural_frequency)):
+            raise ValueError(f"natural_frequency must be a finite number > 0 rad/s, got {natural_frequency}")
+        self.natural_frequency = None if natural_frequency is None else float(natural_frequency)
         self.k = _gains(k, 7, "k")
         self.d = None if d is None else _gains(d, 7, "d")
         if not (np.isfinite(zeta) and zeta >= 0):
@@ -188,8 +196,16 @@ class JointImpedance:
     def reset(self) -> None:
         """Stateless; present so every controller can be reset the same way."""
 
+    def stiffness(self, q: np.ndarray) -> np.ndarray:
+        """The joint stiffness (7,) used at q, Nm/rad."""
+        if self.natural_frequency is None:
+            return self.k
+        return self.natural_frequency**2 * np.diag(self.model.mass_matrix(q))
+
     def damping(self, q: np.ndarray) -> np.ndarray:
         """The joint damping (7,) used at q, Nm s/rad."""
+        if self.natural_frequency is not None:
+            return 2.0 * self.zeta * self.natural_frequency * np.diag(self.model.mass_matrix(q))
         if self.d is not None:
             return self.d
         return 2.0 * self.zeta * np.sqrt(self.k * np.diag(self.model.mass_matrix(q)))
@@ -198,7 +214,7 @@ class JointImpedance:
         q, dq, q_d = _vec(q, 7, "q"), _vec(dq, 7, "dq"), _vec(q_d, 7, "q_d")
         dq_d = np.zeros(7) if dq_d is None else _vec(dq_d, 7, "dq_d")
         m = self.model
-        tau = self.k * (q_d - q) + self.damping(q) * (dq_d - dq)
+        tau = self.stiffness(q) * (q_d - q) + self.damping(q) * (dq_d - dq)
         if ddq_d is not None:
             tau += m.mass_matrix(q) @ _vec(ddq_d, 7, "ddq_d")
         if self.coriolis:
