@@ -195,3 +195,14 @@ def test_workbench_diagnoses_the_unknown_payload_of_a_simulated_run():
     assert d.rmse_tau_total > 0.5  # Nm: the payload's gravity and inertia are in the measured torques
     exact = diagnose(to_measurement_log(run_tracking(4.0, progress=False)))
     assert exact.rmse_tau_total < 0.01  # the simulated robot is the published model: nothing to explain
+
+
+def test_dual_arm_pixel_noise_is_seeded():
+    kw = dict(pixel_noise=0.5, gc_time=0.5, progress=False)
+    a = D.run_dual_arm(0.4, seed=3, **kw)
+    b = D.run_dual_arm(0.4, seed=3, **kw)
+    c = D.run_dual_arm(0.4, seed=4, **kw)
+    assert np.array_equal(a.right_ee, b.right_ee)
+    assert not np.array_equal(a.right_ee, c.right_ee)
+    with pytest.raises(ValueError, match="pixel noise"):
+        D.run_dual_arm(0.1, pixel_noise=-1.0, progress=False)

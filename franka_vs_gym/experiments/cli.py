@@ -73,6 +73,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                    help="tag pose from the projected true corners (ideal) or AprilTag detection in rendered "
                         "wrist images (detect; slower)")
     d.add_argument("--no-obstacle", action="store_true", help="remove the obstacle (path stays a circle)")
+    d.add_argument("--pixel-noise", type=float, default=0.0,
+                   help="std of pixel noise on the ideal tag corners, px (pose then estimated by PnP; uses --seed)")
 
 
 def main(args: argparse.Namespace) -> int:
@@ -96,7 +98,8 @@ def main(args: argparse.Namespace) -> int:
         folder = make_run_dir(args.out, "dual-arm")
         print(f"dual-arm: writing into {folder}", file=sys.stderr)
         dual = run_dual_arm(args.duration, camera_rate=args.camera_rate, vision=args.vision,
-                            obstacle=not args.no_obstacle, seed=args.seed, progress=progress,
+                            obstacle=not args.no_obstacle, pixel_noise=args.pixel_noise, seed=args.seed,
+                            progress=progress,
                             video=None if args.no_video else folder / "video.mp4")
         write_dual_arm(dual, folder)
         m = dual.metrics()

@@ -198,7 +198,7 @@ class _TagMeasurement:
     (the right wrist camera's rendered image, AprilTag detection, IPPE-square PnP)."""
 
     def __init__(self, world: Any, right: Any, mode: str, width: int = 640, height: int = 480,
-                 period: float = 1.0 / 30.0) -> None:
+                 period: float = 1.0 / 30.0, noise_px: float = 0.0, seed: int = 0) -> None:
         from franka_vs_gym.vision import CameraIntrinsics, TagDetector, WristCamera
 
         if mode not in ("ideal", "detect"):
@@ -210,6 +210,10 @@ class _TagMeasurement:
         self.intrinsics = CameraIntrinsics.from_fovy(width, height, float(m.cam_fovy[self.cam]))
         self.camera = WristCamera(right, self.intrinsics, period) if mode == "detect" else None
         self.detector = TagDetector() if mode == "detect" else None
+        if not (noise_px >= 0 and math.isfinite(noise_px)):
+            raise ValueError(f"pixel noise must be a finite number >= 0 px, got {noise_px}")
+        self.noise_px = float(noise_px)
+        self.rng = np.random.default_rng(seed)
 
     def true_cMo(self) -> np.ndarray:
         d = self.world.data
@@ -219,10 +223,14 @@ class _TagMeasurement:
 
     def measure(self) -> tuple[np.ndarray | None, np.ndarray | None]:
         """(cMo or None when the tag is not seen, the rendered image or None)."""
-        from franka_vs_gym.vision import detected_measurement, ideal_measurement
+        from franka_vs_gym.vision import detected_measurement, estimate_pose, ideal_measurement
 
         if self.camera is None or self.detector is None:
-            meas = ideal_measurement(self.true_cMo(), TAG_SIZE, self.intrinsics)
+            meas = ideal_measurement(self.true_cMo(), TAG_SIZE, self.intrinsics, noise_px=self.noise_px,
+                                     rng=self.rng)
+            if meas.visible and self.noise_px > 0:
+                # the pose the camera would estimate from the noisy corners
+                return estimate_pose(meas.corners_px, TAG_SIZE, self.intrinsics), None
             return (meas.cMo if meas.visible else None), None
         img = self.camera.render()
         meas = detected_measurement(img, self.detector, TAG_ID, TAG_SIZE, self.intrinsics)
@@ -300,15 +308,16 @@ def initial_configurations() -> tuple[np.ndarray, np.ndarray]:
 def run_dual_arm(duration: float = 20.0, *, camera_rate: float = 30.0, vision: str = "ideal", obstacle: bool = True,
                  gc_time: float = 2.0, reach_time: float = 2.0, circle_ramp: float = 1.0, pbvs_gain: float = 6.0,
                  admittance: float = 0.004, force_filter: float = 0.02, command_filter: float = 0.015,
-                 feedforward: bool = True, seed: int = 0, progress: bool = True, video: str | Path | None = None,
-                 video_fps: int = 25, video_size: tuple[int, int] = (480, 360), log_rate: float = 200.0
-                 ) -> DualArmResult:
+                 feedforward: bool = True, pixel_noise: float = 0.0, seed: int = 0, progress: bool = True,
+                 video: str | Path | None = None, video_fps: int = 25, video_size: tuple[int, int] = (480, 360),
+                 log_rate: float = 200.0) -> DualArmResult:
     """Run the dual-arm experiment; returns its time series.
 
     duration (s) > 0; camera_rate (Hz) of the PBVS loop; vision "ideal" | "detect"; pbvs_gain lambda (1/s);
     admittance A (m/s per N) of the vision-force law; force_filter (s) time constant of the F/T low-pass;
     command_filter (s) time constant smoothing the PBVS twist between camera frames; feedforward: add the tag's
-    estimated own velocity to PBVS; video an .mp4 path (overview + wrist view) or None;
+    estimated own velocity to PBVS; pixel_noise (px, std) on the ideal corners (then the pose is estimated by PnP
+    from them), drawn from a generator seeded by ``seed``; video an .mp4 path (overview + wrist view) or None;
     log_rate (Hz) of the returned time series (the control runs at 1 kHz).
     """
     from franka_vs_gym.control.cartesian import CartesianComputedTorque, circle_reference
@@ -332,7 +341,7 @@ def run_dual_arm(duration: float = 20.0, *, camera_rate: float = 30.0, vision: s
     cam_every = max(1, int(round(1.0 / (camera_rate * dt))))
     log_every = max(1, int(round(1.0 / (log_rate * dt))))
     frame_every = max(1, int(round(1.0 / (video_fps * dt))))
-    meas = _TagMeasurement(world, right, vision)
+    meas = _TagMeasurement(world, right, vision, period=1.0 / camera_rate, noise_px=pixel_noise, seed=seed)
 
     gc = GravityCompensation(ctrl_model, internal=left.model, kd=2.0)
     cct = CartesianComputedTorque(ctrl_model, kp=[400.0, 400.0, 400.0, 300.0, 300.0, 300.0], internal=left.model)
@@ -491,6 +500,7 @@ def run_dual_arm(duration: float = 20.0, *, camera_rate: float = 30.0, vision: s
                 "controllers_wall_time_us_per_tick": 1e6 * ctrl_time / n,
                 "bodies_touching_obstacle": sorted(touched), "force_filter_s": force_filter,
                 "command_filter_s": command_filter, "seed": seed,
+                "pixel_noise_px": pixel_noise,
                 "tag_holder_kg": TAG_HOLDER.mass, "control_rate_hz": 1.0 / dt, "log_rate_hz": log_rate,
                 "obstacle_top_z_m": float(OBSTACLE_POS[2] + OBSTACLE_HALF[2]) if obstacle else None}
     return DualArmResult(arr["time"], arr["phase"].astype(int), arr["left_ee"], arr["left_ref"], arr["right_ee"],
