@@ -523,6 +523,10 @@ def plot_dual_arm(result: DualArmResult, folder: Path) -> list[Path]:
 
     r, out = result, []
     circ = r.phase == 2
+    title = "End-effector paths in the x-z plane (circle phase)"
+    if not circ.any():  # a short run that ended before the circle: show what there is
+        circ = np.ones(len(r.time), dtype=bool)
+        title = "End-effector paths in the x-z plane (whole run, the circle phase was not reached)"
     fig, ax = plt.subplots(figsize=(7, 6))
     ax.plot(r.left_ee[circ, 0], r.left_ee[circ, 2], "C0", lw=1.2, label="left end effector (circle)")
     ax.plot(r.left_ref[circ, 0], r.left_ref[circ, 2], "k:", lw=1.0, label="left reference")
@@ -535,7 +539,7 @@ def plot_dual_arm(result: DualArmResult, folder: Path) -> list[Path]:
     ax.set_aspect("equal", adjustable="datalim")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="best")
-    ax.set_title("End-effector paths in the x-z plane (circle phase)")
+    ax.set_title(title, fontsize=10)
     fig.tight_layout()
     out.append(folder / "paths.png")
     fig.savefig(out[-1], dpi=110)
