@@ -155,7 +155,9 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
         print(f"evaluation over {n_eval} episodes (seeds {args.eval_seed}...): success rate "
               f"{r['success_rate']:.2f}, mean time to converge {r['mean_time_to_converge']:.2f} s, median final "
               f"error {r['median_final_error']:.4f}, failures {r['failures']}", flush=True)
-        meta["evaluation"] = {k: v for k, v in r.items() if k != "episodes"} | {"seed": args.eval_seed}
+        summary = {k: (None if isinstance(v, float) and not np.isfinite(v) else v)  # strict JSON: no NaN
+                   for k, v in r.items() if k != "episodes"}
+        meta["evaluation"] = summary | {"seed": args.eval_seed}
         meta_path.write_text(json.dumps(meta, indent=2))
         result["evaluation"] = r
     return result

@@ -64,6 +64,17 @@ def test_peer_checkers(env_id, action_type, observation_type):
     env.close()
 
 
+@pytest.mark.parametrize("env_id", ["FrankaIBVS-v0"])  # the detection path is shared by the visual tasks
+def test_peer_checkers_with_detected_features(env_id):
+    from gymnasium.utils.env_checker import check_env as gym_check
+    from stable_baselines3.common.env_checker import check_env as sb3_check
+
+    env = make(env_id, feature_source="detection", observation_type="features+image")
+    gym_check(env.unwrapped, skip_render_check=True)
+    sb3_check(env.unwrapped, warn=False)
+    env.close()
+
+
 def test_render_rgb_array():
     env = make("FrankaIBVS-v0", render_mode="rgb_array", render_width=64, render_height=48)
     env.reset(seed=0)
