@@ -8,7 +8,8 @@ joint-velocity command, held until the next frame, as on the real robot with ViS
 
 Goal: the tag centred and parallel to the image plane, ``desired_distance`` (0.20 m) in front of the camera. Start:
 the camera displaced from the goal by up to ``max_offset`` (0.15 m) and rotated by up to ``max_angle_deg`` (30 deg)
-about a random axis, with the whole tag in view and the arm within its joint limits.
+about a random axis, with the whole tag in view including its white quiet zone (which a detector needs), 5 px from
+the image border, and the arm within its joint limits.
 Convergence: IBVS when every corner is within 1 px of its desired position (true projection); PBVS when the camera
 pose is within 1 mm and 0.5 deg of the goal.
 """
@@ -24,6 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from franka_vs_gym.assets.mjcf import TagSpec
+from franka_vs_gym.assets.textures import BORDER_CELLS, TAG_CELLS
 from franka_vs_gym.model.geometry import inverse_pose, pose_vector
 from franka_vs_gym.sim import JOINT_STATE, VELOCITY, FrankaSim
 from franka_vs_gym.vision import (
@@ -35,6 +37,7 @@ from franka_vs_gym.vision import (
 )
 
 TAG_POS = (0.50, 0.0, 0.0)
+OUTER_SCALE = (TAG_CELLS + 2 * BORDER_CELLS) / TAG_CELLS  # white quiet zone around the black square
 PX_TOL = 1.0  # IBVS success: corner error, pixels
 T_TOL, R_TOL_DEG = 1e-3, 0.5  # PBVS success: camera pose error
 
@@ -103,7 +106,7 @@ def setup(seed: int, *, tag_size: float = 0.08, desired_distance: float = 0.20, 
           max_angle_deg: float = 30.0, intrinsics: CameraIntrinsics | None = None,
           render: bool = False) -> tuple[FrankaSim, np.ndarray, np.ndarray, float, float]:
     """A simulated FER with a tag on the table, at a seeded random start. Returns (sim, fMo, cdMo, offset,
-    angle). The start satisfies the study's constraints (tag in view with a 10 px margin, joints within limits)."""
+    angle). The start satisfies the study's constraints (tag and quiet zone in view, joints within limits)."""
     intr = intrinsics or CameraIntrinsics.default()
     sim = FrankaSim(tags=[TagSpec(tag_id=0, size=tag_size, pos=TAG_POS)], camera=True)
     fMo = np.eye(4)
@@ -122,7 +125,8 @@ def setup(seed: int, *, tag_size: float = 0.08, desired_distance: float = 0.20, 
         cdMc[:3, :3] = _rot(rng.normal(size=3), angle) if angle > 0 else np.eye(3)
         cdMc[:3, 3] = direction / np.linalg.norm(direction) * offset
         cMo = inverse_pose(cdMc) @ cdMo
-        if not ideal_measurement(cMo, tag_size, intr, margin_px=10).visible:
+        # detectable: the tag with its white quiet zone inside the image, 5 px from the border
+        if not ideal_measurement(cMo, tag_size * OUTER_SCALE, intr, margin_px=5).visible:
             continue
         try:
             q0 = sim.model.inverse_kinematics(fMo @ inverse_pose(cMo) @ cMe, q_goal, restarts=0, tol=1e-8)
@@ -170,13 +174,15 @@ def run_servo(kind: str, seed: int, *, features: str = "ideal", duration: float 
         if k % n_cam == 0:
             cMo_true = inverse_pose(sim.get_fMc()) @ fMo
             truth = ideal_measurement(cMo_true, tag_size, intr)
+            image: np.ndarray | None
             if features == "detect":
+                assert camera is not None and detector is not None
                 image, _ = camera.image()
                 meas = detected_measurement(image, detector, 0, tag_size, intr)
                 detections += meas.visible
             else:
                 meas = truth
-                image = camera.image()[0] if record_frames else None
+                image = camera.image()[0] if (record_frames and camera is not None) else None
             obs = {"q": sim.get_position(), "features": meas.corners_xy.ravel(), "feature_depth": meas.depths,
                    "tag_pose": pose_vector(meas.cMo), "visible": np.array([float(meas.visible)]), **obs_const}
             dq_cmd, _ = policy.predict(obs)
