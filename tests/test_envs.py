@@ -247,7 +247,7 @@ def test_cartesian_velocity_moves_camera_along_its_axis():
     env.close()
 
 
-def test_zero_torque_holds_the_arm_and_payload_sags():
+def test_zero_torque_holds_the_arm_and_undeclared_payload_sags():
     """Torques are gravity-free: zero torque holds the arm; an undeclared payload is not compensated."""
     env = make("FrankaTorqueTracking-v0")
     obs, _ = env.reset(seed=0)
@@ -256,7 +256,7 @@ def test_zero_torque_holds_the_arm_and_payload_sags():
         obs, *_ = env.step(np.zeros(7, np.float32))
     assert np.abs(obs["q"] - q0).max() < 0.01
     env.close()
-    env = make("FrankaTorqueTracking-v0", payload_mass_range=(2.0, 2.0))
+    env = make("FrankaTorqueTracking-v0", payload_mass_range=(2.0, 2.0), payload_declared=False)
     obs, info = env.reset(seed=0)
     assert info["payload_mass"] == 2.0
     q0 = obs["q"].copy()
@@ -420,3 +420,31 @@ def test_feature_noise_is_in_pixels():
     assert np.std(diffs) == pytest.approx(2.0, rel=0.2)
     env.close()
     clean.close()
+
+
+def test_declared_payload_is_compensated_like_set_load():
+    """A declared payload: the robot holds it at zero torque, and the measured joint torques grow by its gravity
+    torque as computed independently by the pinocchio model with the same payload."""
+    from franka_vs_gym.envs.base import PAYLOAD_COM
+    from franka_vs_gym.model import FrankaModel
+
+    env = make("FrankaTorqueTracking-v0", payload_mass_range=(1.5, 1.5))
+    bare = make("FrankaTorqueTracking-v0")
+    obs, info = env.reset(seed=0)
+    bare.reset(seed=0)
+    assert info["payload_mass"] == 1.5
+    for _ in range(20):
+        obs, *_ = env.step(np.zeros(7, np.float32))
+        bare.step(np.zeros(7, np.float32))
+    q = env.unwrapped.sim.get_position()
+    assert np.abs(q - bare.unwrapped.sim.get_position()).max() < 1e-6  # held as firmly as without payload
+    tau_diff = env.unwrapped.sim.get_force_torque() - bare.unwrapped.sim.get_force_torque()
+    model = FrankaModel()
+    g0 = model.gravity(q)
+    model.set_payload(1.5, PAYLOAD_COM, np.eye(3) * 0.4 * 1.5 * 0.03**2)
+    np.testing.assert_allclose(tau_diff, model.gravity(q) - g0, atol=2e-3)
+    # and the inertia seen by the joints grows (the payload is a real mass)
+    u = env.unwrapped
+    assert u.world.model.body_mass[u._nominal["hand"][0]] == pytest.approx(u._nominal["hand"][1] + 1.5)
+    env.close()
+    bare.close()

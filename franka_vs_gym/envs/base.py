@@ -19,6 +19,7 @@ import mujoco
 import numpy as np
 from gymnasium import spaces
 
+from franka_vs_gym.assets.mjcf import mat2quat
 from franka_vs_gym.model.config import ModelConfig, RigidBody, resolve_config
 from franka_vs_gym.model.franka_model import FrankaModel
 from franka_vs_gym.sim import CAMERA_FRAME, FORCE_TORQUE, JOINT_STATE, VELOCITY, FrankaSim, SimulationDiverged
@@ -28,6 +29,7 @@ OBSERVATION_TYPES = ("features", "image", "features+image", "state")
 # Cartesian camera-twist bounds of the contract: +-0.5 m/s, +-1 rad/s.
 CARTESIAN_BOUNDS = np.array([0.5, 0.5, 0.5, 1.0, 1.0, 1.0])
 _LIMITS = FrankaModel.limits()
+PAYLOAD_COM = (0.0, 0.0, 0.05)  # where a randomised payload is held, flange frame, m
 
 
 def _positive(x: Any, name: str) -> float:
@@ -132,8 +134,13 @@ class FrankaEnv(gym.Env):
         Domain randomisation: the plant's joint friction (Gaz sigmoid, viscous and Coulomb terms) is multiplied by a
         factor drawn in this range at every reset.
     payload_mass_range : (low, high) kg or None
-        Domain randomisation: an undeclared payload (a point-like mass the robot does not compensate) of a mass
-        drawn in this range is held 5 cm in front of the flange.
+        Domain randomisation: a payload (a small 3 cm sphere) of a mass drawn in this range is held 5 cm in front of
+        the flange.
+    payload_declared : bool
+        True (default): the robot knows the payload's weight and compensates it, as after libfranka's ``setLoad``
+        (the payload still changes the arm's inertia, unknown to the nominal FrankaModel). False: an undeclared
+        payload whose weight is not compensated: it sags under torque control and, since FrankaSim's joint
+        velocity servo is proportional, makes velocity commands drift (0.2 kg already defeats classical IBVS).
     joint_noise, velocity_noise : float
         Standard deviation of white noise added to the observed q (rad) and dq (rad/s).
     clip_actions : bool
@@ -151,7 +158,8 @@ class FrankaEnv(gym.Env):
     def __init__(self, *, action_type: str = "joint_velocity", observation_type: str = "features",
                  control_period: float = 0.05, physics_step: float = 0.001, time_limit: float = 6.0,
                  model: Any = None, link_mass_range: Any = None, friction_scale_range: Any = None,
-                 payload_mass_range: Any = None, joint_noise: float = 0.0, velocity_noise: float = 0.0,
+                 payload_mass_range: Any = None, payload_declared: bool = True, joint_noise: float = 0.0,
+                 velocity_noise: float = 0.0,
                  clip_actions: bool = False, render_mode: str | None = None, render_width: int = 320,
                  render_height: int = 240, camera: bool = True, tags: list | None = None,
                  failure_penalty: float = 1.0) -> None:
@@ -186,8 +194,9 @@ class FrankaEnv(gym.Env):
         if self.render_width < 1 or self.render_height < 1:
             raise ValueError(f"render size must be >= 1 pixel, got {render_width}x{render_height}")
         self.config: ModelConfig = resolve_config(model)
-        payload = (RigidBody(1.0, (0.0, 0.0, 0.05), np.full(3, 0.4 * 0.03**2))
-                   if self.payload_mass_range is not None else None)
+        self.payload_declared = bool(payload_declared)
+        payload = (RigidBody(1.0, PAYLOAD_COM, np.full(3, 0.4 * 0.03**2))
+                   if self.payload_mass_range is not None and not self.payload_declared else None)
         self.sim = FrankaSim(self.config, camera=camera, tags=tags, timestep=self.physics_step,
                              undeclared_payload=payload)
         self.robot = self.sim  # the FrankaSim (vpRobotFranka-style API): env.unwrapped.robot.model is its FrankaModel
@@ -222,9 +231,15 @@ class FrankaEnv(gym.Env):
         m, p = self._m, self.sim.prefix
         links = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"{p}link{i + 1}") for i in range(7)]
         payload = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"{p}undeclared_payload")
+        hand = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"{p}hand")
+        R = np.zeros(9)
+        mujoco.mju_quat2Mat(R, m.body_iquat[hand])
+        R = R.reshape(3, 3)
+        hand_inertia = (hand, float(m.body_mass[hand]), m.body_ipos[hand].copy(),
+                        R @ np.diag(m.body_inertia[hand]) @ R.T, m.body_inertia[hand].copy(), m.body_iquat[hand].copy())
         s = self.sim
         return {"links": links, "mass": m.body_mass[links].copy(), "inertia": m.body_inertia[links].copy(),
-                "payload": payload,
+                "payload": payload, "hand": hand_inertia,
                 "friction": (s._fa, s._fe, s._fvisc.copy(), s._fcoul.copy())}
 
     def _randomise_dynamics(self) -> None:
@@ -245,7 +260,12 @@ class FrankaEnv(gym.Env):
             s._fa, s._fe = fa * k, fe * k
             s._fvisc, s._fcoul = fv * k, fc * k
             info["friction_scale"] = k
-        if self.payload_mass_range is not None and nom["payload"] >= 0:
+        if self.payload_mass_range is not None and self.payload_declared:
+            mass = float(rng.uniform(*self.payload_mass_range))
+            self._set_declared_payload(mass)
+            info["payload_mass"] = mass
+            changed = True
+        elif self.payload_mass_range is not None and nom["payload"] >= 0:
             mass = float(rng.uniform(*self.payload_mass_range))
             # a small solid sphere of radius 3 cm (MuJoCo needs a positive mass on a body with inertia)
             mass_eff = max(mass, 1e-9)
@@ -256,6 +276,29 @@ class FrankaEnv(gym.Env):
         if changed:
             mujoco.mj_setConst(m, self._d)
         self._episode_params = info
+
+    def _set_declared_payload(self, mass: float) -> None:
+        """Merge a payload sphere (radius 3 cm, at PAYLOAD_COM in the flange frame) into the hand body, whose weight
+        the robot's gravity compensation (MuJoCo gravcomp on the arm and hand) then includes."""
+        m = self._m
+        hand, mh, ch, Ih, diag0, quat0 = self._nominal["hand"]
+        if mass <= 0:
+            m.body_mass[hand], m.body_ipos[hand] = mh, ch
+            m.body_inertia[hand], m.body_iquat[hand] = diag0, quat0
+            return
+        p = np.asarray(PAYLOAD_COM)
+        mt = mh + mass
+        c = (mh * ch + mass * p) / mt
+
+        def shift(r: np.ndarray) -> np.ndarray:  # parallel-axis term of a unit mass at r from the new com
+            return (r @ r) * np.eye(3) - np.outer(r, r)
+
+        inertia = Ih + mh * shift(ch - c) + 0.4 * mass * 0.03**2 * np.eye(3) + mass * shift(p - c)
+        w, V = np.linalg.eigh(inertia)
+        if np.linalg.det(V) < 0:
+            V[:, 0] = -V[:, 0]
+        m.body_mass[hand], m.body_ipos[hand] = mt, c
+        m.body_inertia[hand], m.body_iquat[hand] = w, mat2quat(V)
 
     # ------------------------------------------------------------------ action handling
     def _check_action(self, action: Any) -> np.ndarray:
@@ -362,8 +405,10 @@ class FrankaEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         super().reset(seed=seed)
         options = dict(options or {})
-        self._randomise_dynamics()
+        # the task first, then the dynamics: a seed gives the same targets and start pose whatever randomisation
+        # options are on, so that nominal and randomised runs can be compared episode by episode
         q0 = self._reset_task(options)
+        self._randomise_dynamics()
         # a fresh MjData state (time 0, no solver warm start) so that a seed fully determines the episode
         mujoco.mj_resetData(self._m, self._d)
         self.sim.reset(q0)
