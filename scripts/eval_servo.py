@@ -5,7 +5,8 @@ From N seeded random starts (camera up to 15 cm and 30 deg from the goal, tag in
 report the success rate, time to converge and final errors. Success: IBVS, every corner within 1 px of its goal;
 PBVS, camera pose within 1 mm and 0.5 deg.
 
-    python scripts/eval_servo.py [--n 100] [--features ideal|detect] [--kinds ibvs,pbvs] [--json OUT]
+    python scripts/eval_servo.py [--n 100] [--features ideal|detect] [--kinds ibvs,pbvs]
+                                 [--interaction CURRENT|DESIRED|MEAN] [--json OUT]
 """
 
 from __future__ import annotations
@@ -26,20 +27,24 @@ def main() -> int:
     ap.add_argument("--features", default="ideal", choices=["ideal", "detect"])
     ap.add_argument("--kinds", default="ibvs,pbvs")
     ap.add_argument("--duration", type=float, default=15.0, help="time limit per run, s")
+    ap.add_argument("--interaction", default="MEAN", choices=["CURRENT", "DESIRED", "MEAN"],
+                    help="IBVS interaction matrix (default MEAN)")
     ap.add_argument("--json", default=None, help="write all results to this JSON file (must not exist)")
     args = ap.parse_args()
     out: dict[str, list] = {}
     for kind in args.kinds.split(","):
         rows = []
         for seed in tqdm(range(args.n), desc=f"{kind} ({args.features})", file=sys.stderr):
-            rows.append(run_servo(kind, seed, features=args.features, duration=args.duration).summary())
+            rows.append(run_servo(kind, seed, features=args.features, duration=args.duration,
+                                  interaction=args.interaction).summary())
         out[kind] = rows
         ok = [r for r in rows if r["converged"]]
         t = np.array([r["time_to_converge"] for r in ok])
         px = np.array([r["final_corner_error_px"] for r in ok])
         te = np.array([r["final_translation_error_m"] for r in ok]) * 1000
         re = np.array([r["final_rotation_error_deg"] for r in ok])
-        print(f"{kind.upper()} ({args.features} features): success {len(ok)}/{len(rows)}"
+        label = f"{kind.upper()}" + (f" {args.interaction}" if kind == "ibvs" else "")
+        print(f"{label} ({args.features} features): success {len(ok)}/{len(rows)}"
               f" = {100 * len(ok) / len(rows):.1f}%")
         if ok:
             print(f"  time to converge: median {np.median(t):.2f} s, 95th pct {np.percentile(t, 95):.2f} s, "

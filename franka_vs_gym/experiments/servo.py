@@ -170,49 +170,52 @@ def run_servo(kind: str, seed: int, *, features: str = "ideal", duration: float 
         from franka_vs_gym.experiments.common import progress
 
         bar = progress(n_steps, f"{kind} demo")
-    for k in range(n_steps):
-        if k % n_cam == 0:
-            cMo_true = inverse_pose(sim.get_fMc()) @ fMo
-            truth = ideal_measurement(cMo_true, tag_size, intr)
-            image: np.ndarray | None
-            if features == "detect":
-                assert camera is not None and detector is not None
-                image, _ = camera.image()
-                meas = detected_measurement(image, detector, 0, tag_size, intr)
-                detections += meas.visible
-            else:
-                meas = truth
-                image = camera.image()[0] if (record_frames and camera is not None) else None
-            obs = {"q": sim.get_position(), "features": meas.corners_xy.ravel(), "feature_depth": meas.depths,
-                   "tag_pose": pose_vector(meas.cMo), "visible": np.array([float(meas.visible)]), **obs_const}
-            dq_cmd, _ = policy.predict(obs)
-            sim.set_velocity(JOINT_STATE, dq_cmd.astype(np.float64))
-            err_px = (float(np.max(np.linalg.norm(truth.corners_px - desired.corners_px, axis=1)))
-                      if truth.visible else math.inf)
-            cdMc = cdMo @ inverse_pose(cMo_true)
-            t_err = float(np.linalg.norm(cdMc[:3, 3]))
-            r_err = math.degrees(float(np.linalg.norm(pose_vector(cdMc)[3:])))
-            ok = err_px < PX_TOL if kind == "ibvs" else (t_err < T_TOL and r_err < R_TOL_DEG)
-            if ok and converged_at is None:
-                converged_at = sim.time
-            elif not ok:
-                converged_at = None
-            ts.append(sim.time)
-            errs.append(err_px)
-            perrs.append((t_err, r_err))
-            vcs.append(sim.get_velocity(3))
-            dqs.append(dq_cmd)
-            if record_frames and image is not None:
-                if meas.visible:
-                    trail.append(meas.corners_px.copy())
-                frames.append(_draw(image, meas, desired.corners_px, trail))
-            if converged_at is not None and sim.time - converged_at >= hold:
-                break
-        sim.step()
+    try:
+        for k in range(n_steps):
+            if k % n_cam == 0:
+                cMo_true = inverse_pose(sim.get_fMc()) @ fMo
+                truth = ideal_measurement(cMo_true, tag_size, intr)
+                image: np.ndarray | None
+                if features == "detect":
+                    assert camera is not None and detector is not None
+                    image, _ = camera.image()
+                    meas = detected_measurement(image, detector, 0, tag_size, intr)
+                    detections += meas.visible
+                else:
+                    meas = truth
+                    image = camera.image()[0] if (record_frames and camera is not None) else None
+                obs = {"q": sim.get_position(), "features": meas.corners_xy.ravel(), "feature_depth": meas.depths,
+                       "tag_pose": pose_vector(meas.cMo), "visible": np.array([float(meas.visible)]), **obs_const}
+                dq_cmd, _ = policy.predict(obs)
+                sim.set_velocity(JOINT_STATE, dq_cmd.astype(np.float64))
+                err_px = (float(np.max(np.linalg.norm(truth.corners_px - desired.corners_px, axis=1)))
+                          if truth.visible else math.inf)
+                cdMc = cdMo @ inverse_pose(cMo_true)
+                t_err = float(np.linalg.norm(cdMc[:3, 3]))
+                r_err = math.degrees(float(np.linalg.norm(pose_vector(cdMc)[3:])))
+                ok = err_px < PX_TOL if kind == "ibvs" else (t_err < T_TOL and r_err < R_TOL_DEG)
+                if ok and converged_at is None:
+                    converged_at = sim.time
+                elif not ok:
+                    converged_at = None
+                ts.append(sim.time)
+                errs.append(err_px)
+                perrs.append((t_err, r_err))
+                vcs.append(sim.get_velocity(3))
+                dqs.append(dq_cmd)
+                if record_frames and image is not None:
+                    if meas.visible:
+                        trail.append(meas.corners_px.copy())
+                    frames.append(_draw(image, meas, desired.corners_px, trail))
+                if converged_at is not None and sim.time - converged_at >= hold:
+                    break
+            sim.step()
+            if bar is not None:
+                bar.update()
+    finally:
         if bar is not None:
-            bar.update()
-    if bar is not None:
-        bar.close()
+            bar.close()
+        sim.world.close()  # free the offscreen renderers (GL contexts) of this run
     return ServoResult(kind, seed, converged_at is not None,
                        float("nan") if converged_at is None else float(converged_at), errs[-1], perrs[-1][0],
                        perrs[-1][1], offset, angle, np.array(ts), np.array(errs), np.array(perrs), np.array(vcs),
