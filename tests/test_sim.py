@@ -250,3 +250,17 @@ def test_vpRobotFranka_camelcase_aliases(sim):
     sim.setVelocity(JOINT_STATE, np.zeros(7))
     assert sim.getPosition(JOINT_STATE).shape == (7,)
     assert sim.getMass().shape == (7, 7)
+
+
+def test_headless_rendering_even_when_mujoco_is_imported_first():
+    """No display, MUJOCO_GL unset, mujoco imported before franka_vs_gym: the EGL context is swapped in."""
+    import os
+    import subprocess
+    import sys
+
+    code = ("import mujoco\nfrom franka_vs_gym.sim import FrankaSim\n"
+            "img = FrankaSim(camera=False).world.render('overview', 64, 48)\nprint(img.shape, int(img.max()))")
+    env = {k: v for k, v in os.environ.items() if k not in ("MUJOCO_GL", "DISPLAY", "PYOPENGL_PLATFORM")}
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert "(48, 64, 3)" in r.stdout and not r.stdout.strip().endswith(" 0")

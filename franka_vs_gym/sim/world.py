@@ -114,11 +114,27 @@ class SimWorld:
 
 
 def ensure_gl_backend() -> str:
-    """Pick a headless OpenGL backend when none is set and there is no display; returns the backend name.
+    """Make sure offscreen rendering has a headless OpenGL backend on a machine without a display; returns the
+    backend name.
 
-    MuJoCo reads MUJOCO_GL when it first creates a context, so this must run before the first Renderer.
+    MuJoCo picks its backend from MUJOCO_GL when it is first imported (franka_vs_gym sets EGL before that when no
+    display is present). If MuJoCo was imported first and fell back to GLFW, which needs a display, the EGL context
+    is swapped in here, before the first renderer is made.
     """
-    if "MUJOCO_GL" not in os.environ and not os.environ.get("DISPLAY"):
+    if os.environ.get("DISPLAY"):
+        return os.environ.get("MUJOCO_GL", "glfw")
+    if "MUJOCO_GL" not in os.environ:
         os.environ["MUJOCO_GL"] = "egl"
+    from mujoco.rendering.classic import gl_context
+
+    current = getattr(gl_context, "GLContext", None)
+    if current is not None and "glfw" in getattr(current, "__module__", ""):
         os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+        try:
+            from mujoco.egl import GLContext as EGLContext
+        except Exception as e:  # pragma: no cover - depends on the machine
+            raise RuntimeError(f"no display and no EGL for headless rendering ({e}); install Mesa's EGL "
+                               "(libegl1) or set MUJOCO_GL=osmesa before importing mujoco") from e
+        gl_context.GLContext = EGLContext
+        return "egl"
     return os.environ.get("MUJOCO_GL", "glfw")
