@@ -5,7 +5,7 @@ From N seeded random starts (camera up to 15 cm and 30 deg from the goal, tag in
 report the success rate, time to converge and final errors. Success: IBVS, every corner within 1 px of its goal;
 PBVS, camera pose within 1 mm and 0.5 deg.
 
-    python scripts/eval_servo.py [--n 100] [--features ideal|detect] [--kinds ibvs,pbvs]
+    python scripts/eval_servo.py [--n 100] [--features ideal|detect] [--kinds ibvs,pbvs] [--width W --height H]
                                  [--interaction CURRENT|DESIRED|MEAN] [--json OUT]
 """
 
@@ -19,6 +19,7 @@ import numpy as np
 from tqdm import tqdm
 
 from franka_vs_gym.experiments.servo import run_servo
+from franka_vs_gym.vision import CameraIntrinsics
 
 
 def main() -> int:
@@ -29,6 +30,8 @@ def main() -> int:
     ap.add_argument("--duration", type=float, default=15.0, help="time limit per run, s")
     ap.add_argument("--interaction", default="MEAN", choices=["CURRENT", "DESIRED", "MEAN"],
                     help="IBVS interaction matrix (default MEAN)")
+    ap.add_argument("--width", type=int, default=320, help="image width, px (default 320)")
+    ap.add_argument("--height", type=int, default=240, help="image height, px (default 240)")
     ap.add_argument("--json", default=None, help="write all results to this JSON file (must not exist)")
     args = ap.parse_args()
     out: dict[str, list] = {}
@@ -36,7 +39,8 @@ def main() -> int:
         rows = []
         for seed in tqdm(range(args.n), desc=f"{kind} ({args.features})", file=sys.stderr):
             rows.append(run_servo(kind, seed, features=args.features, duration=args.duration,
-                                  interaction=args.interaction).summary())
+                                  interaction=args.interaction,
+                                  intrinsics=CameraIntrinsics.default(args.width, args.height)).summary())
         out[kind] = rows
         ok = [r for r in rows if r["converged"]]
         t = np.array([r["time_to_converge"] for r in ok])
@@ -44,7 +48,7 @@ def main() -> int:
         te = np.array([r["final_translation_error_m"] for r in ok]) * 1000
         re = np.array([r["final_rotation_error_deg"] for r in ok])
         label = f"{kind.upper()}" + (f" {args.interaction}" if kind == "ibvs" else "")
-        print(f"{label} ({args.features} features): success {len(ok)}/{len(rows)}"
+        print(f"{label} ({args.features} features, {args.width}x{args.height}): success {len(ok)}/{len(rows)}"
               f" = {100 * len(ok) / len(rows):.1f}%")
         if ok:
             print(f"  time to converge: median {np.median(t):.2f} s, 95th pct {np.percentile(t, 95):.2f} s, "
