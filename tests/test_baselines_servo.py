@@ -66,3 +66,11 @@ def test_ibvs_converges_with_rendering_and_detection_in_the_loop():
     assert r.converged, r.summary()
     assert r.final_corner_error_px < PX_TOL
     assert r.detections > 10
+
+
+def test_pbvs_converges_with_detection_at_640x480():
+    from franka_vs_gym.vision import CameraIntrinsics
+
+    r = run_servo("pbvs", 5, features="detect", duration=8.0, intrinsics=CameraIntrinsics.default(640, 480))
+    assert r.converged, r.summary()
+    assert r.final_translation_error_m < T_TOL and r.final_rotation_error_deg < R_TOL_DEG
