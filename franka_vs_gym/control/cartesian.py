@@ -16,7 +16,8 @@ from typing import Any
 
 import numpy as np
 
-from franka_vs_gym.control.impedance import _check_model, _check_pose, _gains, _vec, pose_error
+from franka_vs_gym.control.impedance import _check_model, _gains, pose_error
+from franka_vs_gym.model.checks import as_pose, as_vector
 from franka_vs_gym.model.franka_model import FrankaModel
 
 
@@ -58,7 +59,7 @@ class CartesianComputedTorque:
         self.kd = _gains(2.0 * np.sqrt(self.kp) if kd is None else kd, 6, "kd")
         self.kp_null = _gains(kp_null, 7, "kp_null")
         self.kd_null = _gains(kd_null, 7, "kd_null")
-        self._q_null_given = None if q_nullspace is None else _vec(q_nullspace, 7, "q_nullspace")
+        self._q_null_given = None if q_nullspace is None else as_vector(q_nullspace, 7, "q_nullspace")
         self.friction = bool(friction)
         if not (mu >= 0 and math.isfinite(mu)):
             raise ValueError(f"mu must be finite and >= 0, got {mu}")
@@ -75,10 +76,10 @@ class CartesianComputedTorque:
     def __call__(self, t: float, q: Any, dq: Any, fMe_d: Any, v_d: Any = None, a_d: Any = None) -> np.ndarray:
         if not math.isfinite(t):
             raise ValueError(f"t must be finite, got {t}")
-        q, dq = _vec(q, 7, "q"), _vec(dq, 7, "dq")
-        fMe_d = _check_pose(fMe_d, "fMe_d")
-        v_d = np.zeros(6) if v_d is None else _vec(v_d, 6, "v_d")
-        a_d = np.zeros(6) if a_d is None else _vec(a_d, 6, "a_d")
+        q, dq = as_vector(q, 7, "q"), as_vector(dq, 7, "dq")
+        fMe_d = as_pose(fMe_d, "fMe_d")
+        v_d = np.zeros(6) if v_d is None else as_vector(v_d, 6, "v_d")
+        a_d = np.zeros(6) if a_d is None else as_vector(a_d, 6, "a_d")
         if self.q_nullspace is None:
             self.q_nullspace = q.copy()
         m = self.model
@@ -115,7 +116,7 @@ def circle_reference(t: float, start: Any, radius: float, frequency: float, axis
     ``ramp`` (s) > 0 ramps the angular rate up smoothly (quintic) over the first ``ramp`` seconds, so velocity and
     acceleration start from zero.
     """
-    c, u, v = (_vec(x, 3, n) for x, n in ((start, "start"), (axis_u, "axis_u"), (axis_v, "axis_v")))
+    c, u, v = (as_vector(x, 3, n) for x, n in ((start, "start"), (axis_u, "axis_u"), (axis_v, "axis_v")))
     if not (radius >= 0 and frequency >= 0 and ramp >= 0):
         raise ValueError(f"radius, frequency and ramp must be >= 0, got {radius}, {frequency}, {ramp}")
     w = 2.0 * math.pi * frequency

@@ -19,19 +19,8 @@ from typing import Any
 
 import numpy as np
 
+from franka_vs_gym.model.checks import as_pose, as_vector
 from franka_vs_gym.model.franka_model import FrankaModel
-
-
-def _vec(x: Any, n: int, name: str) -> np.ndarray:
-    try:
-        a = np.asarray(x, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a numeric array of shape ({n},)") from None
-    if a.shape != (n,):
-        raise ValueError(f"{name} must have shape ({n},), got {a.shape}")
-    if not np.isfinite(a).all():
-        raise ValueError(f"{name} contains NaN or inf: {a}")
-    return a
 
 
 def _gains(x: Any, n: int, name: str) -> np.ndarray:
@@ -78,16 +67,6 @@ def pose_error(fMe: np.ndarray, fMe_d: np.ndarray) -> np.ndarray:
     else:
         rot = theta / (2.0 * np.sin(theta)) * w
     return np.concatenate([fMe_d[:3, 3] - fMe[:3, 3], rot])
-
-
-def _check_pose(M: Any, name: str) -> np.ndarray:
-    a = np.asarray(M, dtype=np.float64)
-    if a.shape != (4, 4) or not np.isfinite(a).all():
-        raise ValueError(f"{name} must be a finite 4x4 homogeneous matrix, got shape {a.shape}")
-    R = a[:3, :3]
-    if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
-        raise ValueError(f"{name}: the rotation part is not a rotation matrix")
-    return a
 
 
 def null_space_projector(model: FrankaModel, q: np.ndarray, J: np.ndarray | None = None,
@@ -139,7 +118,7 @@ class GravityCompensation:
         """Stateless; present so every controller can be reset the same way."""
 
     def __call__(self, q: Any, dq: Any) -> np.ndarray:
-        q, dq = _vec(q, 7, "q"), _vec(dq, 7, "dq")
+        q, dq = as_vector(q, 7, "q"), as_vector(dq, 7, "dq")
         tau = -self.kd * dq
         if self.internal is not None:
             tau = tau + self.model.gravity(q) - self.internal.gravity(q)
@@ -211,12 +190,12 @@ class JointImpedance:
         return 2.0 * self.zeta * np.sqrt(self.k * np.diag(self.model.mass_matrix(q)))
 
     def __call__(self, q: Any, dq: Any, q_d: Any, dq_d: Any = None, ddq_d: Any = None) -> np.ndarray:
-        q, dq, q_d = _vec(q, 7, "q"), _vec(dq, 7, "dq"), _vec(q_d, 7, "q_d")
-        dq_d = np.zeros(7) if dq_d is None else _vec(dq_d, 7, "dq_d")
+        q, dq, q_d = as_vector(q, 7, "q"), as_vector(dq, 7, "dq"), as_vector(q_d, 7, "q_d")
+        dq_d = np.zeros(7) if dq_d is None else as_vector(dq_d, 7, "dq_d")
         m = self.model
         tau = self.stiffness(q) * (q_d - q) + self.damping(q) * (dq_d - dq)
         if ddq_d is not None:
-            tau += m.mass_matrix(q) @ _vec(ddq_d, 7, "ddq_d")
+            tau += m.mass_matrix(q) @ as_vector(ddq_d, 7, "ddq_d")
         if self.coriolis:
             tau += m.coriolis(q, dq)
         if self.friction:
@@ -267,7 +246,7 @@ class CartesianImpedance:
         self.zeta = float(zeta)
         self.dn = _gains(nullspace_damping, 7, "nullspace_damping")
         self.kn = _gains(nullspace_stiffness, 7, "nullspace_stiffness")
-        self.q_nullspace = None if q_nullspace is None else _vec(q_nullspace, 7, "q_nullspace")
+        self.q_nullspace = None if q_nullspace is None else as_vector(q_nullspace, 7, "q_nullspace")
         if self.kn.any() and self.q_nullspace is None:
             raise ValueError("nullspace_stiffness > 0 needs q_nullspace (the preferred posture)")
 
@@ -275,9 +254,9 @@ class CartesianImpedance:
         """Stateless; present so every controller can be reset the same way."""
 
     def __call__(self, q: Any, dq: Any, fMe_d: Any, v_d: Any = None) -> np.ndarray:
-        q, dq = _vec(q, 7, "q"), _vec(dq, 7, "dq")
-        fMe_d = _check_pose(fMe_d, "fMe_d")
-        v_d = np.zeros(6) if v_d is None else _vec(v_d, 6, "v_d")
+        q, dq = as_vector(q, 7, "q"), as_vector(dq, 7, "dq")
+        fMe_d = as_pose(fMe_d, "fMe_d")
+        v_d = np.zeros(6) if v_d is None else as_vector(v_d, 6, "v_d")
         m = self.model
         J = m.fJe(q).copy()
         fMe = m.fMe(q)

@@ -22,17 +22,9 @@ from typing import Any
 import numpy as np
 
 from franka_vs_gym.model import params
+from franka_vs_gym.model.checks import as_vector
 
 FORMAT = "franka_vs_gym.model/1"
-
-
-def _vec(x: Any, n: int, name: str) -> np.ndarray:
-    a = np.asarray(x, dtype=np.float64)
-    if a.shape != (n,):
-        raise ValueError(f"{name} must have shape ({n},), got {a.shape}")
-    if not np.all(np.isfinite(a)):
-        raise ValueError(f"{name} contains NaN or inf: {a}")
-    return a
 
 
 def _mat(x: Any, shape: tuple[int, int], name: str) -> np.ndarray:
@@ -57,7 +49,7 @@ class RigidBody:
         self.mass = float(self.mass)
         if not math.isfinite(self.mass) or self.mass < 0:
             raise ValueError(f"mass must be a finite number >= 0 kg, got {self.mass}")
-        self.com = _vec(self.com, 3, "com")
+        self.com = as_vector(self.com, 3, "com")
         inertia = np.asarray(self.inertia, dtype=np.float64)
         if inertia.shape == (3,):
             inertia = np.diag(inertia)
@@ -141,7 +133,7 @@ class Friction:
 
     def __post_init__(self) -> None:
         for name in ("phi1", "phi2", "phi3", "viscous", "coulomb"):
-            setattr(self, name, _vec(getattr(self, name), 7, f"friction.{name}"))
+            setattr(self, name, as_vector(getattr(self, name), 7, f"friction.{name}"))
         if self.coulomb_vel <= 0:
             raise ValueError("friction.coulomb_vel must be > 0 rad/s")
 
@@ -232,12 +224,12 @@ class ModelConfig:
     notes: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        self.gravity = _vec(self.gravity, 3, "gravity")
-        self.armature = _vec(self.armature, 7, "armature")
+        self.gravity = as_vector(self.gravity, 3, "gravity")
+        self.armature = as_vector(self.armature, 7, "armature")
         if (self.armature < 0).any():
             raise ValueError(f"armature must be >= 0 kg m^2, got {self.armature}")
-        self.torque_offset = _vec(self.torque_offset, 7, "torque_offset")
-        self.link_mass_scale = _vec(self.link_mass_scale, 7, "link_mass_scale")
+        self.torque_offset = as_vector(self.torque_offset, 7, "torque_offset")
+        self.link_mass_scale = as_vector(self.link_mass_scale, 7, "link_mass_scale")
         if (self.link_mass_scale <= 0).any():
             raise ValueError("link_mass_scale must be > 0")
         self.delay = float(self.delay)

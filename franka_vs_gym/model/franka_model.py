@@ -12,19 +12,11 @@ import numpy as np
 import pinocchio as pin
 
 from franka_vs_gym.model import params
+from franka_vs_gym.model.checks import as_vector
 from franka_vs_gym.model.config import ModelConfig, RigidBody, Tool, resolve_config
 
 _LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 _LOCAL = pin.ReferenceFrame.LOCAL
-
-
-def _check(x: Any, name: str, n: int = 7) -> np.ndarray:
-    a = np.asarray(x, dtype=np.float64)
-    if a.shape != (n,):
-        raise ValueError(f"{name} must have shape ({n},), got {a.shape}")
-    if not np.isfinite(a).all():
-        raise ValueError(f"{name} contains NaN or inf: {a}")
-    return a
 
 
 def build_pinocchio_model(config: ModelConfig) -> tuple[pin.Model, int, int]:
@@ -113,7 +105,7 @@ class FrankaModel:
 
     def set_gravity(self, g0: Any) -> None:
         """Gravity vector in the base frame (3,), m/s^2; e.g. for a wall or ceiling mounting."""
-        g = _check(g0, "gravity", 3)
+        g = as_vector(g0, 3, "gravity")
         self._config = self._config.copy(gravity=g)
         self.model.gravity.linear = g
 
@@ -199,7 +191,7 @@ class FrankaModel:
         target = pin.SE3(T[:3, :3], T[:3, 3])
         lo, hi = params.as_array(params.Q_MIN), params.as_array(params.Q_MAX)
         rng = np.random.default_rng(seed)
-        starts = [params.as_array(params.Q_NEUTRAL) if q0 is None else _check(q0, "q0")]
+        starts = [params.as_array(params.Q_NEUTRAL) if q0 is None else as_vector(q0, 7, "q0")]
         starts += [rng.uniform(lo, hi) for _ in range(restarts)]
         best_err = np.inf
         for q in starts:

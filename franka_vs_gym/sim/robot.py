@@ -17,6 +17,7 @@ import numpy as np
 
 from franka_vs_gym.assets.mjcf import RobotSpec, SceneSpec, TagSpec, mat2quat
 from franka_vs_gym.model import params
+from franka_vs_gym.model.checks import as_pose, as_vector
 from franka_vs_gym.model.config import ModelConfig, RigidBody, Tool, resolve_config
 from franka_vs_gym.model.franka_model import FrankaModel
 from franka_vs_gym.model.geometry import pose_vector, twist_transform
@@ -57,28 +58,6 @@ DEFAULT_eMc = np.array([[1.0, 0.0, 0.0, 0.09], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 
 # Gains of the joint velocity servo (Nm s/rad) used in velocity and position control.
 VELOCITY_GAINS = np.array([120.0, 120.0, 80.0, 80.0, 15.0, 15.0, 6.0])
 _R_CV = np.diag([1.0, -1.0, -1.0])  # ViSP camera (z forward, y down) -> MuJoCo camera (-z forward, y up)
-
-
-def _vec(x: Any, n: int, name: str) -> np.ndarray:
-    try:
-        a = np.asarray(x, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a numeric array of shape ({n},), got {type(x).__name__}") from None
-    if a.shape != (n,):
-        raise ValueError(f"{name} must have shape ({n},), got {a.shape}")
-    if not np.isfinite(a).all():
-        raise ValueError(f"{name} contains NaN or inf: {a}")
-    return a
-
-
-def _hom(M: Any, name: str) -> np.ndarray:
-    a = np.asarray(M, dtype=np.float64)
-    if a.shape != (4, 4) or not np.isfinite(a).all():
-        raise ValueError(f"{name} must be a finite 4x4 homogeneous matrix, got shape {a.shape}")
-    R = a[:3, :3]
-    if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
-        raise ValueError(f"{name}: the rotation part is not a rotation matrix")
-    return a
 
 
 class FrankaSim:
@@ -239,11 +218,11 @@ class FrankaSim:
 
     def reset(self, q: Any, dq: Any = None) -> None:
         """Place the robot at joint position q (7,) with velocity dq (default 0), stopped (simulation only)."""
-        q = _vec(q, 7, "q")
+        q = as_vector(q, 7, "q")
         if (q < self.q_min - 1e-9).any() or (q > self.q_max + 1e-9).any():
             raise ValueError(f"q is outside the joint limits: {q}")
         self._qpos[:] = q
-        self._qvel[:] = 0.0 if dq is None else _vec(dq, 7, "dq")
+        self._qvel[:] = 0.0 if dq is None else as_vector(dq, 7, "dq")
         self._ctrl_tau[:] = 0.0
         self._ctrl_vel[:] = 0.0
         self._tau_cmd[:] = 0.0
@@ -285,7 +264,7 @@ class FrankaSim:
         if self._state != RobotState.STATE_FORCE_TORQUE_CONTROL:
             raise RuntimeError("set_force_torque needs the robot in STATE_FORCE_TORQUE_CONTROL "
                                "(call set_robot_state(FORCE_TORQUE) first)")
-        t = _vec(tau, 7, "tau")
+        t = as_vector(tau, 7, "tau")
         tau_max = self.tau_max
         np.minimum(t, tau_max, out=self._tau_cmd)
         np.maximum(self._tau_cmd, -tau_max, out=self._tau_cmd)
@@ -305,9 +284,9 @@ class FrankaSim:
                                "(call set_robot_state(VELOCITY) first)")
         frame = ControlFrame(frame)
         if frame == ControlFrame.JOINT_STATE:
-            dq = _vec(v, 7, "joint velocity")
+            dq = as_vector(v, 7, "joint velocity")
         else:
-            twist = _vec(v, 6, "twist")
+            twist = as_vector(v, 6, "twist")
             q = self._qpos
             if frame == ControlFrame.END_EFFECTOR_FRAME:
                 J = self.model.eJe(q)
@@ -342,9 +321,9 @@ class FrankaSim:
             raise RuntimeError("set_position needs the robot in STATE_POSITION_CONTROL")
         frame = ControlFrame(frame)
         if frame == ControlFrame.JOINT_STATE:
-            qd = _vec(position, 7, "joint position")
+            qd = as_vector(position, 7, "joint position")
         elif frame in (ControlFrame.END_EFFECTOR_FRAME, ControlFrame.REFERENCE_FRAME):
-            qd = self.model.inverse_kinematics(_hom(position, "fMe"), self.get_position())
+            qd = self.model.inverse_kinematics(as_pose(position, "fMe"), self.get_position())
         else:
             raise ValueError(f"unsupported position frame {frame!r}")
         if (qd < self.q_min).any() or (qd > self.q_max).any():
@@ -474,14 +453,14 @@ class FrankaSim:
         return self.model.friction(self._qvel)
 
     def get_fJe(self, q: Any = None) -> np.ndarray:
-        return self.model.fJe(self._qpos if q is None else _vec(q, 7, "q"))
+        return self.model.fJe(self._qpos if q is None else as_vector(q, 7, "q"))
 
     def get_eJe(self, q: Any = None) -> np.ndarray:
-        return self.model.eJe(self._qpos if q is None else _vec(q, 7, "q"))
+        return self.model.eJe(self._qpos if q is None else as_vector(q, 7, "q"))
 
     def get_fMe(self, q: Any = None) -> np.ndarray:
         """Pose of the end effector in the base frame (4, 4)."""
-        return self.model.fMe(self._qpos if q is None else _vec(q, 7, "q"))
+        return self.model.fMe(self._qpos if q is None else as_vector(q, 7, "q"))
 
     def get_fMc(self, q: Any = None) -> np.ndarray:
         """Pose of the camera (ViSP convention) in the base frame (4, 4)."""
@@ -492,7 +471,7 @@ class FrankaSim:
 
     def set_eMc(self, eMc: Any) -> None:
         """Camera mount: pose of the camera frame c (ViSP: z forward, y down) in the end-effector frame."""
-        eMc = _hom(eMc, "eMc")
+        eMc = as_pose(eMc, "eMc")
         self._eMc = eMc.copy()
         if self._cam >= 0:
             flMc = self.spec.config.tool.flMe @ eMc
@@ -510,7 +489,7 @@ class FrankaSim:
     def set_tool(self, flMe: Any, mass: float = 0.0, flMcom: Any = (0, 0, 0), inertia: Any = None) -> None:
         """Declare the tool to the robot's model (as the real robot's end-effector settings): updates the model
         used by the getters and Cartesian commands. The plant's physical tool is fixed at construction."""
-        self.model.set_tool(_hom(flMe, "flMe"), mass, flMcom, inertia)
+        self.model.set_tool(as_pose(flMe, "flMe"), mass, flMcom, inertia)
 
     def camera_name(self) -> str:
         if self._cam < 0:
