@@ -36,18 +36,78 @@ class TagDetection:
     corners: np.ndarray
 
 
+def refine_corners(gray: np.ndarray, corners: np.ndarray, n_samples: int = 16) -> np.ndarray:
+    """Sub-pixel corners (4, 2) of a tag's black square from straight lines fitted to its four edges.
+
+    ``corners`` (4, 2) pixels, in order around the square (as the detector returns them), seed the search. Along
+    each side, ``n_samples`` points between 20% and 80% of its length are moved onto the edge: the intensity
+    profile across the side (bilinear, 0.25 px steps, up to 0.6 tag cell either side, dark inside to bright
+    outside) is normalised between its two plateaus and the edge is where the area under the dark part ends, which
+    is exact for any symmetric blur of a step. A total-least-squares line through these points is fitted per side
+    and adjacent lines are intersected. Corner-based refinements (OpenCV's cornerSubPix) are biased towards the
+    inside of an L-shaped corner by 0.1-0.2 px on rendered tags; this is not (0.03 px mean error at 320x240).
+
+    Sides with fewer than 3 edge points of enough contrast (40 grey levels) leave the corners unchanged.
+    """
+    import cv2
+
+    g = np.ascontiguousarray(gray, dtype=np.float32)
+    c = np.asarray(corners, dtype=np.float64).reshape(4, 2)
+    centre = c.mean(axis=0)
+    side = float(np.mean(np.linalg.norm(np.roll(c, -1, axis=0) - c, axis=1)))
+    reach = float(np.clip(0.6 * side / 8, 1.5, 4.0))  # the black border is one of the 8 cells of the square
+    s = np.arange(-reach, reach + 1e-9, 0.25)
+    t = np.linspace(0.2, 0.8, n_samples)
+    lines = []
+    for k in range(4):
+        a, b = c[k], c[(k + 1) % 4]
+        length = np.linalg.norm(b - a)
+        if length < 1e-6:
+            return c
+        d = (b - a) / length
+        n = np.array([-d[1], d[0]])
+        if np.dot(n, (a + b) / 2 - centre) < 0:
+            n = -n  # outwards: from the black square to the white border
+        P = a + t[:, None] * (b - a)
+        pts = P[:, None, :] + s[None, :, None] * n
+        prof = cv2.remap(g, pts[..., 0].astype(np.float32), pts[..., 1].astype(np.float32), cv2.INTER_LINEAR,
+                         borderMode=cv2.BORDER_REPLICATE).astype(np.float64)
+        lo = prof[:, :3].mean(axis=1, keepdims=True)
+        hi = prof[:, -3:].mean(axis=1, keepdims=True)
+        good = (hi - lo)[:, 0] > 40.0
+        dark = 1.0 - np.clip((prof - lo) / np.maximum(hi - lo, 1e-6), 0.0, 1.0)
+        edge = -reach + 0.25 * (dark.sum(axis=1) - 0.5 * (dark[:, 0] + dark[:, -1]))  # trapezoid rule
+        E = (P + edge[:, None] * n)[good]
+        if len(E) < 3:
+            return c
+        m = E.mean(axis=0)
+        lines.append((m, np.linalg.svd(E - m)[2][0]))
+    out = np.empty((4, 2))
+    for k in range(4):
+        (p1, d1), (p2, d2) = lines[k - 1], lines[k]
+        A = np.column_stack([d1, -d2])
+        if abs(np.linalg.det(A)) < 1e-6:
+            return c
+        out[k] = p1 + np.linalg.solve(A, p2 - p1)[0] * d1
+    if np.max(np.linalg.norm(out - c, axis=1)) > 2.0:  # a line fit went astray (occlusion, clutter)
+        return c
+    return out
+
+
 class TagDetector:
     """AprilTag 36h11 detector on RGB or grayscale uint8 images.
 
-    Two passes: OpenCV's contour-based quad search with sub-pixel corner refinement (the most precise corners:
-    0.26 px mean error on rendered frames), then, for a tag the first pass missed, the AprilTag-style quad
-    refinement, which finds squares whose contour the first pass breaks up at some oblique views, followed by a
-    sub-pixel corner search (OpenCV's cornerSubPix)."""
+    Two passes: OpenCV's contour-based quad search with sub-pixel corner refinement (0.26 px mean error on rendered
+    frames), then, for a tag the first pass missed, the AprilTag-style quad refinement, which finds squares whose
+    contour the first pass breaks up at some oblique views, followed by a sub-pixel corner search (OpenCV's
+    cornerSubPix). With ``refine`` (default) the corners are then fitted to the tag's edges
+    (:func:`refine_corners`: 0.03 px mean error)."""
 
     def __init__(self, refine: bool = True) -> None:
         import cv2
 
         self._cv2 = cv2
+        self._edge_refine = refine
         dictionary = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_APRILTAG_36h11)
         params = cv2.aruco.DetectorParameters()
         if refine:
@@ -75,8 +135,12 @@ class TagDetector:
             crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 0.01)
             corners = [cv2.cornerSubPix(gray, np.ascontiguousarray(c, dtype=np.float32).reshape(4, 1, 2), (3, 3),
                                         (-1, -1), crit) for c in corners]
-        return [TagDetection(int(i), np.asarray(c, dtype=np.float64).reshape(4, 2))
-                for i, c in zip(ids.ravel(), corners, strict=True)]
+        out = [TagDetection(int(i), np.asarray(c, dtype=np.float64).reshape(4, 2))
+               for i, c in zip(ids.ravel(), corners, strict=True)]
+        if self._edge_refine:
+            for d in out:
+                d.corners = refine_corners(gray, d.corners)
+        return out
 
     def detect(self, image: np.ndarray) -> list[TagDetection]:
         """All tags found by the first pass (or by the second when the first finds none)."""
@@ -96,7 +160,8 @@ class TagDetector:
 
 
 def estimate_pose(corners_px: np.ndarray, size: float, intrinsics: CameraIntrinsics) -> np.ndarray:
-    """cMo (4, 4) of a tag from its 4 detected corners (4, 2) in pixels, by IPPE-square PnP (no distortion)."""
+    """cMo (4, 4) of a tag from its 4 detected corners (4, 2) in pixels: IPPE-square PnP (no distortion), then
+    Levenberg-Marquardt minimisation of the reprojection error."""
     import cv2
 
     c = np.asarray(corners_px, dtype=np.float64).reshape(4, 2)
@@ -110,6 +175,11 @@ def estimate_pose(corners_px: np.ndarray, size: float, intrinsics: CameraIntrins
         ok, rvec, tvec = cv2.solvePnP(obj, c, intrinsics.K, None, flags=cv2.SOLVEPNP_SQPNP)
     if not (ok and np.isfinite(rvec).all() and np.isfinite(tvec).all()):
         raise ValueError("PnP failed for these corners")
+    # IPPE is a closed form from the homography, not the reprojection-error minimum: near the fronto-parallel goal
+    # it leaves 1-2 deg of tilt error from 0.05 px corner errors; Levenberg-Marquardt polishing removes it.
+    r2, t2 = cv2.solvePnPRefineLM(obj, c, intrinsics.K, None, rvec.copy(), tvec.copy())
+    if np.isfinite(r2).all() and np.isfinite(t2).all() and t2.ravel()[2] > 0:
+        rvec, tvec = r2, t2
     M = np.eye(4)
     M[:3, :3] = cv2.Rodrigues(rvec)[0]
     M[:3, 3] = tvec.ravel()
