@@ -228,10 +228,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--features", default="detect", choices=["detect", "ideal"],
                    help="servo demos: tag measured by rendering + detection (default) or ideal projection")
     p.add_argument("--camera-period", type=float, default=0.02, help="servo demos: camera period, s (default 0.02)")
-    p.add_argument("--width", type=int, default=None,
-                   help="servo demos: image width, px (default 320 for ibvs, 640 for pbvs)")
-    p.add_argument("--height", type=int, default=None,
-                   help="servo demos: image height, px (default 240 for ibvs, 480 for pbvs)")
+    p.add_argument("--width", type=int, default=320, help="servo demos: image width, px (default 320)")
+    p.add_argument("--height", type=int, default=240, help="servo demos: image height, px (default 240)")
 
 
 def main(args: argparse.Namespace, kind: str) -> int:
@@ -246,11 +244,7 @@ def main(args: argparse.Namespace, kind: str) -> int:
     duration = 10.0 if args.duration is None else float(args.duration)
     if not (duration > 0 and math.isfinite(duration)):
         raise ValueError(f"--duration must be > 0 s, got {duration}")
-    # PBVS acts on the PnP pose, whose noise at 320x240 (an 8 cm tag spans ~80 px at 0.2 m) exceeds its 1 mm /
-    # 0.5 deg goal; at 640x480 it converges from all 100 starts of the study. IBVS reaches 1 px at 320x240.
-    default_size = (320, 240) if kind == "ibvs" else (640, 480)
-    width = default_size[0] if args.width is None else args.width
-    height = default_size[1] if args.height is None else args.height
+    width, height = args.width, args.height
     if width < 16 or height < 16:
         raise ValueError(f"image size must be at least 16x16 px, got {width}x{height}")
     out = make_run_dir(f"demo-{kind}", args.out)
