@@ -141,6 +141,32 @@ def test_vector_envs_sync_and_async_agree():
         asyn.close()
 
 
+def test_async_vector_env_with_images():
+    """Image observations in worker processes. A process that has rendered holds an OpenGL context that a forked
+    worker cannot reuse, so with images the workers are spawned; 'franka_vs_gym:Id' makes them import the package
+    (and its registrations) first."""
+    fns = [lambda: gym.make("franka_vs_gym:FrankaIBVS-v0", observation_type="features+image", image_width=48,
+                            image_height=36) for _ in range(2)]
+    venv = gym.vector.AsyncVectorEnv(fns, context="spawn")
+    try:
+        obs, _ = venv.reset(seed=0)
+        assert obs["image"].shape == (2, 36, 48, 3) and obs["image"].std() > 1.0
+        obs, *_ = venv.step(np.zeros((2, 7), np.float32))
+        assert obs["features"].shape == (2, 8)
+    finally:
+        venv.close()
+
+
+def test_module_prefixed_id_for_spawned_workers():
+    """'franka_vs_gym:FrankaIBVS-v0' imports the package first (what spawned worker processes need)."""
+    env = gym.make("franka_vs_gym:FrankaIBVS-v0")
+    env.reset(seed=0)
+    env.close()
+    res = franka_vs_gym.evaluate(lambda o: np.zeros(7, np.float32), "franka_vs_gym:FrankaIBVS-v0", 1,
+                                 env_kwargs={"time_limit": 0.2})
+    assert res["n_episodes"] == 1
+
+
 @pytest.mark.parametrize("action_type", ["torque", "joint_velocity", "cartesian_velocity"])
 def test_bad_actions_raise_clear_errors(action_type):
     env = make("FrankaIBVS-v0", action_type=action_type)

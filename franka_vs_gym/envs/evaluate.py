@@ -15,7 +15,7 @@ def _make_env(env_id_or_env: Any, env_kwargs: dict[str, Any] | None) -> tuple[gy
     if isinstance(env_id_or_env, str):
         import franka_vs_gym  # noqa: F401  (registers the ids)
 
-        if env_id_or_env not in gym.registry:
+        if env_id_or_env.split(":")[-1] not in gym.registry:  # "module:EnvId" imports module first
             ours = [k for k in gym.registry if k.startswith("Franka")]
             raise ValueError(f"unknown environment id {env_id_or_env!r} (franka_vs_gym registers {ours})")
         return gym.make(env_id_or_env, **(env_kwargs or {})), True

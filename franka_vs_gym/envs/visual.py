@@ -118,19 +118,28 @@ class VisualServoEnv(FrankaEnv):
     # ------------------------------------------------------------------ camera (franka_vs_gym.vision)
     def _setup_camera(self) -> None:
         """The camera model, detector and renderers are franka_vs_gym.vision's; features are measured with the
-        intrinsics of the detection_width x detection_height camera (feature noise is in its pixels)."""
-        from franka_vs_gym.vision import CameraIntrinsics, TagDetector, WristCamera, set_mujoco_camera
+        intrinsics of the detection_width x detection_height camera (feature noise is in its pixels). The
+        renderers themselves are made at the first reset (see _make_cameras)."""
+        from franka_vs_gym.vision import CameraIntrinsics, set_mujoco_camera
 
         self.intrinsics = CameraIntrinsics.default(self.detection_width, self.detection_height)
         set_mujoco_camera(self._m, self._cam_name, self.intrinsics)
         self._start_margin_px = 0.1 * min(self.detection_width, self.detection_height)
         self._image_camera = self._detection_camera = self._detector = None
+        self._cameras_ready = False
+
+    def _make_cameras(self) -> None:
+        """Renderers are created at the first reset, not in the constructor: an OpenGL context must not exist in a
+        process that later forks (gymnasium's AsyncVectorEnv builds one env in the parent to read its spaces)."""
+        from franka_vs_gym.vision import TagDetector, WristCamera
+
         if self.observation_type in ("image", "features+image"):
             self._image_camera = WristCamera(self.sim, self.intrinsics.scaled(self.image_width, self.image_height),
                                              self.camera_period)
         if self.feature_source == "detection" and self.observation_type != "image":
             self._detection_camera = WristCamera(self.sim, self.intrinsics, self.camera_period)
             self._detector = TagDetector()
+        self._cameras_ready = True
 
     def _project(self, cMo: np.ndarray, margin_px: float = 0.0) -> tuple[np.ndarray, np.ndarray, bool]:
         """(features (8,) normalized coordinates, depths (4,) m, whole tag in the image) for a tag pose."""
@@ -242,6 +251,8 @@ class VisualServoEnv(FrankaEnv):
                            "50 tries: check the tag pose and start ranges")
 
     def _after_reset(self) -> None:
+        if not self._cameras_ready:
+            self._make_cameras()
         self._k = 0
         self._truth_cache = (-1, {})
         self._capture()
