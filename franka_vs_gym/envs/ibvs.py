@@ -49,7 +49,8 @@ class FrankaIBVSEnv(VisualServoEnv):
 
     ``"features"``: measured by the camera at ``camera_period`` — ideal projection of the true corners plus
     ``feature_noise`` pixels of Gaussian noise (``feature_source="ideal"``, default), or AprilTag detection and pose
-    estimation on a rendered ``detection_width`` x ``detection_height`` image (``feature_source="detection"``).
+    estimation on a rendered ``detection_width`` x ``detection_height`` image (``feature_source="detection"``;
+    320 x 240 by default, the camera whose pixels ``feature_noise`` counts; 60 degree vertical field of view).
     ``"state"``: the same keys, exact and at the control rate (privileged information). Values are clipped to the
     space bounds.
 
@@ -70,7 +71,7 @@ class FrankaIBVSEnv(VisualServoEnv):
     ## Episode end
     | kind | condition | ``info`` |
     |---|---|---|
-    | termination (success) | ``||s - s*|| < success_threshold`` (0.01, about 2 pixels per corner at 640x480) | ``is_success`` True |
+    | termination (success) | ``||s - s*|| < success_threshold`` (0.01: about 0.7 pixel per corner coordinate on the 320x240 camera) | ``is_success`` True |
     | termination (failure) | a tag corner leaves the image or the tag gets behind the camera (``terminate_on_tag_lost``), a joint limit is reached, the arm touches the table, the simulation diverges | ``failure``: the reason |
     | truncation | ``time_limit`` (5 s = 100 steps) elapsed | ``is_success`` False |
 
@@ -82,7 +83,8 @@ class FrankaIBVSEnv(VisualServoEnv):
     ``camera_period`` (0.05 s), ``time_limit`` (5 s), ``tag_size``, ``tag_id``, ``tag_x_range``, ``tag_y_range``,
     ``tag_yaw_range``, ``desired_distance``, ``start_distance_range``, ``start_offset``, ``start_roll``,
     ``start_tilt``, ``feature_noise`` (pixels), ``feature_source``, ``joint_noise``, ``velocity_noise``,
-    ``link_mass_range``, ``friction_scale_range``, ``payload_mass_range``, ``model`` (calibrated model file),
+    ``link_mass_range``, ``friction_scale_range``, ``payload_mass_range``, ``payload_declared``, ``model``
+    (calibrated model file),
     ``image_width``, ``image_height``, ``render_mode`` ("rgb_array"), ``render_width``, ``render_height``,
     ``success_threshold``, ``error_scale``, ``success_bonus``, ``failure_penalty``, ``clip_actions``.
     """

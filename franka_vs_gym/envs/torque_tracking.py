@@ -58,7 +58,8 @@ class FrankaTorqueTrackingEnv(FrankaEnv):
 
     ## Arguments
     Those of :class:`~franka_vs_gym.envs.base.FrankaEnv` (``action_type``, ``control_period`` (default 0.01 s =
-    100 Hz; 0.001 s for libfranka's 1 kHz), ``physics_step``, ``time_limit``, ``model``, domain randomisation,
+    100 Hz; 0.001 s for libfranka's 1 kHz), ``physics_step``, ``time_limit``, ``model``, domain randomisation
+    (``link_mass_range``, ``friction_scale_range``, ``payload_mass_range``, ``payload_declared``),
     noise, ``render_mode``) and ``amplitude`` (rad), ``frequency_range`` (Hz), ``error_scale`` (rad),
     ``success_threshold`` (rad).
     """
