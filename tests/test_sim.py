@@ -264,3 +264,24 @@ def test_headless_rendering_even_when_mujoco_is_imported_first():
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
     assert r.returncode == 0, r.stderr
     assert "(48, 64, 3)" in r.stdout and not r.stdout.strip().endswith(" 0")
+
+
+def test_friction_switch_at_run_time_matches_construction():
+    """Toggling friction_enabled after construction gives the same motion as building the robot that way."""
+    a, b = FrankaSim(camera=False), FrankaSim(camera=False, friction=False)
+    a.friction_enabled = False
+    for s in (a, b):
+        s.set_robot_state(FORCE_TORQUE)
+        for _ in range(100):
+            s.set_force_torque(JOINT_STATE, [0, 0, 0, 0, 0, 0, 0.3])
+            s.step()
+    np.testing.assert_array_equal(a.get_position(), b.get_position())
+    a.friction_enabled = True
+    c = FrankaSim(camera=False)
+    for s in (a, c):
+        s.reset(Q0)
+        s.set_robot_state(FORCE_TORQUE)
+        for _ in range(100):
+            s.set_force_torque(JOINT_STATE, [0, 0, 0, 0, 0, 0, 0.3])
+            s.step()
+    np.testing.assert_array_equal(a.get_position(), c.get_position())

@@ -60,6 +60,10 @@ VELOCITY_GAINS = np.array([120.0, 120.0, 80.0, 80.0, 15.0, 15.0, 6.0])
 _R_CV = np.diag([1.0, -1.0, -1.0])  # ViSP camera (z forward, y down) -> MuJoCo camera (-z forward, y up)
 
 
+def _no_op() -> None:
+    pass
+
+
 class FrankaSim:
     """A simulated Franka Emika Robot (FER) with the API of ViSP's vpRobotFranka.
 
@@ -160,7 +164,7 @@ class FrankaSim:
         self._fe = fr.phi1 / 2 - fr.phi1 / (1 + np.exp(-fr.phi2 * fr.phi3))
         self._fvisc, self._fcoul, self._fcv = fr.viscous, fr.coulomb, fr.coulomb_vel
         self._fbuf = np.zeros(7)
-        self.friction_enabled = bool(friction) and not fr.is_zero()
+        self._friction_enabled = bool(friction) and not fr.is_zero()
         self._simple_friction = not (fr.viscous.any() or fr.coulomb.any())
         n_delay = int(round(cfg.delay / self.dt))
         self._delay_steps = n_delay if cfg.delay_channel == "command" else 0
@@ -176,14 +180,50 @@ class FrankaSim:
         self._state = RobotState.STATE_STOP
         self._eMc = DEFAULT_eMc.copy()
         self._positioning_velocity = 20.0
-        world.add_pre_step(self._pre_step)
+        self._hook = self._make_pre_step()
+        world.add_pre_step(self._hook)
         if self._cam >= 0:
             self.set_eMc(self._eMc)
         self.reset(params.as_array(params.Q_NEUTRAL) if q0 is None else q0)
 
     # ------------------------------------------------------------------ stepping
+    @property
+    def friction_enabled(self) -> bool:
+        """Whether the plant applies the configured joint friction (the model's friction is unaffected)."""
+        return self._friction_enabled
+
+    @friction_enabled.setter
+    def friction_enabled(self, on: bool) -> None:
+        self._friction_enabled = bool(on) and not self.spec.config.friction.is_zero()
+        if not self._friction_enabled:
+            self._qfrc_applied[:] = 0.0
+        hook = self._make_pre_step()
+        self.world.replace_pre_step(self._hook, hook)
+        self._hook = hook
+
+    def _make_pre_step(self):
+        """The per-physics-step hook (runs at 1 kHz before every mj_step). The common case, Gaz friction without
+        command delay, is a closure over preallocated buffers: qfrc_applied = -(a tanh(b dq + c) + e)."""
+        if self._delay_steps or (self._friction_enabled and not self._simple_friction):
+            return self._pre_step
+        if not self._friction_enabled:
+            return _no_op
+        qvel, qfrc, buf = self._qvel, self._qfrc_applied, self._fbuf
+        b, c, neg_a, neg_e = self._fb, self._fc, -self._fa, -self._fe
+        mul, add, tanh = np.multiply, np.add, np.tanh
+
+        def gaz_friction() -> None:
+            mul(b, qvel, out=buf)
+            add(buf, c, out=buf)
+            tanh(buf, out=buf)
+            mul(buf, neg_a, out=qfrc)
+            add(qfrc, neg_e, out=qfrc)
+
+        return gaz_friction
+
     def _pre_step(self) -> None:
-        if self.friction_enabled:
+        """General hook: any friction law, and the command delay FIFO."""
+        if self._friction_enabled:
             buf = self._fbuf
             np.multiply(self._fb, self._qvel, out=buf)
             buf += self._fc

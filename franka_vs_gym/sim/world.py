@@ -52,6 +52,9 @@ class SimWorld:
     def add_pre_step(self, hook: Callable[[], None]) -> None:
         self._hooks.append(hook)
 
+    def replace_pre_step(self, old: Callable[[], None], new: Callable[[], None]) -> None:
+        self._hooks[self._hooks.index(old)] = new
+
     def add_post_step(self, hook: Callable[[], None]) -> None:
         self._post_hooks.append(hook)
 
@@ -62,15 +65,25 @@ class SimWorld:
 
     def step(self, n: int = 1) -> None:
         """Advance ``n`` physics steps. Raises SimulationDiverged if the physics blew up."""
-        m, d, hooks, step, wn = self.model, self.data, self._hooks, mujoco.mj_step, self._wn
+        m, d, step, wn = self.model, self.data, mujoco.mj_step, self._wn
         a, b, c = self._w_pos, self._w_vel, self._w_acc
+        post = self._post_hooks
+        if len(self._hooks) == 1 and not post:  # one robot, no post-step work: the 1 kHz fast path
+            h = self._hooks[0]
+            for _ in range(n):
+                h()
+                step(m, d)
+                if wn[a] or wn[b] or wn[c]:  # MuJoCo found NaN/inf/huge values (and auto-reset the state)
+                    self._diverge()
+            return
+        hooks = self._hooks
         for _ in range(n):
             for h in hooks:
                 h()
             step(m, d)
-            if wn[a] or wn[b] or wn[c]:  # MuJoCo found NaN/inf/huge values (and auto-reset the state)
+            if wn[a] or wn[b] or wn[c]:
                 self._diverge()
-            for h in self._post_hooks:
+            for h in post:
                 h()
 
     def _diverge(self) -> None:
