@@ -14,6 +14,7 @@ images used here detects the tag in well under the 15 ms budget per 320x240 fram
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -208,14 +209,19 @@ def ideal_measurement(cMo: np.ndarray, size: float, intrinsics: CameraIntrinsics
     cMo = np.asarray(cMo, dtype=np.float64)
     if cMo.shape != (4, 4) or not np.isfinite(cMo).all():
         raise ValueError("cMo must be a finite 4x4 pose")
-    P = tag_corners(size) @ cMo[:3, :3].T + cMo[:3, 3]
+    # (this runs at every camera frame of the RL environments: plain array arithmetic, no generic helpers)
+    P = _corners_T(size).T @ cMo[:3, :3].T + cMo[:3, 3]
     Z = P[:, 2]
     facing = cMo[2, 2] < 0  # the tag's z axis points towards the camera
     if (Z <= 1e-6).any() or not facing:
         return TagMeasurement(np.zeros((4, 2)), np.zeros((4, 2)), Z, cMo, False)
     xy = P[:, :2] / Z[:, None]
-    uv = intrinsics.to_pixels(xy)
-    visible = bool(intrinsics.in_image(uv, margin_px).all())
+    uv = np.empty((4, 2))
+    uv[:, 0] = intrinsics.cx + intrinsics.fx * xy[:, 0]
+    uv[:, 1] = intrinsics.cy + intrinsics.fy * xy[:, 1]
+    lo = -0.5 + margin_px
+    visible = bool(uv.min() >= lo and uv[:, 0].max() <= intrinsics.width - 0.5 - margin_px
+                   and uv[:, 1].max() <= intrinsics.height - 0.5 - margin_px)
     if rng is not None and dropout > 0 and rng.random() < dropout:
         visible = False
     if noise_px > 0:
@@ -224,6 +230,14 @@ def ideal_measurement(cMo: np.ndarray, size: float, intrinsics: CameraIntrinsics
         uv = uv + rng.normal(0.0, noise_px, uv.shape)
         xy = intrinsics.to_normalized(uv)
     return TagMeasurement(uv, xy, Z, cMo, visible)
+
+
+@lru_cache(maxsize=32)
+def _corners_T(size: float) -> np.ndarray:
+    """tag_corners(size).T (3, 4), cached and read-only."""
+    c = np.ascontiguousarray(tag_corners(size).T)
+    c.flags.writeable = False
+    return c
 
 
 def detected_measurement(image: np.ndarray, detector: TagDetector, tag_id: int, size: float,
