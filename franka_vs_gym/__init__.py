@@ -13,9 +13,9 @@ if "MUJOCO_GL" not in _os.environ and not _os.environ.get("DISPLAY"):
 
 __version__ = "0.1.0"
 
-from franka_vs_gym.model import FrankaModel, ModelConfig  # noqa: E402
-from franka_vs_gym.sim import FrankaSim  # noqa: E402
 from franka_vs_gym.envs import registration as _registration  # noqa: E402,F401  (registers the Gymnasium ids)
 from franka_vs_gym.envs.evaluate import evaluate  # noqa: E402
+from franka_vs_gym.model import FrankaModel, ModelConfig  # noqa: E402
+from franka_vs_gym.sim import FrankaSim  # noqa: E402
 
 __all__ = ["FrankaModel", "FrankaSim", "ModelConfig", "__version__", "evaluate"]

@@ -385,7 +385,7 @@ def _ibvs_twist(obs, gain=1.5):
 def test_visual_torque_is_solvable_by_a_dynamic_visual_servo():
     """IBVS camera twist -> joint velocity reference -> computed-torque velocity loop at 200 Hz reaches the goal:
     the torque task, its gravity-free convention and its success condition fit together."""
-    from franka_vs_gym.envs.visual import inv_h
+    from franka_vs_gym.model.geometry import inverse_pose
     from franka_vs_gym.sim import twist_transform
 
     env = gym.make("FrankaVisualTorque-v0", observation_type="state")
@@ -396,7 +396,7 @@ def test_visual_torque_is_solvable_by_a_dynamic_visual_servo():
     def policy(obs):
         q, dq = obs["q"].astype(float), obs["dq"].astype(float)
         v = np.clip(_ibvs_twist(obs), [-0.5] * 3 + [-1] * 3, [0.5] * 3 + [1] * 3)
-        J = twist_transform(inv_h(eMc)) @ model.eJe(q)
+        J = twist_transform(inverse_pose(eMc)) @ model.eJe(q)
         dq_ref = np.linalg.pinv(J) @ v
         tau = model.mass_matrix(q) @ (20.0 * (dq_ref - dq)) + model.coriolis(q, dq) + model.friction(dq)
         return np.clip(tau, -u.tau_max, u.tau_max).astype(np.float32)

@@ -9,8 +9,9 @@ import pytest
 
 from franka_vs_gym.cli import main as cli_main
 from franka_vs_gym.experiments import dual_arm as D
-from franka_vs_gym.experiments.cli import make_run_dir
+from franka_vs_gym.experiments.common import make_run_dir
 from franka_vs_gym.experiments.tracking import Q0, desired_trajectory, run_tracking, to_measurement_log
+from franka_vs_gym.model.geometry import homogeneous
 
 
 def _only_run(tmp_path, prefix):
@@ -82,8 +83,8 @@ def test_measurement_log_of_a_run_round_trips(tmp_path):
 
 
 def test_make_run_dir_never_reuses(tmp_path):
-    a = make_run_dir(tmp_path, "x")
-    b = make_run_dir(tmp_path, "x")
+    a = make_run_dir("x", root=tmp_path)
+    b = make_run_dir("x", root=tmp_path)
     assert a != b and a.is_dir() and b.is_dir()
 
 
@@ -161,12 +162,12 @@ def test_dual_arm_rejects_bad_input():
 def test_pbvs_twist_decreases_the_error_and_follows_a_moving_tag():
     from franka_vs_gym.vision.features import pbvs_features
 
-    cMo = D._hom(D._exp(np.array([0.05, -0.1, 0.2])) @ D.cdMo[:3, :3], [0.02, -0.01, 0.25])
+    cMo = homogeneous(D._exp(np.array([0.05, -0.1, 0.2])) @ D.cdMo[:3, :3], [0.02, -0.01, 0.25])
     dt, gain = 1e-3, 2.0
 
     def step(v, cMo_, tag_shift=(0.0, 0.0, 0.0)):
         """cMo after the camera moves with twist v (in c) for dt while the tag translates by tag_shift (in c)."""
-        cMc2 = D._hom(D._exp(v[3:] * dt), v[:3] * dt)
+        cMc2 = homogeneous(D._exp(v[3:] * dt), v[:3] * dt)
         moved = cMo_.copy()
         moved[:3, 3] += np.asarray(tag_shift)
         return np.linalg.inv(cMc2) @ moved

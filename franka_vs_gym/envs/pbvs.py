@@ -8,7 +8,8 @@ from typing import Any
 import numpy as np
 
 from franka_vs_gym.envs.base import _positive
-from franka_vs_gym.envs.visual import VisualServoEnv, inv_h
+from franka_vs_gym.envs.visual import VisualServoEnv
+from franka_vs_gym.model.geometry import inverse_pose
 from franka_vs_gym.sim import pose_vector
 
 
@@ -53,7 +54,7 @@ class FrankaPBVSEnv(VisualServoEnv):
         super().__init__(action_type=action_type, control_period=control_period, time_limit=time_limit, **kwargs)
 
     def _pose_error(self) -> tuple[float, float]:
-        e = pose_vector(self.cdMo @ inv_h(self._truth["cMo"]))
+        e = pose_vector(self.cdMo @ inverse_pose(self._truth["cMo"]))
         return float(np.linalg.norm(e[:3])), float(np.linalg.norm(e[3:]))
 
     def _task_error(self) -> float:

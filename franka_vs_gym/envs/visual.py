@@ -17,7 +17,7 @@ from gymnasium import spaces
 from franka_vs_gym.assets.mjcf import TagSpec, mat2quat
 from franka_vs_gym.envs.base import FrankaEnv, ObservationPacker, _nonneg, _positive, _range, substeps
 from franka_vs_gym.model import params
-from franka_vs_gym.sim import pose_vector
+from franka_vs_gym.model.geometry import homogeneous, inverse_pose, pose_vector
 
 FEATURE_SOURCES = ("ideal", "detection")
 
@@ -35,21 +35,6 @@ def rot_y(a: float) -> np.ndarray:
 def rot_z(a: float) -> np.ndarray:
     c, s = math.cos(a), math.sin(a)
     return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
-
-
-def homogeneous(R: np.ndarray, t: Any) -> np.ndarray:
-    M = np.eye(4)
-    M[:3, :3] = R
-    M[:3, 3] = t
-    return M
-
-
-def inv_h(M: np.ndarray) -> np.ndarray:
-    R, t = M[:3, :3], M[:3, 3]
-    out = np.eye(4)
-    out[:3, :3] = R.T
-    out[:3, 3] = -R.T @ t
-    return out
 
 
 def desired_tag_pose(distance: float) -> np.ndarray:
@@ -190,11 +175,11 @@ class VisualServoEnv(FrankaEnv):
         """Pose of the tag in the robot base frame f (4, 4)."""
         d, b = self._d, self._tag_body
         wMo = homogeneous(d.xmat[b].reshape(3, 3), d.xpos[b])
-        return inv_h(self.sim.get_wMf()) @ wMo
+        return inverse_pose(self.sim.get_wMf()) @ wMo
 
     def get_cMo(self) -> np.ndarray:
         """True pose of the tag in the camera frame c (4, 4)."""
-        return inv_h(self.sim.get_fMc()) @ self._fMo
+        return inverse_pose(self.sim.get_fMc()) @ self._fMo
 
     # ------------------------------------------------------------------ episode
     def _place_tag(self) -> None:
@@ -224,10 +209,10 @@ class VisualServoEnv(FrankaEnv):
         self._place_tag()
         fMo = self._fMo = self.get_fMo()  # the tag is static during an episode
         eMc = self.sim.get_eMc()
-        cMe = inv_h(eMc)
+        cMe = inverse_pose(eMc)
         model = self.sim.model
         # goal posture first (a good IK start for the start posture; computed from the neutral pose)
-        fMe_goal = fMo @ inv_h(self.cdMo) @ cMe
+        fMe_goal = fMo @ inverse_pose(self.cdMo) @ cMe
         try:
             q_goal = model.inverse_kinematics(fMe_goal, self._q_goal_guess, restarts=0, tol=1e-6)
         except ValueError:
@@ -239,7 +224,7 @@ class VisualServoEnv(FrankaEnv):
             c0Mo = self._sample_start()
             if c0Mo is None:
                 continue
-            fMe0 = fMo @ inv_h(c0Mo) @ cMe
+            fMe0 = fMo @ inverse_pose(c0Mo) @ cMe
             try:
                 q0 = model.inverse_kinematics(fMe0, q_goal, restarts=0, tol=1e-6)
             except ValueError:

@@ -11,27 +11,10 @@ stderr.
 from __future__ import annotations
 
 import argparse
-import datetime as _dt
 import json
 import sys
-from pathlib import Path
 
-
-def make_run_dir(root: str | Path, name: str) -> Path:
-    """Create and return a new folder ``root/name-YYYYmmdd-HHMMSS`` (suffix -2, -3... if that one exists)."""
-    root = Path(root)
-    if root.exists() and not root.is_dir():
-        raise ValueError(f"--out {root} exists and is not a folder")
-    stamp = _dt.datetime.now(_dt.timezone.utc).strftime("%Y%m%d-%H%M%S")
-    base = root / f"{name}-{stamp}"
-    for k in range(1, 1000):
-        p = base if k == 1 else base.with_name(f"{base.name}-{k}")
-        try:
-            p.mkdir(parents=True, exist_ok=False)
-            return p
-        except FileExistsError:
-            continue
-    raise FileExistsError(f"could not create a new run folder next to {base}")
+from franka_vs_gym.experiments.common import make_run_dir
 
 
 def _positive(x: str) -> float:
@@ -82,7 +65,7 @@ def main(args: argparse.Namespace) -> int:
     if args.experiment == "tracking":
         from franka_vs_gym.experiments.tracking import run_tracking, write_tracking
 
-        folder = make_run_dir(args.out, "tracking")
+        folder = make_run_dir("tracking", root=args.out)
         print(f"tracking: writing into {folder}", file=sys.stderr)
         result = run_tracking(args.duration, model_error=args.model_error, torque_noise=args.torque_noise,
                               seed=args.seed, progress=progress,
@@ -95,7 +78,7 @@ def main(args: argparse.Namespace) -> int:
     if args.experiment == "dual-arm":
         from franka_vs_gym.experiments.dual_arm import run_dual_arm, write_dual_arm
 
-        folder = make_run_dir(args.out, "dual-arm")
+        folder = make_run_dir("dual-arm", root=args.out)
         print(f"dual-arm: writing into {folder}", file=sys.stderr)
         dual = run_dual_arm(args.duration, camera_rate=args.camera_rate, vision=args.vision,
                             obstacle=not args.no_obstacle, pixel_noise=args.pixel_noise, seed=args.seed,

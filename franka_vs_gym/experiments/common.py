@@ -13,23 +13,26 @@ import numpy as np
 
 def make_run_dir(name: str, out: str | Path | None = None, root: str | Path = "runs") -> Path:
     """Create a fresh output folder: ``out`` if given (it must not exist yet, or be empty), else
-    ``runs/<name>-<YYYYmmdd-HHMMSS>`` (suffixed -2, -3... if taken). Nothing existing is overwritten."""
+    ``<root>/<name>-<YYYYmmdd-HHMMSS UTC>`` (suffixed -2, -3... if taken). Nothing existing is overwritten."""
     if out is not None:
         p = Path(out)
-        if p.exists() and any(p.iterdir()):
+        if p.exists() and (not p.is_dir() or any(p.iterdir())):
             raise FileExistsError(f"output folder {p} exists and is not empty; choose another --out")
         p.mkdir(parents=True, exist_ok=True)
         return p
-    stamp = time.strftime("%Y%m%d-%H%M%S")
-    base = Path(root) / f"{name}-{stamp}"
-    p, k = base, 1
-    while True:
+    root = Path(root)
+    if root.exists() and not root.is_dir():
+        raise ValueError(f"{root} exists and is not a folder")
+    stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime())
+    base = root / f"{name}-{stamp}"
+    for k in range(1, 1000):
+        p = base if k == 1 else base.with_name(f"{base.name}-{k}")
         try:
             p.mkdir(parents=True, exist_ok=False)
             return p
         except FileExistsError:
-            k += 1
-            p = base.with_name(f"{base.name}-{k}")
+            continue
+    raise FileExistsError(f"could not create a new run folder next to {base}")
 
 
 def progress(total: int, desc: str, disable: bool = False):

@@ -42,6 +42,7 @@ import numpy as np
 
 from franka_vs_gym.model.config import ModelConfig, RigidBody
 from franka_vs_gym.model.franka_model import FrankaModel
+from franka_vs_gym.model.geometry import homogeneous
 
 LEFT_BASE = np.array([0.0, 0.4, 0.0])
 RIGHT_BASE = np.array([0.0, -0.4, 0.0])
@@ -70,13 +71,6 @@ cdMo = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0.0, 0.0, -1.0, P
 OBSTACLE_POS = np.array([0.5, -0.16, 0.15])
 OBSTACLE_HALF = np.array([0.09, 0.05, 0.15])
 OBSTACLE_SOLREF = "0.05 1"  # MuJoCo contact time constant (s) and damping ratio: a slightly compliant surface
-
-
-def _hom(R: np.ndarray, t: Any) -> np.ndarray:
-    M = np.eye(4)
-    M[:3, :3] = R
-    M[:3, 3] = t
-    return M
 
 
 def _rotvec(R: np.ndarray) -> np.ndarray:
@@ -217,8 +211,8 @@ class _TagMeasurement:
 
     def true_cMo(self) -> np.ndarray:
         d = self.world.data
-        wMo = _hom(d.xmat[self.tag_body].reshape(3, 3), d.xpos[self.tag_body])
-        wMc = _hom(d.cam_xmat[self.cam].reshape(3, 3) @ np.diag([1.0, -1.0, -1.0]), d.cam_xpos[self.cam])
+        wMo = homogeneous(d.xmat[self.tag_body].reshape(3, 3), d.xpos[self.tag_body])
+        wMc = homogeneous(d.cam_xmat[self.cam].reshape(3, 3) @ np.diag([1.0, -1.0, -1.0]), d.cam_xpos[self.cam])
         return np.linalg.inv(wMc) @ wMo
 
     def measure(self) -> tuple[np.ndarray | None, np.ndarray | None]:
@@ -278,7 +272,7 @@ def build_world(obstacle: bool = True, timestep: float = 0.001):
 def circle_start_pose() -> np.ndarray:
     """World pose (4, 4) of the left end effector when the tag is at the circle's start (top of the circle)."""
     p_tag = CIRCLE_CENTER + np.array([0.0, 0.0, CIRCLE_RADIUS])
-    return _hom(W_R_TAG, p_tag) @ np.linalg.inv(eMo_LEFT)
+    return homogeneous(W_R_TAG, p_tag) @ np.linalg.inv(eMo_LEFT)
 
 
 # pose of the left end effector before the reach: 8 cm back (-x) and 2 cm above the circle start, so the right hand
@@ -296,7 +290,7 @@ def initial_configurations() -> tuple[np.ndarray, np.ndarray]:
     fMe_l[:3, 3] -= LEFT_BASE
     q_l = m.inverse_kinematics(fMe_l, Q_SEED_LEFT)
     wMo = wMe_l @ eMo_LEFT
-    off = _hom(_exp(np.array([0.0, 0.05, 0.03])), [0.02, -0.015, 0.01])
+    off = homogeneous(_exp(np.array([0.0, 0.05, 0.03])), [0.02, -0.015, 0.01])
     wMc = wMo @ np.linalg.inv(cdMo) @ off
     wMe_r = wMc @ np.linalg.inv(RIGHT_eMc)
     fMe_r = wMe_r.copy()
@@ -408,7 +402,7 @@ def run_dual_arm(duration: float = 20.0, *, camera_rate: float = 30.0, vision: s
                 s, ds, dds = minimum_jerk(t - gc_time, reach_time)
                 dp = fMe_start[:3, 3] - fMe_reach0[:3, 3]
                 rot = _rotvec(fMe_start[:3, :3] @ fMe_reach0[:3, :3].T)
-                Md = _hom(_exp(s * rot) @ fMe_reach0[:3, :3], fMe_reach0[:3, 3] + s * dp)
+                Md = homogeneous(_exp(s * rot) @ fMe_reach0[:3, :3], fMe_reach0[:3, 3] + s * dp)
                 vd = np.concatenate([ds * dp, ds * rot])
                 ad = np.concatenate([dds * dp, dds * rot])
                 tau = cct(t, ql, dql, Md, vd, ad)
@@ -417,7 +411,7 @@ def run_dual_arm(duration: float = 20.0, *, camera_rate: float = 30.0, vision: s
                 phase = 2
                 p, dp_, ddp = circle_reference(t - circle_start_t, fMe_start[:3, 3], CIRCLE_RADIUS, CIRCLE_FREQUENCY,
                                                axis_u=u_axis, axis_v=v_axis, ramp=circle_ramp)
-                Md = _hom(fMe_start[:3, :3], p)
+                Md = homogeneous(fMe_start[:3, :3], p)
                 tau = cct(t, ql, dql, Md, np.r_[dp_, 0.0, 0.0, 0.0], np.r_[ddp, 0.0, 0.0, 0.0])
                 ref_w = (wMf_l @ Md)[:3, 3]
             left.set_force_torque(JOINT_STATE, tau)

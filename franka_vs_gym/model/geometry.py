@@ -9,6 +9,14 @@ import numpy as np
 import pinocchio as pin
 
 
+def homogeneous(R: np.ndarray, t: np.ndarray | tuple | list) -> np.ndarray:
+    """4x4 pose from a rotation matrix (3, 3) and a translation (3,)."""
+    M = np.eye(4)
+    M[:3, :3] = R
+    M[:3, 3] = t
+    return M
+
+
 def twist_transform(aMb: np.ndarray) -> np.ndarray:
     """6x6 velocity twist matrix aVb mapping a twist [v; w] expressed in b to one expressed in a (ViSP's
     vpVelocityTwistMatrix)."""
