@@ -418,10 +418,15 @@ class GravityTilt(_SharedLinearEffect):
     def _g(self, ctx, fit):
         return ctx.config.gravity + fit.theta["theta"]
 
-    def problems(self, ctx, fit):
+    def _tilt(self, ctx, fit) -> float:
+        """Angle (rad) between the fitted and the model's gravity vectors."""
         g0, g = ctx.config.gravity, self._g(ctx, fit)
+        return math.acos(max(-1.0, min(1.0, float(g @ g0 / (np.linalg.norm(g) * np.linalg.norm(g0))))))
+
+    def problems(self, ctx, fit):
+        g = self._g(ctx, fit)
         out = {}
-        ang = math.acos(max(-1.0, min(1.0, float(g @ g0 / (np.linalg.norm(g) * np.linalg.norm(g0))))))
+        ang = self._tilt(ctx, fit)
         if ang > MAX_TILT:
             out[-1] = f"tilt {math.degrees(ang):.1f} deg exceeds {math.degrees(MAX_TILT):.0f} deg"
         if abs(np.linalg.norm(g) - 9.81) > 0.05 * 9.81:
@@ -435,8 +440,7 @@ class GravityTilt(_SharedLinearEffect):
         return {"delta_gravity_m_per_s2": np.round(fit.theta["theta"], 6).tolist()}
 
     def tilt_deg(self, ctx, fit) -> float:
-        g0, g = ctx.config.gravity, self._g(ctx, fit)
-        return math.degrees(math.acos(max(-1.0, min(1.0, float(g @ g0 / (np.linalg.norm(g) * np.linalg.norm(g0)))))))
+        return math.degrees(self._tilt(ctx, fit))
 
 
 def _payload_body(th: np.ndarray) -> tuple[RigidBody, list[str]]:
