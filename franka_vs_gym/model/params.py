@@ -8,7 +8,8 @@ Sources
 -------
 - Kinematics: modified (Craig) Denavit-Hartenberg table of the FER as given in Table I of the FrankaSim paper and
   in the Franka Control Interface documentation.
-- Joint limits: Franka Control Interface datasheet (position, velocity, acceleration, torque).
+- Joint limits: Franka Control Interface documentation, limits for the FER (position, velocity, acceleration,
+  jerk, torque, torque rate; Cartesian translation, rotation and elbow limits).
 - Dynamics: C. Gaz, M. Cognetti, A. Oliva, P. Robuffo Giordano, A. De Luca, "Dynamic Identification of the Franka
   Emika Panda Robot With Retrieval of Feasible Parameters Using Penalty-Based Optimization", IEEE RA-L 2019.
   Masses (kg), centres of mass (m, in the link frame) and inertia tensors (kg m^2, about the centre of mass, axes
@@ -42,7 +43,11 @@ Q_MAX = (2.8973, 1.7628, 2.8973, -0.0698, 2.8973, 3.7525, 2.8973)
 DQ_MAX = (2.175, 2.175, 2.175, 2.175, 2.61, 2.61, 2.61)
 DDQ_MAX = (15.0, 7.5, 10.0, 12.5, 15.0, 20.0, 20.0)
 TAU_MAX = (87.0, 87.0, 87.0, 87.0, 12.0, 12.0, 12.0)
+DDDQ_MAX = (7500.0, 3750.0, 5000.0, 6250.0, 7500.0, 10000.0, 10000.0)  # jerk, rad/s^3
 DTAU_MAX = (1000.0,) * 7  # torque rate limit, Nm/s
+# Cartesian limits of the end effector (translation v, a, jerk; rotation w, alpha, jerk) and of the elbow (v, a, jerk),
+# Franka Control Interface documentation, limits for the FER.
+CARTESIAN_LIMITS = (1.7, 13.0, 6500.0, 2.5, 25.0, 12500.0, 2.175, 10.0, 5000.0)
 
 # Neutral pose used by the Franka examples and the FrankaSim experiments (rad).
 Q_NEUTRAL = (0.0, -math.pi / 4, 0.0, -3 * math.pi / 4, 0.0, math.pi / 2, math.pi / 4)
@@ -107,25 +112,26 @@ def as_array(values: tuple[float, ...]) -> np.ndarray:
 
 def dh_placement(i: int) -> np.ndarray:
     """4x4 pose of frame i+1 in frame i at theta = 0, for joint index i in 0..6 (modified DH)."""
-    return _mdh(DH_A[i], DH_D[i], DH_ALPHA[i], 0.0)
+    return mdh(DH_A[i], DH_D[i], DH_ALPHA[i], 0.0)
 
 
 def flange_placement() -> np.ndarray:
     """4x4 pose of the flange in the frame of link 7."""
-    return _mdh(0.0, FLANGE_D, 0.0, 0.0)
+    return mdh(0.0, FLANGE_D, 0.0, 0.0)
 
 
 def hand_placement() -> np.ndarray:
     """4x4 pose of the hand frame in the flange frame."""
-    return _mdh(0.0, 0.0, 0.0, HAND_YAW)
+    return mdh(0.0, 0.0, 0.0, HAND_YAW)
 
 
 def hand_flMe() -> np.ndarray:
     """4x4 pose of the Franka Hand TCP (the end effector) in the flange frame."""
-    return hand_placement() @ _mdh(0.0, HAND_TCP_Z, 0.0, 0.0)
+    return hand_placement() @ mdh(0.0, HAND_TCP_Z, 0.0, 0.0)
 
 
-def _mdh(a: float, d: float, alpha: float, theta: float) -> np.ndarray:
+def mdh(a: float, d: float, alpha: float, theta: float) -> np.ndarray:
+    """4x4 modified (Craig) DH transform RotX(alpha) TransX(a) RotZ(theta) TransZ(d)."""
     ca, sa, ct, st = math.cos(alpha), math.sin(alpha), math.cos(theta), math.sin(theta)
     return np.array([
         [ct, -st, 0.0, a],

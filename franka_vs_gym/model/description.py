@@ -1,0 +1,188 @@
+"""The robot as a value: :class:`RobotDescription` holds everything that makes one robot arm.
+
+A description is immutable. ``FrankaModel``, the MJCF generator, ``FrankaSim``, the environments, the controllers,
+the workbench and the FCI server take one (default: :data:`FER`, the Franka Emika Robot with the Gaz et al. 2019
+identified dynamics), so a second robot, or a user's variant of the FER, is a new value and not an edit across the
+code base::
+
+    from dataclasses import replace
+    from franka_vs_gym.model.description import FER, robot_description
+    heavy_link7 = replace(FER, name="fer-heavy-wrist", links=FER.links[:6] + (my_link7,))
+    fr3 = robot_description("fr3")
+
+Numbers are typed in :mod:`franka_vs_gym.model.params` (one place, with their sources); this module only assembles
+them. Conventions: SI units, joint index 0..6, link ``i`` (1..7 in prose) is ``links[i - 1]``, modified (Craig)
+Denavit-Hartenberg kinematics.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from franka_vs_gym.model import params
+from franka_vs_gym.model.params import LinkInertial
+
+Vec7 = tuple[float, float, float, float, float, float, float]
+
+
+@dataclass(frozen=True)
+class JointLimits:
+    """Per-joint limits (7,): position (rad), velocity (rad/s), acceleration (rad/s^2), jerk (rad/s^3), torque (Nm)
+    and torque rate (Nm/s), as the robot's reflexes enforce them."""
+
+    q_min: Vec7
+    q_max: Vec7
+    dq_max: Vec7
+    ddq_max: Vec7
+    dddq_max: Vec7
+    tau_max: Vec7
+    dtau_max: Vec7
+
+    def as_arrays(self) -> dict[str, np.ndarray]:
+        """Fresh float64 arrays keyed by field name (the dict ``FrankaModel.limits()`` returns)."""
+        return {k: np.array(getattr(self, k), dtype=np.float64) for k in self.__dataclass_fields__}
+
+
+@dataclass(frozen=True)
+class CartesianLimits:
+    """Limits of the end effector's motion (translation m/s, m/s^2, m/s^3; rotation rad/s, rad/s^2, rad/s^3) and of
+    the elbow (rad/s, rad/s^2, rad/s^3), as the robot's Cartesian motion generators enforce them."""
+
+    v_max: float
+    a_max: float
+    j_max: float
+    w_max: float
+    alpha_max: float
+    rot_j_max: float
+    elbow_v_max: float
+    elbow_a_max: float
+    elbow_j_max: float
+
+
+@dataclass(frozen=True)
+class SigmoidFriction:
+    """Per-joint parameters of the identified sigmoid friction law (Gaz et al. 2019, eq. (6)):
+    ``tau_f = phi1 / (1 + exp(-phi2 (dq + phi3))) - phi1 / (1 + exp(-phi2 phi3))`` (phi1 Nm, phi2 s/rad, phi3
+    rad/s)."""
+
+    phi1: Vec7
+    phi2: Vec7
+    phi3: Vec7
+
+
+@dataclass(frozen=True)
+class RobotDescription:
+    """Everything that makes one 7-joint Franka arm: kinematics, inertials, limits, friction, names, sources.
+
+    Attributes
+    ----------
+    name : short identifier ("fer", "fr3"); a calibrated-model file names it.
+    title : human-readable name.
+    dh_a, dh_d, dh_alpha : modified DH rows for joints 1..7 (m, m, rad); ``flange_d`` the flange offset along z7.
+    links : inertials of links 1..7 (mass kg, com m in the link frame, inertia about the com kg m^2).
+    limits, cartesian_limits : what the reflexes and motion generators enforce.
+    friction : identified sigmoid friction, or None when none is published (calibrate it with the workbench).
+    q_neutral : a safe start pose (rad).
+    joint_names : names as libfranka's URDF and ROS use them (``fer_joint1``...); ``aliases`` other prefixes that
+        recordings use for the same joints (e.g. ``panda_``).
+    default_tool : the tool a fresh model carries ("franka_hand" or "none").
+    sources : where each group of numbers comes from (for docs and reports).
+    """
+
+    name: str
+    title: str
+    dh_a: Vec7
+    dh_d: Vec7
+    dh_alpha: Vec7
+    flange_d: float
+    links: tuple[LinkInertial, ...]
+    limits: JointLimits
+    cartesian_limits: CartesianLimits
+    friction: SigmoidFriction | None
+    q_neutral: Vec7
+    joint_names: tuple[str, ...]
+    aliases: tuple[str, ...] = ()
+    default_tool: str = "franka_hand"
+    sources: dict[str, str] = field(default_factory=dict, compare=False, hash=False)
+
+    def __post_init__(self) -> None:
+        for attr in ("dh_a", "dh_d", "dh_alpha", "q_neutral", "joint_names"):
+            if len(getattr(self, attr)) != params.N_JOINTS:
+                raise ValueError(f"robot description {self.name!r}: {attr} must have 7 entries")
+        if len(self.links) != params.N_JOINTS:
+            raise ValueError(f"robot description {self.name!r}: links must have 7 entries")
+        lo, hi = np.array(self.limits.q_min), np.array(self.limits.q_max)
+        q0 = np.array(self.q_neutral)
+        if not ((lo < hi).all() and (q0 >= lo).all() and (q0 <= hi).all()):
+            raise ValueError(f"robot description {self.name!r}: q_neutral must lie within q_min < q_max")
+
+    # --- kinematics helpers (modified DH, Craig)
+    def dh_placement(self, i: int) -> np.ndarray:
+        """4x4 pose of frame i+1 in frame i at theta = 0, for joint index i in 0..6."""
+        return params.mdh(self.dh_a[i], self.dh_d[i], self.dh_alpha[i], 0.0)
+
+    def flange_placement(self) -> np.ndarray:
+        """4x4 pose of the flange in the frame of link 7."""
+        return params.mdh(0.0, self.flange_d, 0.0, 0.0)
+
+    def limit_arrays(self) -> dict[str, np.ndarray]:
+        return self.limits.as_arrays()
+
+    def summary(self) -> dict[str, Any]:
+        """A JSON-friendly identification (name, title, sources) for reports and model files."""
+        return {"name": self.name, "title": self.title, "sources": dict(self.sources)}
+
+
+FER_LIMITS = JointLimits(params.Q_MIN, params.Q_MAX, params.DQ_MAX, params.DDQ_MAX, params.DDDQ_MAX,
+                         params.TAU_MAX, params.DTAU_MAX)
+
+FER = RobotDescription(
+    name="fer",
+    title="Franka Emika Robot (Panda) with identified dynamics (Gaz et al. 2019)",
+    dh_a=params.DH_A, dh_d=params.DH_D, dh_alpha=params.DH_ALPHA, flange_d=params.FLANGE_D,
+    links=params.LINKS,
+    limits=FER_LIMITS,
+    cartesian_limits=CartesianLimits(*params.CARTESIAN_LIMITS),
+    friction=SigmoidFriction(params.FRICTION_PHI1, params.FRICTION_PHI2, params.FRICTION_PHI3),
+    q_neutral=params.Q_NEUTRAL,
+    joint_names=tuple(f"fer_joint{i + 1}" for i in range(7)),
+    aliases=("panda_joint", "joint"),
+    default_tool="franka_hand",
+    sources={
+        "kinematics": "modified DH table of the FER (Franka Control Interface documentation)",
+        "limits": "Franka Control Interface documentation, limits for the FER (Panda)",
+        "inertials": "Gaz et al., IEEE RA-L 2019, identified feasible parameters",
+        "friction": "Gaz et al., IEEE RA-L 2019, sigmoid friction model",
+    },
+)
+
+ROBOTS: dict[str, RobotDescription] = {"fer": FER}
+_ALIASES = {"panda": "fer", "fer": "fer"}
+
+
+def register_robot(description: RobotDescription, *aliases: str) -> None:
+    """Make a description available by name (``robot="..."`` everywhere a robot is taken)."""
+    ROBOTS[description.name] = description
+    for a in (description.name, *aliases):
+        _ALIASES[a.lower()] = description.name
+
+
+def robot_description(robot: RobotDescription | str | None = None) -> RobotDescription:
+    """Resolve ``robot`` (a description, a registered name such as "fer" or "fr3", or None for the FER)."""
+    if robot is None:
+        return FER
+    if isinstance(robot, RobotDescription):
+        return robot
+    if isinstance(robot, str):
+        key = _ALIASES.get(robot.lower())
+        if key is None:
+            raise ValueError(f"unknown robot {robot!r}: known robots are {sorted(ROBOTS)}")
+        return ROBOTS[key]
+    raise TypeError(f"robot must be a RobotDescription or a name, got {type(robot).__name__}")
+
+
+__all__ = ["FER", "ROBOTS", "CartesianLimits", "JointLimits", "RobotDescription", "SigmoidFriction",
+           "register_robot", "robot_description"]
