@@ -50,13 +50,23 @@ def tool_from_log(log: MeasurementLog) -> Tool:
     return Tool.from_dict({"name": "custom", **t})
 
 
-def baseline_config(log: MeasurementLog, model: Any = None, rigid_body: bool = False) -> ModelConfig:
+TOOLS = ("franka_hand", "none", "unknown")
+
+
+def baseline_config(log: MeasurementLog, model: Any = None, rigid_body: bool = False,
+                    tool: str | None = None) -> ModelConfig:
     """The model to start from: ``model`` (a ModelConfig or a calibrated-model file) if given, else the library's
-    default FER with the log's declared tool and gravity. ``rigid_body`` removes all friction."""
+    default FER with the log's declared tool and gravity. ``rigid_body`` removes all friction. ``tool`` overrides
+    the tool: "franka_hand", "none", or "unknown" (no tool in the model; ``diagnose`` and ``fit`` then fit the
+    tool's mass, centre of mass and inertia as a payload)."""
+    if tool is not None and tool not in TOOLS:
+        raise ValueError(f"unknown --tool {tool!r}: choose from {', '.join(TOOLS)}")
     if model is not None:
         cfg = resolve_config(model)
     else:
         cfg = ModelConfig(tool=tool_from_log(log), gravity=log.gravity)
+    if tool is not None:
+        cfg = cfg.copy(tool=Tool.franka_hand() if tool == "franka_hand" else Tool.none())
     if rigid_body:
         cfg = cfg.copy(friction=Friction.none())
     return cfg
@@ -127,7 +137,14 @@ class CompareResult:
             "duration_s": round(float(self.data.time[-1] - self.data.time[0]), 4),
             "cleaning": self.data.report.to_dict(), "concentration": self.concentration,
             "replay": None if self.replay is None else self.replay.to_dict(),
+            "assumptions": self.assumptions(),
         }
+
+    def assumptions(self) -> dict[str, Any]:
+        """Tool, gravity, rate and cleaning this comparison assumed (see ``structure.assumptions_of``)."""
+        from franka_vs_gym.validation.structure import assumptions_of
+
+        return assumptions_of(self.data, self.config)
 
 
 def concentration_table(data: ProcessedLog, residual: np.ndarray, n_windows: int = 10) -> list[dict[str, Any]]:
@@ -258,11 +275,11 @@ def replay(data: ProcessedLog, config: ModelConfig, mode: str | None = None) -> 
 
 def compare(log: MeasurementLog | ProcessedLog | str, model: Any = None, *, rigid_body: bool = False,
             settings: CleanSettings | None = None, do_replay: bool = True, replay_mode: str | None = None,
-            verbose: bool = False) -> CompareResult:
+            verbose: bool = False, tool: str | None = None) -> CompareResult:
     """Compare ``model`` (default: the baseline for the log, see :func:`baseline_config`) with a log."""
     progress("cleaning the log", verbose)
     data = as_processed(log, settings)
-    cfg = baseline_config(data.log, model, rigid_body)
+    cfg = baseline_config(data.log, model, rigid_body, tool=tool)
     progress(f"inverse dynamics on {data.n} samples", verbose)
     ev = evaluate(cfg, data)
     r = data.tau - ev.predicted
@@ -284,6 +301,11 @@ def format_compare(res: CompareResult) -> str:
                      f"{w['t0']:6.1f}-{w['t1']:6.1f} ({w['rmse']:.3f})   {reg['error_share'] * 100:4.0f}% in "
                      f"{reg['regime']}")
     lines.append(f"total  {res.rmse_tau_total:8.3f}  (Nm)")
+    a = res.assumptions()
+    lines.append(f"assumptions: tool {a['tool']} ({a['tool_source']}), gravity {a['gravity_m_per_s2']} m/s^2, log "
+                 f"rate {a['log_rate_hz']} Hz, processed at {a['resampled_to_hz']:g} Hz, low-pass "
+                 f"{a['cleaning']['lowpass_hz']:g} Hz, {a['cleaning']['stale_rows_dropped']} stale rows dropped")
+    lines += [f"warning: {w}" for w in a["warnings"]]
     if res.replay is not None:
         rp = res.replay
         lines.append(f"replay ({rp.mode}): RMSE_q = {np.round(rp.rmse_q, 4).tolist()} rad")
