@@ -24,12 +24,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    from franka_vs_gym.errors import UserError
     from franka_vs_gym.fci.server import FCIServer
     from franka_vs_gym.model.description import robot_description
 
-    robot = robot_description(args.robot)  # unknown names: ValueError with the known ones
+    try:
+        robot = robot_description(args.robot)
+    except ValueError as e:
+        raise UserError(str(e)) from None
     if args.q0 is not None and not all(math.isfinite(v) for v in args.q0):
-        raise ValueError("--q0 must be 7 finite joint angles in rad")
+        raise UserError("--q0 must be 7 finite joint angles in rad")
     tags = None
     if args.scene == "tag":
         from franka_vs_gym.assets.mjcf import TagSpec
@@ -40,5 +44,5 @@ def main(args: argparse.Namespace) -> int:
     try:
         server.serve_forever()
     except OSError as e:  # address in use / not available: one line, not a traceback
-        raise ValueError(str(e.strerror or e)) from None
+        raise UserError(str(e.strerror or e)) from None
     return 0
