@@ -56,6 +56,7 @@ DEFAULT_TORQUE_THRESHOLDS = (20.0, 20.0, 18.0, 18.0, 16.0, 14.0, 12.0)  # Nm
 DEFAULT_FORCE_THRESHOLDS = (20.0, 20.0, 20.0, 25.0, 25.0, 25.0)  # N, Nm
 # Tolerances of the motion-generator checks (relative to the limits) and of communication in real-time mode.
 LIMIT_TOLERANCE = 0.05  # on finite-difference accelerations and jerks of the commands
+CARTESIAN_JOINT_TOLERANCE = 2.0  # on the joint accelerations and jerks of Cartesian commands (see below)
 PLANT_VELOCITY_MARGIN = 0.01  # the internal controllers may overshoot a command that sits at the velocity limit
 MAX_MISSED_COMMANDS = 20  # consecutive 1 ms cycles without a command before communication_constraints_violation
 
@@ -266,7 +267,9 @@ class FCIRobot:
     # ------------------------------------------------------------------ motion generators
     def _check_joint_trajectory(self, q_d: np.ndarray, dq_d: np.ndarray, ddq_d: np.ndarray, dddq_d: np.ndarray,
                                 prefix: str) -> None:
-        tol = 1.0 + LIMIT_TOLERANCE
+        # Joint trajectories of Cartesian commands come from this robot's inverse kinematics, not the FER's: their
+        # accelerations and jerks are checked against twice the limits (a discontinuity, not a planning detail).
+        tol = 1.0 + LIMIT_TOLERANCE if prefix.startswith("joint") else CARTESIAN_JOINT_TOLERANCE
         if (q_d > self.q_max).any() or (q_d < self.q_min).any():
             j = int(np.argmax(np.maximum(q_d - self.q_max, self.q_min - q_d)))
             raise Reflex([f"{prefix}position_limits_violation"],
@@ -295,23 +298,28 @@ class FCIRobot:
         self._check_joint_trajectory(q_new, dq_new, ddq_new, dddq_new, prefix)
         self.q_d, self.dq_d, self.ddq_d = q_new, dq_new, ddq_new
 
-    def _ik(self, T: np.ndarray, elbow: float) -> np.ndarray:
-        """Joint position reaching EE pose T (4x4 in O) with joint 3 at ``elbow``, from the current q_d."""
+    def _ik(self, T: np.ndarray, elbow: float | None) -> np.ndarray:
+        """Joint position reaching EE pose T (4x4 in O) from the current q_d: with joint 3 at ``elbow`` when given
+        (a square 7x7 system), else the minimum-norm joint step (the elbow follows)."""
         q = self.q_d.copy()
         A = np.zeros((7, 7))
         A[6, 2] = 1.0
         b = np.zeros(7)
         for _ in range(4):
-            err = pose_error(self.O_T_EE_of(q), T)
-            b[:6] = err
-            b[6] = elbow - q[2]
+            b[:6] = pose_error(self.O_T_EE_of(q), T)
+            if elbow is not None:
+                b[6] = elbow - q[2]
             if np.abs(b).max() < 1e-12:
                 break
-            A[:6] = self._J_EE(q)
-            try:
-                step = np.linalg.solve(A, b)
-            except np.linalg.LinAlgError:
-                step = np.linalg.lstsq(A, b, rcond=1e-6)[0]
+            J = self._J_EE(q)
+            if elbow is None:
+                step = np.linalg.lstsq(J, b[:6], rcond=1e-6)[0]
+            else:
+                A[:6] = J
+                try:
+                    step = np.linalg.solve(A, b)
+                except np.linalg.LinAlgError:
+                    step = np.linalg.lstsq(A, b, rcond=1e-6)[0]
             q = q + step
         return q
 
@@ -357,13 +365,13 @@ class FCIRobot:
                 if np.sign(cmd.elbow_c[1]) != np.sign(self.elbow_c[1]):
                     raise Reflex(["cartesian_motion_generator_elbow_sign_inconsistent"],
                                  f"elbow flip {cmd.elbow_c[1]} differs from the current {self.elbow_c[1]}")
-                new_elbow = np.array([elbow, self.elbow_c[1]])
+                q_new = self._ik(T, elbow)
             else:
-                new_elbow = np.array([self.q_d[2], self.elbow_c[1]])
+                q_new = self._ik(T, None)
+            new_elbow = np.array([q_new[2], self.elbow_c[1]])
             d1 = (new_elbow - self.elbow_c) / self.dt
             self.ddelbow_c = (d1 - self.delbow_c) / self.dt
             self.delbow_c, self.elbow_c = d1, new_elbow
-            q_new = self._ik(T, float(new_elbow[0]))
             self.O_T_EE_c = T
             self._advance_joint(q_new, "cartesian_motion_generator_joint_")
         self._first_command = False

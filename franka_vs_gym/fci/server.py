@@ -54,6 +54,10 @@ from franka_vs_gym.fci.urdf import robot_urdf
 from franka_vs_gym.model.description import RobotDescription, robot_description
 
 _TICK = 0.001  # s of wall time between idle states (and the real-time control period)
+# Lock-step, between a Move and its first command: frozen states keep the client from waiting forever, but every
+# extra one the client drains changes the time step it sees, so they are rare.
+_START_PHASE_PERIOD = 0.05
+_HAND_STEPS_PER_TICK = 25  # lock-step physics steps per wall-time tick while only the hand moves
 
 
 class _Conn:
@@ -86,6 +90,7 @@ class FCIServer:
     tags : AprilTags in the scene (``[TagSpec()]`` for the default 8 cm tag on the table).
     camera : add the wrist camera (see :meth:`render_camera`).
     table : put the table in the scene.
+    extra_worldbody : raw MJCF added to the world (objects to grasp, obstacles).
     record : path of a workbench log (``.csv`` or ``.npz`` + ``.json`` sidecar) written at :meth:`stop` with one
         row per physics step of the session.
     port, gripper_port : 1337 and 1338 as libfranka fixes them (change only for tests of the server itself).
@@ -100,7 +105,8 @@ class FCIServer:
 
     def __init__(self, host: str = "127.0.0.1", *, lockstep: bool = False, model: Any = None,
                  robot: RobotDescription | str | None = None, q0: Any = None, tags: list | None = None,
-                 camera: bool = True, table: bool = True, record: str | Path | None = None,
+                 camera: bool = True, table: bool = True, extra_worldbody: str = "",
+                 record: str | Path | None = None,
                  port: int = codec.ROBOT_PORT,
                  gripper_port: int = codec.GRIPPER_PORT, verbose: bool = True) -> None:
         from franka_vs_gym.sim import FrankaSim
@@ -116,7 +122,7 @@ class FCIServer:
                 if p.exists():
                     raise FileExistsError(f"{p} exists; choose a new log name (nothing is overwritten)")
         self.record_path = record
-        kwargs: dict[str, Any] = {"camera": camera, "tags": tags, "table": table}
+        kwargs: dict[str, Any] = {"camera": camera, "tags": tags, "table": table, "extra_worldbody": extra_worldbody}
         if q0 is not None:
             kwargs["q0"] = q0
         if "robot" in inspect.signature(FrankaSim).parameters:
@@ -140,6 +146,7 @@ class FCIServer:
         self.robot_conn: _Conn | None = None
         self.gripper_conns: list[_Conn] = []
         self.commanded = False  # lockstep: a motion's first command has arrived
+        self._next_start_state = 0.0
         self.steps = 0
         self._rows: list[np.ndarray] = []
         self.deadlines_met = 0
@@ -305,8 +312,10 @@ class FCIServer:
 
     def _lockstep_command(self, cmd: RobotCommand) -> None:
         r = self.robot
-        if not r.moving or cmd.message_id != self.message_id:
-            return  # a late command for an older state, or after the motion ended
+        if not r.moving or cmd.message_id > self.message_id:
+            return
+        if self.commanded and cmd.message_id != self.message_id:
+            return  # a late command for an older state
         self.commanded = True
         reasons = self._physics_step(cmd)
         self._after_step(cmd, reasons)
@@ -332,8 +341,19 @@ class FCIServer:
         if r.moving and self.commanded:
             self._send_gripper_state()
             return  # states go out one per command
-        if self.hand.busy:  # the hand needs simulated time although no arm command advances it
-            reasons = self._physics_step(None)
+        if r.moving and not self.hand.busy:  # waiting for the motion's first command
+            now = time.perf_counter()
+            if now < self._next_start_state:
+                self._send_gripper_state()
+                return
+            self._next_start_state = now + _START_PHASE_PERIOD
+        if self.hand.busy:  # the hand needs simulated time although no arm command advances it: lock-step runs
+            reasons: tuple[str, ...] = ()  # it as fast as it can (several steps per tick, one state out)
+            for _ in range(_HAND_STEPS_PER_TICK):
+                reasons = self._physics_step(None)
+                if reasons or not self.hand.busy:
+                    break
+                self._record()
             self._after_step(None, reasons)
         else:
             self._send_state(r.fill_state())
@@ -495,6 +515,8 @@ class FCIServer:
                 self.move_id, self.move_conn, self.commanded = cid, conn, False
                 self._send_state(r.fill_state())  # the new modes are on the wire before "motion started"
                 conn.send(codec.status_response(cmd, cid, MoveStatus.MOTION_STARTED))
+                self._send_state(r.state)  # for a client that took "motion started" first
+                self._next_start_state = time.perf_counter() + _START_PHASE_PERIOD
             elif cmd == Command.STOP_MOVE:
                 if r.moving:
                     r.finish_motion()
