@@ -119,3 +119,34 @@ def test_reflex_reason_and_recovery(server, kind, reason):
     if kind == "position_limit":
         assert out["q_at_reflex"][6] > 2.8973 - 1e-3
         assert out["q_end"][6] < out["q_at_reflex"][6] - 0.02  # moving back out of the limit is allowed
+
+
+def test_frames_and_declared_load(server):
+    out = run_client(CLIENTS / "settings.py", server.host)
+    q = np.array(out["q"])
+    NE_T_EE, EE_T_K = np.eye(4), np.eye(4)
+    NE_T_EE[2, 3], EE_T_K[0, 3] = 0.1, 0.02
+    assert np.abs(np.array(out["NE_T_EE"]).reshape(4, 4, order="F") - NE_T_EE).max() < 1e-7
+    assert np.abs(np.array(out["EE_T_K"]).reshape(4, 4, order="F") - EE_T_K).max() < 1e-7
+    model = FrankaModel()
+    assert np.abs(np.array(out["O_T_EE"]).reshape(4, 4, order="F") - model.fMe(q) @ NE_T_EE).max() < 1e-6
+    # libfranka's model with the declared load = FrankaModel with that payload
+    assert out["m_load"] == pytest.approx(1.0) and out["m_total"] == pytest.approx(1.73, abs=1e-6)
+    model.set_payload(1.0, [0.0, 0.0, 0.05], [1e-3, 1e-3, 1e-3])
+    assert np.abs(np.array(out["gravity"]) - model.gravity(q)).max() < 1e-4
+    assert np.abs(np.array(out["mass"]).reshape(7, 7, order="F") - model.mass_matrix(q)).max() < 1e-6
+    # the robot compensates the declared 1 kg the plant does not carry: with zero torques the arm moves
+    assert np.abs(np.array(out["q_after_50ms"]) - q).max() > 1e-3
+
+
+def test_cartesian_and_velocity_motions(server):
+    out = run_client(CLIENTS / "motions.py", server.host)
+    a, b = (np.array(out["cart_pose"][k]).reshape(4, 4, order="F") for k in ("start", "end"))
+    assert b[:3, 3] - a[:3, 3] == pytest.approx([0.0, 0.0, -0.03], abs=2e-4)  # Cartesian impedance, settled
+    assert np.abs(b[:3, :3] - a[:3, :3]).max() < 1e-3
+    a, b = (np.array(out["cart_velocity"][k]).reshape(4, 4, order="F") for k in ("start", "end"))
+    assert b[:3, 3] - a[:3, 3] == pytest.approx([0.2 / np.pi, 0.0, 0.0], abs=2e-4)  # integral of 0.1 sin(pi t)
+    a, b = (np.array(out["joint_velocity"][k]) for k in ("start", "end"))
+    expected = np.zeros(7)
+    expected[3] = 0.8 / np.pi
+    assert b - a == pytest.approx(expected, abs=2e-4)

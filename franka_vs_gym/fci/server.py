@@ -528,9 +528,13 @@ class FCIServer:
                     conn.send(codec.status_response(cmd, cid, RecoveryStatus.COMMAND_NOT_POSSIBLE_REJECTED))
                     return
                 r.automatic_error_recovery()
+                self._send_state(r.fill_state())  # in the client's queue before the reply: it reads the recovery
                 conn.send(codec.status_response(cmd, cid, RecoveryStatus.SUCCESS))
             else:
-                conn.send(codec.status_response(cmd, cid, self._setter(cmd, payload)))
+                status = self._setter(cmd, payload)
+                if not r.moving:
+                    self._send_state(r.fill_state())  # ... and the new setting
+                conn.send(codec.status_response(cmd, cid, status))
 
     def _setter(self, cmd: Command, payload: bytes) -> SetterStatus:
         r = self.robot
@@ -561,9 +565,9 @@ class FCIServer:
             if not (np.allclose(R @ R.T, np.eye(3), atol=1e-6) and np.allclose(T[3], (0, 0, 0, 1))):
                 return SetterStatus.INVALID_ARGUMENT_REJECTED
             if cmd == Command.SET_EE_TO_K:
-                r.EE_T_K = T
+                r.set_EE_to_K(T)
             else:
-                r.NE_T_EE = T
+                r.set_NE_to_EE(T)
         elif cmd == Command.SET_LOAD:
             m, com, inertia = values[0], values[1:4], values[4:13].reshape(3, 3, order="F")
             if m < 0 or not np.allclose(inertia, inertia.T, atol=1e-9):
