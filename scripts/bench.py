@@ -109,7 +109,21 @@ def bench_validation(quick: bool) -> None:
           ("what", "value"))
 
 
-SECTIONS = {"core": bench_core, "vision": bench_vision, "envs": bench_envs, "validation": bench_validation}
+def bench_fci(quick: bool) -> None:
+    import importlib.util
+
+    if importlib.util.find_spec("pylibfranka") is None:
+        print("\n## FCI server: skipped (pip install -e '.[fci]' for pylibfranka)")
+        return
+    from franka_vs_gym.fci.bench import bench_fci as run
+
+    res = run(quick)
+    table("FCI server (franka-vs serve) with a pylibfranka client in its own process",
+          [(k, v) for k, v in res.items()], ("what", "value"))
+
+
+SECTIONS = {"core": bench_core, "vision": bench_vision, "envs": bench_envs, "validation": bench_validation,
+            "fci": bench_fci}
 
 
 def main() -> None:
