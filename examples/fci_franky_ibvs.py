@@ -46,7 +46,8 @@ def main() -> None:
     intr = CameraIntrinsics.default()  # 320 x 240
     start, fMo, cdMo, _, _ = setup(args.seed, tag_size=TAG_SIZE, intrinsics=intr)
     goal = ideal_measurement(cdMo, TAG_SIZE, intr)
-    with FCIServer(args.host, lockstep=args.lockstep, q0=start.get_position(), tags=[TagSpec(tag_id=0, size=TAG_SIZE, pos=TAG_POS)],
+    tags = [TagSpec(tag_id=0, size=TAG_SIZE, pos=TAG_POS)]
+    with FCIServer(args.host, lockstep=args.lockstep, q0=start.get_position(), tags=tags,
                    verbose=not args.json) as server:
         with server.lock:
             set_mujoco_camera(server.sim.world.model, server.sim.camera_name(), intr)
