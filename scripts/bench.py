@@ -31,13 +31,14 @@ def table(title: str, rows: list[tuple], headers: tuple[str, ...]) -> None:
 def bench_core(quick: bool) -> None:
     import mujoco
 
-    from franka_vs_gym.model import FrankaModel, params
+    from franka_vs_gym.model import FrankaModel
     from franka_vs_gym.sim import FORCE_TORQUE, JOINT_STATE, FrankaSim
 
     n = 2000 if quick else 20000
     m = FrankaModel()
     rng = np.random.default_rng(0)
-    q = rng.uniform(params.as_array(params.Q_MIN), params.as_array(params.Q_MAX))
+    lim = m.limits()
+    q = rng.uniform(lim["q_min"], lim["q_max"])
     dq = rng.uniform(-1, 1, 7)
     rows = []
     for name, fn, target in [
