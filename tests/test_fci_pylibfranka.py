@@ -150,3 +150,43 @@ def test_cartesian_and_velocity_motions(server):
     expected = np.zeros(7)
     expected[3] = 0.8 / np.pi
     assert b - a == pytest.approx(expected, abs=2e-4)
+
+
+def test_fr3_model_from_its_description():
+    with FCIServer(_host().replace(".21.", ".25."), lockstep=True, camera=False, verbose=False, robot="fr3") as srv:
+        out = run_client(CLIENTS / "read_state.py", srv.host)
+    q = np.array(out["q"])
+    model = FrankaModel(robot="fr3")
+    assert np.abs(np.array(out["mass"]).reshape(7, 7, order="F") - model.mass_matrix(q)).max() < 1e-6
+    assert np.abs(np.array(out["gravity"]) - model.gravity(q)).max() < 1e-4
+    assert np.abs(np.array(out["O_T_EE"]).reshape(4, 4, order="F") - model.fMe(q)).max() < 1e-5
+
+
+def test_record_writes_a_workbench_log(tmp_path):
+    from franka_vs_gym.validation.logs import load_log
+
+    log_path = tmp_path / "session.csv"
+    with FCIServer(_host().replace(".21.", ".26."), lockstep=True, camera=False, verbose=False,
+                   record=log_path) as srv:
+        out = run_client(CLIENTS / "torque_hold.py", srv.host, "300")
+    log = load_log(log_path)
+    assert log.n == 300 and (tmp_path / "session.csv.json").exists()
+    assert np.allclose(np.diff(log.time), 0.001)
+    assert np.abs(log.q - np.array(out["q"])).max() < 1e-6  # what the client read (float32 on the wire)
+    assert np.abs(log.tau_J - np.array(out["tau_J"])).max() < 1e-4
+    assert log.tool == "franka_hand" and np.allclose(log.gravity, [0, 0, -9.81])
+    with pytest.raises(FileExistsError):  # never overwritten
+        FCIServer(_host(), lockstep=True, camera=False, verbose=False, record=log_path)
+
+
+@pytest.mark.parametrize("stall, reflex", [(0.005, False), (0.06, True)])
+def test_real_time_missed_deadlines(stall, reflex):
+    """Real-time mode: a client that stalls lowers control_command_success_rate; beyond the tolerance the
+    communication-constraints reflex stops the motion."""
+    with FCIServer(_host().replace(".21.", ".27."), camera=False, verbose=False) as srv:
+        out = run_client(CLIENTS / "stall.py", srv.host, str(stall))
+    if reflex:
+        assert out["raised"] is not None and '"communication_constraints_violation"' in out["raised"]
+    else:
+        assert out["raised"] is None and len(out["rates"]) == 600
+        assert min(out["rates"]) < 1.0  # the stall shows

@@ -57,6 +57,7 @@ _TICK = 0.001  # s of wall time between idle states (and the real-time control p
 # Lock-step, between a Move and its first command: frozen states keep the client from waiting forever, but every
 # extra one the client drains changes the time step it sees, so they are rare.
 _START_PHASE_PERIOD = 0.05
+_MAX_LATE = 0.002  # s: real-time cycles later than this are dropped (plant time falls behind wall time)
 _HAND_STEPS_PER_TICK = 25  # lock-step physics steps per wall-time tick while only the hand moves
 
 
@@ -151,6 +152,7 @@ class FCIServer:
         self._rows: list[np.ndarray] = []
         self.deadlines_met = 0
         self.deadlines_total = 0
+        self.late_cycles = 0  # real-time cycles the server itself could not run in time (dropped)
         self._renderers: dict[tuple[int, int], Any] = {}
 
     # ------------------------------------------------------------------ lifecycle
@@ -276,8 +278,9 @@ class FCIServer:
                 now = time.perf_counter()
                 if now >= next_tick:
                     next_tick += _TICK
-                    if now - next_tick > 0.05:  # far behind (debugger, overloaded machine): do not catch up
-                        next_tick = now + _TICK
+                    if now - next_tick > _MAX_LATE:  # the server itself fell behind (machine overloaded): the
+                        self.late_cycles += int((now - next_tick) / _TICK)  # lost cycles are dropped, not
+                        next_tick = now + _TICK  # replayed back to back (that would count as client misses)
                     if self.lockstep:
                         self._lockstep_tick()
                     else:
