@@ -190,3 +190,29 @@ def test_real_time_missed_deadlines(stall, reflex):
     else:
         assert out["raised"] is None and len(out["rates"]) == 600
         assert min(out["rates"]) < 1.0  # the stall shows
+
+
+def test_serve_command_line():
+    """`franka-vs serve` prints one ready line, serves a client, stops on SIGINT; bad input is one line, exit 2."""
+    import signal
+
+    host = _host().replace(".21.", ".28.")
+    p = subprocess.Popen([sys.executable, "-m", "franka_vs_gym.cli", "serve", "--host", host, "--lockstep",
+                          "--scene", "tag", "--no-camera"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        line = p.stdout.readline()
+        assert "ready at " + host in line and "lock-step" in line
+        out = run_client(CLIENTS / "read_state.py", host)
+        assert out["robot_mode"].endswith("Idle")
+        r = subprocess.run([sys.executable, "-m", "franka_vs_gym.cli", "serve", "--host", host], capture_output=True,
+                           text=True, timeout=60)
+        assert r.returncode == 2 and "in use" in r.stderr, r.stderr  # a second server on the same address
+    finally:
+        p.send_signal(signal.SIGINT)
+        p.wait(timeout=20)
+    assert p.returncode == 0
+    for args, msg in ((["--robot", "ur5"], "unknown robot"), (["--host", "10.255.255.1"], "cannot bind"),
+                      (["--q0", "0", "0", "0", "0", "0", "0", "0"], "joint limits")):
+        r = subprocess.run([sys.executable, "-m", "franka_vs_gym.cli", "serve", *args], capture_output=True,
+                           text=True, timeout=60)
+        assert r.returncode == 2 and msg in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
