@@ -301,3 +301,23 @@ def test_fr3_numbers_are_the_published_ones():
     for link in FR3.links:  # physically consistent: positive definite, triangle inequality on principal moments
         w = np.linalg.eigvalsh(link.inertia_matrix())
         assert w.min() > 0 and w[0] + w[1] >= w[2]
+
+
+def test_no_module_outside_sim_touches_franka_sim_private_attributes():
+    """Environments, the workbench, the FCI server... use FrankaSim's public methods (set_dynamics, set_tool,
+    joint_views...), never its underscore attributes."""
+    from franka_vs_gym.sim import FrankaSim
+
+    sim = FrankaSim(camera=False)
+    private = sorted(k for k in vars(sim) if k.startswith("_")) + sorted(
+        k for k in vars(FrankaSim) if k.startswith("_") and not k.startswith("__"))
+    pat = re.compile(r"\b(?!self\b)[A-Za-z_]\w*\.(" + "|".join(map(re.escape, private)) + r")\b")
+    roots = [PACKAGE, PACKAGE.parent / "baselines", PACKAGE.parent / "scripts", PACKAGE.parent / "examples"]
+    bad = []
+    for root in roots:
+        for p in sorted(root.rglob("*.py")):
+            rel = p.relative_to(PACKAGE.parent).as_posix()
+            if rel.startswith("franka_vs_gym/sim/"):
+                continue
+            bad += [f"{rel}: {m.group(0)}" for m in pat.finditer(p.read_text())]
+    assert not bad, bad
