@@ -119,3 +119,100 @@ def test_reflex_reason_and_recovery(server, kind, reason):
     if kind == "position_limit":
         assert out["q_at_reflex"][6] > 2.8973 - 1e-3
         assert out["q_end"][6] < out["q_at_reflex"][6] - 0.02  # moving back out of the limit is allowed
+
+
+def test_frames_and_declared_load(server):
+    out = run_client(CLIENTS / "settings.py", server.host)
+    q = np.array(out["q"])
+    NE_T_EE, EE_T_K = np.eye(4), np.eye(4)
+    NE_T_EE[2, 3], EE_T_K[0, 3] = 0.1, 0.02
+    assert np.abs(np.array(out["NE_T_EE"]).reshape(4, 4, order="F") - NE_T_EE).max() < 1e-7
+    assert np.abs(np.array(out["EE_T_K"]).reshape(4, 4, order="F") - EE_T_K).max() < 1e-7
+    model = FrankaModel()
+    assert np.abs(np.array(out["O_T_EE"]).reshape(4, 4, order="F") - model.fMe(q) @ NE_T_EE).max() < 1e-6
+    # libfranka's model with the declared load = FrankaModel with that payload
+    assert out["m_load"] == pytest.approx(1.0) and out["m_total"] == pytest.approx(1.73, abs=1e-6)
+    model.set_payload(1.0, [0.0, 0.0, 0.05], [1e-3, 1e-3, 1e-3])
+    assert np.abs(np.array(out["gravity"]) - model.gravity(q)).max() < 1e-4
+    assert np.abs(np.array(out["mass"]).reshape(7, 7, order="F") - model.mass_matrix(q)).max() < 1e-6
+    # the robot compensates the declared 1 kg the plant does not carry: with zero torques the arm moves
+    assert np.abs(np.array(out["q_after_50ms"]) - q).max() > 1e-3
+
+
+def test_cartesian_and_velocity_motions(server):
+    out = run_client(CLIENTS / "motions.py", server.host)
+    a, b = (np.array(out["cart_pose"][k]).reshape(4, 4, order="F") for k in ("start", "end"))
+    assert b[:3, 3] - a[:3, 3] == pytest.approx([0.0, 0.0, -0.03], abs=2e-4)  # Cartesian impedance, settled
+    assert np.abs(b[:3, :3] - a[:3, :3]).max() < 1e-3
+    a, b = (np.array(out["cart_velocity"][k]).reshape(4, 4, order="F") for k in ("start", "end"))
+    assert b[:3, 3] - a[:3, 3] == pytest.approx([0.2 / np.pi, 0.0, 0.0], abs=2e-4)  # integral of 0.1 sin(pi t)
+    a, b = (np.array(out["joint_velocity"][k]) for k in ("start", "end"))
+    expected = np.zeros(7)
+    expected[3] = 0.8 / np.pi
+    assert b - a == pytest.approx(expected, abs=2e-4)
+
+
+def test_fr3_model_from_its_description():
+    with FCIServer(_host().replace(".21.", ".25."), lockstep=True, camera=False, verbose=False, robot="fr3") as srv:
+        out = run_client(CLIENTS / "read_state.py", srv.host)
+    q = np.array(out["q"])
+    model = FrankaModel(robot="fr3")
+    assert np.abs(np.array(out["mass"]).reshape(7, 7, order="F") - model.mass_matrix(q)).max() < 1e-6
+    assert np.abs(np.array(out["gravity"]) - model.gravity(q)).max() < 1e-4
+    assert np.abs(np.array(out["O_T_EE"]).reshape(4, 4, order="F") - model.fMe(q)).max() < 1e-5
+
+
+def test_record_writes_a_workbench_log(tmp_path):
+    from franka_vs_gym.validation.logs import load_log
+
+    log_path = tmp_path / "session.csv"
+    with FCIServer(_host().replace(".21.", ".26."), lockstep=True, camera=False, verbose=False,
+                   record=log_path) as srv:
+        out = run_client(CLIENTS / "torque_hold.py", srv.host, "300")
+    log = load_log(log_path)
+    assert log.n == 300 and (tmp_path / "session.csv.json").exists()
+    assert np.allclose(np.diff(log.time), 0.001)
+    assert np.abs(log.q - np.array(out["q"])).max() < 1e-6  # what the client read (float32 on the wire)
+    assert np.abs(log.tau_J - np.array(out["tau_J"])).max() < 1e-4
+    assert log.tool == "franka_hand" and np.allclose(log.gravity, [0, 0, -9.81])
+    with pytest.raises(FileExistsError):  # never overwritten
+        FCIServer(_host(), lockstep=True, camera=False, verbose=False, record=log_path)
+
+
+@pytest.mark.parametrize("stall, reflex", [(0.005, False), (0.06, True)])
+def test_real_time_missed_deadlines(stall, reflex):
+    """Real-time mode: a client that stalls lowers control_command_success_rate; beyond the tolerance the
+    communication-constraints reflex stops the motion."""
+    with FCIServer(_host().replace(".21.", ".27."), camera=False, verbose=False) as srv:
+        out = run_client(CLIENTS / "stall.py", srv.host, str(stall))
+    if reflex:
+        assert out["raised"] is not None and '"communication_constraints_violation"' in out["raised"]
+    else:
+        assert out["raised"] is None and len(out["rates"]) == 600
+        assert min(out["rates"]) < 1.0  # the stall shows
+
+
+def test_serve_command_line():
+    """`franka-vs serve` prints one ready line, serves a client, stops on SIGINT; bad input is one line, exit 2."""
+    import signal
+
+    host = _host().replace(".21.", ".28.")
+    p = subprocess.Popen([sys.executable, "-m", "franka_vs_gym.cli", "serve", "--host", host, "--lockstep",
+                          "--scene", "tag", "--no-camera"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        line = p.stdout.readline()
+        assert "ready at " + host in line and "lock-step" in line
+        out = run_client(CLIENTS / "read_state.py", host)
+        assert out["robot_mode"].endswith("Idle")
+        r = subprocess.run([sys.executable, "-m", "franka_vs_gym.cli", "serve", "--host", host], capture_output=True,
+                           text=True, timeout=60)
+        assert r.returncode == 2 and "in use" in r.stderr, r.stderr  # a second server on the same address
+    finally:
+        p.send_signal(signal.SIGINT)
+        p.wait(timeout=20)
+    assert p.returncode == 0
+    for args, msg in ((["--robot", "ur5"], "unknown robot"), (["--host", "10.255.255.1"], "cannot bind"),
+                      (["--q0", "0", "0", "0", "0", "0", "0", "0"], "joint limits")):
+        r = subprocess.run([sys.executable, "-m", "franka_vs_gym.cli", "serve", *args], capture_output=True,
+                           text=True, timeout=60)
+        assert r.returncode == 2 and msg in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr

@@ -28,6 +28,8 @@ frame (``EE_T_K``).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from franka_vs_gym.control.impedance import CartesianImpedance, JointImpedance, pose_error
@@ -72,6 +74,14 @@ _CTRL_FROM_MOVE = {
     MoveControllerMode.CARTESIAN_IMPEDANCE: ControllerMode.CARTESIAN_IMPEDANCE,
     MoveControllerMode.EXTERNAL_CONTROLLER: ControllerMode.EXTERNAL_CONTROLLER,
 }
+
+
+_I3 = np.eye(3)
+_ROW3 = np.array([0.0, 0.0, 0.0, 1.0])
+
+
+def _norm3(v: np.ndarray) -> float:
+    return math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
 
 
 def _cm(M: np.ndarray) -> np.ndarray:
@@ -144,6 +154,7 @@ class FCIRobot:
         self._servo_gain, self._servo_bias, self._servo_ctrl = sim.velocity_servo_views()
         self._q_view, self._dq_view = sim.joint_views()
         self.state = RobotStateBuffer()
+        self._settings_changed = True
         self.robot_mode = RobotMode.IDLE
         self.mg_mode = MotionGeneratorMode.IDLE
         self.ctrl_mode = ControllerMode.JOINT_IMPEDANCE
@@ -152,6 +163,7 @@ class FCIRobot:
         self.reflex_detail = ""
         self.success_window = np.ones(100, dtype=bool)
         self._win_i = 0
+        self._success_sum = len(self.success_window)
         self.missed_in_row = 0
         self.tau_J_prev = sim.get_force_torque(JOINT_STATE)
         self._reset_desired()
@@ -215,6 +227,7 @@ class FCIRobot:
         from franka_vs_gym.model import FrankaModel
 
         self.m_load, self.F_x_Cload, self.I_load = float(mass), np.array(F_x_Cload, float), np.array(I_load, float)
+        self._settings_changed = True
         if self.m_load > 0:
             self._load_model = FrankaModel(self.model.config)
             self._load_model.set_payload(self.m_load, self.F_x_Cload, self.I_load)
@@ -328,8 +341,7 @@ class FCIRobot:
 
     def _cartesian_checks(self, T_new: np.ndarray) -> None:
         dt, c, tol = self.dt, self.cart, 1.0 + LIMIT_TOLERANCE
-        v = np.concatenate([(T_new[:3, 3] - self.O_T_EE_c[:3, 3]) / dt,
-                            pose_error(self.O_T_EE_c, T_new)[3:] / dt])
+        v = pose_error(self.O_T_EE_c, T_new) / dt  # [translation; rotation vector in O] per step
         a = (v - self.O_dP_EE_c) / dt
         j = (a - self.O_ddP_EE_c) / dt
         checks = ((v, c.v_max, c.w_max, "velocity_limits_violation", "m/s"),
@@ -337,7 +349,7 @@ class FCIRobot:
                   (j, c.j_max, c.rot_j_max, "acceleration_discontinuity", "m/s^3"))
         if not self._first_command:
             for vec, lin, rot, name, unit in checks:
-                nl, nr = float(np.linalg.norm(vec[:3])), float(np.linalg.norm(vec[3:]))
+                nl, nr = _norm3(vec[:3]), _norm3(vec[3:])
                 if nl > lin * tol or nr > rot * tol:
                     raise Reflex([f"cartesian_motion_generator_{name}"],
                                  f"commanded end-effector {nl:.3g} {unit} (limit {lin}), "
@@ -354,7 +366,7 @@ class FCIRobot:
             if mg == MotionGeneratorMode.CARTESIAN_POSITION:
                 T = np.asarray(cmd.O_T_EE_c).reshape(4, 4, order="F").copy()
                 R = T[:3, :3]
-                if not (np.allclose(R @ R.T, np.eye(3), atol=1e-4) and np.allclose(T[3], (0, 0, 0, 1))):
+                if not (np.abs(R @ R.T - _I3).max() < 1e-4 and np.abs(T[3] - _ROW3).max() < 1e-9):
                     raise Reflex(["cartesian_position_motion_generator_invalid_frame_flag"],
                                  "O_T_EE_c is not a homogeneous transformation")
             else:
@@ -411,16 +423,19 @@ class FCIRobot:
 
     def _joint_impedance(self, q: np.ndarray, dq: np.ndarray, q_d: np.ndarray, dq_d: np.ndarray,
                          ddq_d: np.ndarray | None) -> np.ndarray:
-        """The internal joint impedance controller. Its damping ``D (dq_d - dq)`` runs in the plant's joint
-        velocity servos, which MuJoCo integrates implicitly; the rest (stiffness, inertial, Coriolis and friction
-        feed-forward) is the returned motor torque. The FER's joint controllers run faster than the 1 kHz
-        interface; an explicit 1 ms damping term would be unstable on the light coupled modes of the arm (e.g.
-        joints 1 and 3 turning against each other when aligned)."""
-        D = self.joint_ctrl.damping(q)
+        """The internal joint impedance controller, the law of :class:`~franka_vs_gym.control.JointImpedance`
+        (stiffness ``K_theta``, critical damping on the diagonal of B(q), inertial, Coriolis and friction
+        feed-forward) with one evaluation of B per cycle. Its damping ``D (dq_d - dq)`` runs in the plant's joint
+        velocity servos, which MuJoCo integrates implicitly; the rest is the returned motor torque. The FER's joint
+        controllers run faster than the 1 kHz interface; an explicit 1 ms damping term would be unstable on the
+        light coupled modes of the arm (e.g. joints 1 and 3 turning against each other when aligned)."""
+        m, ctrl = self.model, self.joint_ctrl
+        B = m.mass_matrix(q)
+        D = 2.0 * ctrl.zeta * np.sqrt(ctrl.k * B.diagonal())
         self._set_servo(D, dq_d)
-        tau = self.joint_ctrl(q, dq, q_d, dq_d, ddq_d) - D * (dq_d - dq)
+        tau = ctrl.k * (q_d - q) + m.coriolis(q, dq) + m.friction(dq_d)
         if ddq_d is not None:  # implicit damping acts on the end-of-step velocity: feed its share of ddq_d forward
-            tau += self.dt * D * ddq_d
+            tau += B @ ddq_d + self.dt * D * ddq_d
         return tau
 
     def _set_servo(self, D: np.ndarray | float, dq_d: np.ndarray | float) -> None:
@@ -468,6 +483,7 @@ class FCIRobot:
 
     def count_command(self, received: bool) -> None:
         """Real-time bookkeeping: whether this cycle's command arrived in time."""
+        self._success_sum += int(received) - int(self.success_window[self._win_i])
         self.success_window[self._win_i] = received
         self._win_i = (self._win_i + 1) % len(self.success_window)
         self.missed_in_row = 0 if received else self.missed_in_row + 1
@@ -483,6 +499,32 @@ class FCIRobot:
         if d.ncon == 0:
             return np.zeros(7)
         return -np.array(d.qfrc_constraint[self.sim.dof_slice])
+
+    def _fill_settings(self) -> None:
+        """State fields that change only with the settings (frames, end effector and load, gravity)."""
+        f = self.state.f
+        f["F_T_EE"][:] = _cm(self.F_T_NE @ self.NE_T_EE)
+        f["EE_T_K"][:] = _cm(self.EE_T_K)
+        f["F_T_NE"][:] = _cm(self.F_T_NE)
+        f["NE_T_EE"][:] = _cm(self.NE_T_EE)
+        f["m_ee"][0] = self.m_ee
+        f["I_ee"][:] = _cm(self.I_ee)
+        f["F_x_Cee"][:] = self.F_x_Cee
+        f["m_load"][0] = self.m_load
+        f["I_load"][:] = _cm(self.I_load)
+        f["F_x_Cload"][:] = self.F_x_Cload
+        f["O_ddP_O"][:] = self.gravity
+        self._settings_changed = False
+
+    def set_EE_to_K(self, EE_T_K: np.ndarray) -> None:
+        """Stiffness frame K in the end-effector frame (4x4)."""
+        self.EE_T_K = np.array(EE_T_K, dtype=float)
+        self._settings_changed = True
+
+    def set_NE_to_EE(self, NE_T_EE: np.ndarray) -> None:
+        """End-effector frame in the nominal end-effector frame (4x4)."""
+        self.NE_T_EE = np.array(NE_T_EE, dtype=float)
+        self._settings_changed = True
 
     def fill_state(self) -> RobotStateBuffer:
         st, f = self.state, self.state.f
@@ -513,16 +555,8 @@ class FCIRobot:
             f["elbow_c"][:] = (q_d[2], -1.0 if q_d[3] < 0 else 1.0)
             f["delbow_c"][:] = (dq_d[2], 0.0)
             f["ddelbow_c"][:] = 0.0
-        f["F_T_EE"][:] = _cm(self.F_T_NE @ self.NE_T_EE)
-        f["EE_T_K"][:] = _cm(self.EE_T_K)
-        f["F_T_NE"][:] = _cm(self.F_T_NE)
-        f["NE_T_EE"][:] = _cm(self.NE_T_EE)
-        f["m_ee"][0] = self.m_ee
-        f["I_ee"][:] = _cm(self.I_ee)
-        f["F_x_Cee"][:] = self.F_x_Cee
-        f["m_load"][0] = self.m_load
-        f["I_load"][:] = _cm(self.I_load)
-        f["F_x_Cload"][:] = self.F_x_Cload
+        if self._settings_changed:
+            self._fill_settings()
         f["elbow"][:] = (q[2], -1.0 if q[3] < 0 else 1.0)
         f["elbow_d"][:] = (q_d[2], -1.0 if q_d[3] < 0 else 1.0)
         f["tau_J"][:] = tau_J
@@ -536,7 +570,6 @@ class FCIRobot:
         f["ddq_d"][:] = ddq_d
         f["theta"][:] = q
         f["dtheta"][:] = dq
-        f["O_ddP_O"][:] = self.gravity
         tau_ext = self.external_torque()
         f["tau_ext_hat_filtered"][:] = tau_ext
         if tau_ext.any():
@@ -558,7 +591,7 @@ class FCIRobot:
         st.robot_mode = self.robot_mode
         st.errors = self.errors
         st.reflex_reason = self.last_motion_errors
-        st.control_command_success_rate = float(self.success_window.mean())
+        st.control_command_success_rate = self._success_sum / len(self.success_window)
         return st
 
     def collision_reflex(self) -> tuple[str, ...]:
