@@ -151,9 +151,8 @@ class FCIRobot:
         self.gravity = np.array(self.model.config.gravity, dtype=float)
         sim.set_robot_state(FORCE_TORQUE)
         # the plant's joint velocity servos (views): the internal controllers' damping, integrated implicitly
-        self._servo_gain = sim._m.actuator_gainprm[sim._vel, 0]
-        self._servo_bias = sim._m.actuator_biasprm[sim._vel, 2]
-        self._servo_ctrl = sim._ctrl_vel
+        self._servo_gain, self._servo_bias, self._servo_ctrl = sim.velocity_servo_views()
+        self._q_view, self._dq_view = sim.joint_views()
         self.state = RobotStateBuffer()
         self._settings_changed = True
         self.robot_mode = RobotMode.IDLE
@@ -172,11 +171,11 @@ class FCIRobot:
     # ------------------------------------------------------------------ helpers
     @property
     def q(self) -> np.ndarray:
-        return self.sim._qpos
+        return self._q_view
 
     @property
     def dq(self) -> np.ndarray:
-        return self.sim._qvel
+        return self._dq_view
 
     def O_T_EE_of(self, q: np.ndarray) -> np.ndarray:
         """Pose of EE in O (4x4) at joint position q."""
@@ -260,7 +259,7 @@ class FCIRobot:
         self.mg_mode = MotionGeneratorMode.IDLE
         self.ctrl_mode = ControllerMode.OTHER
         self._reset_desired()
-        self.sim._qvel[:] = 0.0  # brakes engaged
+        self.sim.stop_joints()  # brakes engaged
 
     def automatic_error_recovery(self) -> None:
         self.errors[:] = False
@@ -496,10 +495,10 @@ class FCIRobot:
     def external_torque(self) -> np.ndarray:
         """The external joint torque the robot feels (7,), Nm, in libfranka's sign convention (``tau_J`` minus
         what the motion needs): minus the generalized force of the plant's contacts on the arm."""
-        d = self.sim._d
+        d = self.sim.world.data
         if d.ncon == 0:
             return np.zeros(7)
-        return -np.array(d.qfrc_constraint[self.sim._vs])
+        return -np.array(d.qfrc_constraint[self.sim.dof_slice])
 
     def _fill_settings(self) -> None:
         """State fields that change only with the settings (frames, end effector and load, gravity)."""

@@ -631,9 +631,9 @@ class FCIServer:
         key = (width, height)
         r = self._renderers.get(key)
         if r is None:
-            r = self._renderers[key] = mujoco.Renderer(self.sim._m, height, width)
+            r = self._renderers[key] = mujoco.Renderer(self.sim.world.model, height, width)
         with self.lock:
-            r.update_scene(self.sim._d, camera=self.sim.camera_name())
+            r.update_scene(self.sim.world.data, camera=self.sim.camera_name())
         return r.render()
 
     def state(self) -> dict[str, Any]:
