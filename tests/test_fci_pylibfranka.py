@@ -13,6 +13,7 @@ import os
 import socket
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -216,3 +217,20 @@ def test_serve_command_line():
         r = subprocess.run([sys.executable, "-m", "franka_vs_gym.cli", "serve", *args], capture_output=True,
                            text=True, timeout=60)
         assert r.returncode == 2 and msg in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+
+
+def test_reconnect_after_a_client_dies_mid_motion(server):
+    p = subprocess.Popen([sys.executable, str(CLIENTS / "torque_hold.py"), server.host, "1000000"],
+                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 30
+        while server.steps < 500 and time.monotonic() < deadline:  # the motion is running
+            time.sleep(0.01)
+        assert server.robot.moving
+    finally:
+        p.kill()
+        p.wait()
+    out = run_client(CLIENTS / "read_state.py", server.host)  # the next client finds the robot idle
+    assert out["robot_mode"].endswith("Idle") and not out["errors"]
+    out = run_client(CLIENTS / "read_state.py", server.host)  # and another one after it
+    assert out["robot_mode"].endswith("Idle")
