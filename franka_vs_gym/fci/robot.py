@@ -450,6 +450,9 @@ class FCIRobot:
         sim = self.sim
         try:
             self._set_servo(0.0, 0.0)
+            if self.robot_mode == RobotMode.REFLEX and getattr(sim, "current_errors", ()):
+                sim.step()  # the simulator's brakes hold the arm until automatic_error_recovery
+                return ()
             tau = self.control_torque(cmd)
             if self._load_model is not None:
                 tau = tau + self._load_model.gravity(self.q) - self.model.gravity(self.q)
