@@ -234,3 +234,23 @@ def test_reconnect_after_a_client_dies_mid_motion(server):
     assert out["robot_mode"].endswith("Idle") and not out["errors"]
     out = run_client(CLIENTS / "read_state.py", server.host)  # and another one after it
     assert out["robot_mode"].endswith("Idle")
+
+
+PLATE = '<body name="plate" pos="0.3069 0 0.45"><geom type="box" size="0.05 0.05 0.02"/></body>'
+
+
+@pytest.mark.parametrize("f_max", [100.0, 20.0])
+def test_contact_wrench_and_cartesian_reflex(f_max):
+    """Pressing the hand onto a plate with the internal Cartesian impedance: the estimated wrench is the spring's
+    force K (z_d - z) (what the robot applies to the environment); above the collision threshold: cartesian_reflex."""
+    with FCIServer(_host().replace(".21.", ".29."), lockstep=True, camera=False, verbose=False,
+                   extra_worldbody=PLATE) as srv:
+        out = run_client(CLIENTS / "contact.py", srv.host, str(f_max))
+    if f_max > 50:
+        assert out["raised"] is None
+        assert out["F"][2] == pytest.approx(3000.0 * (out["z_d"] - out["z"]), rel=0.02)
+        assert out["F"][2] < -50.0 and max(abs(v) for v in out["F"][:2]) < 1.0
+        assert out["contact"][2] == 1.0 and out["collision"][2] == 0.0
+    else:
+        assert out["raised"] is not None and '"cartesian_reflex"' in out["raised"]
+        assert abs(out["F"][2]) == pytest.approx(f_max, rel=0.1)  # fired as the force crossed the threshold
