@@ -32,12 +32,14 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from franka_vs_gym.model import params as P
 from franka_vs_gym.model.config import Friction, ModelConfig, RigidBody
+from franka_vs_gym.model.description import FER
+from franka_vs_gym.model.friction import coulomb_friction, gaz_sigmoid, viscous_friction
+from franka_vs_gym.model.geometry import combine_inertials, parallel_axis
 from franka_vs_gym.validation.evaluate import FLANGE_OFFSET, ModelEvaluation, evaluate, shift, sigmoid_friction
 from franka_vs_gym.validation.signals import ProcessedLog
 
-TAU_MAX = P.as_array(P.TAU_MAX)
+TAU_MAX = FER.limit_arrays()["tau_max"]
 SIG_PHI2 = np.geomspace(2.0, 100.0, 12)  # s/rad
 SIG_PHI3 = np.array([-0.08, -0.04, 0.0, 0.04, 0.08])  # rad/s
 COULOMB_VC = (0.005, 0.01, 0.02, 0.05, 0.1)  # rad/s, Coulomb smoothing velocities tried
@@ -100,7 +102,7 @@ class Context:
             out = []
             for p2 in SIG_PHI2:
                 for p3 in SIG_PHI3:
-                    out.append(1.0 / (1.0 + np.exp(-p2 * (dq + p3))) - 1.0 / (1.0 + math.exp(-p2 * p3)))
+                    out.append(gaz_sigmoid(dq, 1.0, p2, p3))
             self._sig_basis = np.array(out)
         return self._sig_basis
 
@@ -283,7 +285,7 @@ class ViscousFriction(Effect):
     SIZES = np.array([0.5, 0.5, 0.4, 0.4, 0.15, 0.15, 0.08])
 
     def design(self, ctx, shape):
-        return ctx.data.dq[:, :, None]
+        return viscous_friction(ctx.data.dq, 1.0)[:, :, None]
 
     def problems(self, ctx, fit):
         tot = ctx.config.friction.viscous + _joint_coef(fit)[:, 0]
@@ -323,11 +325,11 @@ class CoulombFriction(Effect):
     VC = 0.05  # smoothing of injected Coulomb friction (a sharper step chatters in the 1 ms explicit plant)
 
     def shape(self, ctx, target):
-        return {"coulomb_vel": _vc_choice(ctx, target, lambda dq, vc: np.tanh(dq / vc))}
+        return {"coulomb_vel": _vc_choice(ctx, target, lambda dq, vc: coulomb_friction(dq, 1.0, vc))}
 
     def design(self, ctx, shape):
         vc = float(shape["coulomb_vel"])
-        return ctx.cached(("tanh", vc), lambda: np.tanh(ctx.data.dq / vc)[:, :, None])
+        return ctx.cached(("tanh", vc), lambda: coulomb_friction(ctx.data.dq, 1.0, vc)[:, :, None])
 
     def problems(self, ctx, fit):
         tot = ctx.config.friction.coulomb + _joint_coef(fit)[:, 0]
@@ -426,7 +428,7 @@ class SigmoidFriction(Effect):
         """Columns: the added sigmoid of the chosen shape, and the model's own sigmoid (its height re-scaled), so a
         change of the model's sigmoid (height and width) is representable linearly."""
         p2, p3 = np.asarray(shape["phi2"]), np.asarray(shape["phi3"])
-        new = _sig(p2 * (ctx.data.dq + p3)) - _sig(p2 * p3)
+        new = gaz_sigmoid(ctx.data.dq, 1.0, p2, p3)
         if not ctx.config.friction.phi1.any():
             return new[:, :, None]
         return np.stack([new, ctx.base_sigmoid], axis=2)
@@ -470,7 +472,7 @@ class SigmoidFriction(Effect):
         if not fit.theta.get("replace"):
             c = _joint_coef(fit, 2)
             p2, p3 = np.asarray(fit.theta["phi2"]), np.asarray(fit.theta["phi3"])
-            return (_sig(p2 * (ctx.data.dq + p3)) - _sig(p2 * p3)) * c[:, 0] + ctx.base_sigmoid * c[:, 1]
+            return gaz_sigmoid(ctx.data.dq, 1.0, p2, p3) * c[:, 0] + ctx.base_sigmoid * c[:, 1]
         return sigmoid_friction(self._replacement(ctx, fit), ctx.data.dq) - ctx.base_sigmoid
 
     def refine(self, ctx, y, fit):
@@ -490,7 +492,7 @@ class SigmoidFriction(Effect):
             def res(p, dq=dq, tgt=tgt):
                 p1, lp2, p3 = p
                 p2 = math.exp(lp2)
-                return p1 / (1 + np.exp(-p2 * (dq + p3))) - p1 / (1 + math.exp(-p2 * p3)) - tgt
+                return gaz_sigmoid(dq, p1, p2, p3) - tgt
 
             x0 = [th["phi1"][j], math.log(min(max(th["phi2"][j], 0.51), 399.0)), float(np.clip(th["phi3"][j], -0.29,
                                                                                                   0.29))]
@@ -784,7 +786,7 @@ def _payload_body(th: np.ndarray) -> tuple[RigidBody, list[str]]:
     c7 = th[1:4] / m
     Ixx, Ixy, Iyy, Ixz, Iyz, Izz = th[4:10]
     Io = np.array([[Ixx, Ixy, Ixz], [Ixy, Iyy, Iyz], [Ixz, Iyz, Izz]])
-    Ic = Io - m * (c7 @ c7 * np.eye(3) - np.outer(c7, c7))
+    Ic = Io - parallel_axis(m, c7)
     w, V = np.linalg.eigh(0.5 * (Ic + Ic.T))
     w = np.maximum(w, 1e-6)
     if w[0] + w[1] < 1.001 * w[2]:  # with a margin: the simulator re-checks after its own eigen-decomposition
@@ -801,13 +803,7 @@ def _payload_body(th: np.ndarray) -> tuple[RigidBody, list[str]]:
 
 
 def _combine(a: RigidBody, b: RigidBody) -> RigidBody:
-    m = a.mass + b.mass
-    c = (a.mass * a.com + b.mass * b.com) / m
-    inertia = np.zeros((3, 3))
-    for x in (a, b):
-        r = x.com - c
-        inertia += x.inertia + x.mass * (r @ r * np.eye(3) - np.outer(r, r))
-    return RigidBody(m, c, inertia)
+    return RigidBody(*combine_inertials([(a.mass, a.com, a.inertia), (b.mass, b.com, b.inertia)]))
 
 
 class Payload(Effect):
