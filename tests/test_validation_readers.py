@@ -97,6 +97,7 @@ def test_ros2_bag_at_30hz_reads_cleans_and_diagnoses(source_log, tmp_path, stora
     a = js["assumptions"]
     assert a["tool"] == "franka_hand" and "not declared" in a["tool_source"]
     assert a["log_rate_hz"] == pytest.approx(30.0, rel=0.05) and a["cleaning"]["stale_rows_dropped"] >= 9
+    assert a["robot"] == "fer"
 
 
 def test_ros2_bag_topic_choice_and_errors(source_log, tmp_path):
@@ -111,9 +112,10 @@ def test_ros2_bag_topic_choice_and_errors(source_log, tmp_path):
     # the CLI: --topic, and a clear one-line error for a gap longer than --max-gap
     cmd = [sys.executable, "-m", "franka_vs_gym.cli", "diagnose", str(bag), "--topic", "/franka/joint_states",
            "--json", "--quiet"]
-    out = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    out = subprocess.run(cmd + ["--robot", "fr3"], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
-    assert json.loads(out.stdout)["assumptions"]["log_rate_hz"] == pytest.approx(100.0, rel=0.05)
+    a = json.loads(out.stdout)["assumptions"]
+    assert a["log_rate_hz"] == pytest.approx(100.0, rel=0.05) and a["robot"] == "fr3"
     out = subprocess.run(cmd + ["--max-gap", "0.015"], capture_output=True, text=True, timeout=300)
     assert out.returncode == 2 and "max_gap" in out.stderr and "Traceback" not in out.stderr
 

@@ -15,6 +15,8 @@ def add_common(parser: argparse.ArgumentParser) -> None:
                         help="calibrated model file (JSON) to compare; default: the FER with the log's declared tool")
     parser.add_argument("--rigid-body", action="store_true",
                         help="start from the model without any joint friction (rigid-body model)")
+    parser.add_argument("--robot", default=None,
+                        help="the robot the log comes from: a registered name (fer, fr3, ...; default fer)")
     parser.add_argument("--tool", choices=("franka_hand", "none", "unknown"), default=None,
                         help="the tool on the flange (default: what the log declares, else the Franka Hand); "
                              "'unknown' fits the tool's mass, centre of mass and inertia")

@@ -20,7 +20,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     verbose = not args.quiet
-    res = compare(load_from(args), args.model, tool=args.tool, rigid_body=args.rigid_body, settings=settings_from(args),
+    res = compare(load_from(args), args.model, tool=args.tool, robot=args.robot, rigid_body=args.rigid_body,
+                  settings=settings_from(args),
                   do_replay=not args.no_replay, replay_mode=args.replay_mode, verbose=verbose)
     if args.report:
         from franka_vs_gym.validation.report import markdown_report

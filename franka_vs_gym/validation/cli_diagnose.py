@@ -35,7 +35,7 @@ def main(args: argparse.Namespace) -> int:
     verbose = not args.quiet
     effects = None if args.effects is None else [e for e in args.effects.split(",") if e.strip()]
     d = diagnose(load_from(args), args.model, rigid_body=args.rigid_body, effects=effects,
-                 settings=settings_from(args), verbose=verbose, tool=args.tool)
+                 settings=settings_from(args), verbose=verbose, tool=args.tool, robot=args.robot)
     if args.report:
         from franka_vs_gym.validation.compare import compare
         from franka_vs_gym.validation.report import markdown_report

@@ -38,7 +38,7 @@ def main(args: argparse.Namespace) -> int:
     if not 0 <= args.holdout < 0.9:
         raise ValueError(f"--holdout must be in [0, 0.9), got {args.holdout}")
     res = fit_effects(load_from(args), effects, args.model, rigid_body=args.rigid_body, settings=settings_from(args),
-                      verbose=verbose, holdout=args.holdout or None, tool=args.tool)
+                      verbose=verbose, holdout=args.holdout or None, tool=args.tool, robot=args.robot)
     res.after.save(out, overwrite=args.force)
     progress(f"calibrated model written to {out}", verbose)
     if args.report:

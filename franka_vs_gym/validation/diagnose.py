@@ -237,6 +237,8 @@ class _Selector:
             fit.joints = list(keep)
         else:
             sf = eng.fit(base + [Term(e, shape)])
+            if not base:
+                neff = np.maximum(neff, self._neff(sf))
             gain = self._gain(mse0, sf.mse_cv, neff)
             js = gain
             removed = np.sqrt(np.maximum(mse0 - sf.mse_cv, 0.0))
@@ -506,14 +508,14 @@ def resolve_effects(effects: list[str] | None, registry: EffectRegistry = REGIST
 
 def diagnose(log: MeasurementLog | ProcessedLog | str, model: Any = None, *, rigid_body: bool = False,
              effects: list[str] | None = None, settings: CleanSettings | None = None, folds: int = FOLDS,
-             select: bool = True, verbose: bool = False, tool: str | None = None) -> Diagnosis:
+             select: bool = True, verbose: bool = False, tool: str | None = None, robot: Any = None) -> Diagnosis:
     """Rank the candidate effects the model ``model`` (default: the log's baseline) lacks on ``log``, select the set
     that explains the residual (in context, with a backward pass), and test what remains for structure."""
     from franka_vs_gym.validation.structure import assumptions_of, test_structure
 
     progress("cleaning the log", verbose)
     data = as_processed(log, settings)
-    cfg = baseline_config(data.log, model, rigid_body, tool=tool)
+    cfg = baseline_config(data.log, model, rigid_body, tool=tool, robot=robot)
     progress(f"evaluating the baseline model and regressors on {data.n} samples", verbose)
     ctx = Context(data, cfg)
     y = ctx.residual
@@ -615,7 +617,7 @@ def _alternate(ctx: Context, spec, y: np.ndarray, idx: np.ndarray, refine: bool)
 
 def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], model: Any = None, *,
                 rigid_body: bool = False, settings: CleanSettings | None = None, verbose: bool = False,
-                holdout: float | None = HOLDOUT, tool: str | None = None) -> FitResult:
+                holdout: float | None = HOLDOUT, tool: str | None = None, robot: Any = None) -> FitResult:
     """Fit ``effects`` (names, or ["auto"] for the diagnosis' selection) and apply them to the model configuration
     (model and plant), then re-compare.
 
@@ -626,7 +628,7 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
     from franka_vs_gym.validation.structure import assumptions_of
 
     data = as_processed(log, settings)
-    cfg = baseline_config(data.log, model, rigid_body, tool=tool)
+    cfg = baseline_config(data.log, model, rigid_body, tool=tool, robot=robot)
     joints_of: dict[str, list[int]] = {}
     auto = [e.strip() for e in effects] == ["auto"]
     if auto:

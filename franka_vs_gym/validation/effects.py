@@ -39,7 +39,12 @@ from franka_vs_gym.model.geometry import combine_inertials, parallel_axis
 from franka_vs_gym.validation.evaluate import FLANGE_OFFSET, ModelEvaluation, evaluate, shift, sigmoid_friction
 from franka_vs_gym.validation.signals import ProcessedLog
 
-TAU_MAX = FER.limit_arrays()["tau_max"]
+TAU_MAX = FER.limit_arrays()["tau_max"]  # the FER's; effects judge with their context's robot (_tau_max)
+
+
+def _tau_max(ctx) -> np.ndarray:
+    """Joint torque limits (7,) Nm of the robot the context's model describes."""
+    return ctx.config.robot.limit_arrays()["tau_max"]
 SIG_PHI2 = np.geomspace(2.0, 100.0, 12)  # s/rad
 SIG_PHI3 = np.array([-0.08, -0.04, 0.0, 0.04, 0.08])  # rad/s
 COULOMB_VC = (0.005, 0.01, 0.02, 0.05, 0.1)  # rad/s, Coulomb smoothing velocities tried
@@ -291,7 +296,7 @@ class ViscousFriction(Effect):
         tot = ctx.config.friction.viscous + _joint_coef(fit)[:, 0]
         return {j: f"negative viscous friction {tot[j]:.3g} Nm s/rad" for j in fit.joints if tot[j] < 0} | {
             j: f"viscous friction {tot[j]:.3g} Nm s/rad is implausibly large" for j in fit.joints
-            if tot[j] > 0.2 * TAU_MAX[j]}
+            if tot[j] > 0.2 * _tau_max(ctx)[j]}
 
     def apply(self, config, fit):
         fr = Friction.from_dict(config.friction.to_dict())
@@ -335,7 +340,7 @@ class CoulombFriction(Effect):
         tot = ctx.config.friction.coulomb + _joint_coef(fit)[:, 0]
         return {j: f"negative Coulomb friction {tot[j]:.3g} Nm" for j in fit.joints if tot[j] < 0} | {
             j: f"Coulomb friction {tot[j]:.3g} Nm is implausibly large" for j in fit.joints
-            if tot[j] > 0.25 * TAU_MAX[j]}
+            if tot[j] > 0.25 * _tau_max(ctx)[j]}
 
     def apply(self, config, fit):
         fr = Friction.from_dict(config.friction.to_dict())
@@ -497,7 +502,7 @@ class SigmoidFriction(Effect):
             x0 = [th["phi1"][j], math.log(min(max(th["phi2"][j], 0.51), 399.0)), float(np.clip(th["phi3"][j], -0.29,
                                                                                                   0.29))]
             try:
-                r = least_squares(res, x0, bounds=([0, math.log(0.5), -0.3], [TAU_MAX[j], math.log(400), 0.3]),
+                r = least_squares(res, x0, bounds=([0, math.log(0.5), -0.3], [_tau_max(ctx)[j], math.log(400), 0.3]),
                                   max_nfev=60)
                 th["phi1"][j], th["phi2"][j], th["phi3"][j] = r.x[0], math.exp(r.x[1]), r.x[2]
             except ValueError:
@@ -513,7 +518,8 @@ class SigmoidFriction(Effect):
             p1 = ctx.config.friction.phi1 * (1 + c[:, 1]) + c[:, 0]
             what = "total sigmoid height (model + added)"
         out = {j: f"{what} = {p1[j]:.3g} Nm must be > 0" for j in fit.joints if p1[j] <= 0}
-        out |= {j: f"{what} = {p1[j]:.3g} Nm is implausibly large" for j in fit.joints if p1[j] > 0.25 * TAU_MAX[j]}
+        tm = _tau_max(ctx)
+        out |= {j: f"{what} = {p1[j]:.3g} Nm is implausibly large" for j in fit.joints if p1[j] > 0.25 * tm[j]}
         return out
 
     def apply(self, config, fit):
@@ -589,7 +595,7 @@ class AsymmetricFriction(Effect):
             hi = max(base[j] + c[j, 0], base[j] + c[j, 1])
             if lo < 0:
                 out[j] = f"a negative friction level {lo:.3g} Nm"
-            elif hi > 0.25 * TAU_MAX[j]:
+            elif hi > 0.25 * _tau_max(ctx)[j]:
                 out[j] = f"friction level {hi:.3g} Nm is implausibly large"
         return out
 
@@ -674,7 +680,7 @@ class TorqueOffset(Effect):
     def problems(self, ctx, fit):
         tot = ctx.config.torque_offset + _joint_coef(fit)[:, 0]
         return {j: f"offset {tot[j]:.3g} Nm exceeds 20% of the torque limit" for j in fit.joints
-                if abs(tot[j]) > 0.2 * TAU_MAX[j]}
+                if abs(tot[j]) > 0.2 * _tau_max(ctx)[j]}
 
     def apply(self, config, fit):
         return config.copy(torque_offset=config.torque_offset + _joint_coef(fit)[:, 0])
