@@ -85,3 +85,12 @@ def test_franky_ibvs_example_with_the_in_process_camera():
     errors = [e for _, _, e in out["history"]]
     assert errors[0] > 20.0
     assert out["final_error_px"] < 0.3 * errors[0]
+
+
+def test_franky_gripper_stop():
+    with FCIServer(_host(), lockstep=True, camera=False, verbose=False) as srv:
+        out = run_client("gripper_stop.py", srv.host)
+    assert out["width_start"] == pytest.approx(0.08, abs=1e-6) and out["stop"]
+    assert "aborted" in str(out["move_result"])  # the interrupted move is answered "aborted"
+    assert 0.0 < out["width_after_stop"] < 0.08
+    assert out["width_later"] == out["width_after_stop"]  # the fingers stay where they stopped

@@ -13,6 +13,7 @@ import os
 import socket
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -216,3 +217,40 @@ def test_serve_command_line():
         r = subprocess.run([sys.executable, "-m", "franka_vs_gym.cli", "serve", *args], capture_output=True,
                            text=True, timeout=60)
         assert r.returncode == 2 and msg in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+
+
+def test_reconnect_after_a_client_dies_mid_motion(server):
+    p = subprocess.Popen([sys.executable, str(CLIENTS / "torque_hold.py"), server.host, "1000000"],
+                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 30
+        while server.steps < 500 and time.monotonic() < deadline:  # the motion is running
+            time.sleep(0.01)
+        assert server.robot.moving
+    finally:
+        p.kill()
+        p.wait()
+    out = run_client(CLIENTS / "read_state.py", server.host)  # the next client finds the robot idle
+    assert out["robot_mode"].endswith("Idle") and not out["errors"]
+    out = run_client(CLIENTS / "read_state.py", server.host)  # and another one after it
+    assert out["robot_mode"].endswith("Idle")
+
+
+PLATE = '<body name="plate" pos="0.3069 0 0.45"><geom type="box" size="0.05 0.05 0.02"/></body>'
+
+
+@pytest.mark.parametrize("f_max", [100.0, 20.0])
+def test_contact_wrench_and_cartesian_reflex(f_max):
+    """Pressing the hand onto a plate with the internal Cartesian impedance: the estimated wrench is the spring's
+    force K (z_d - z) (what the robot applies to the environment); above the collision threshold: cartesian_reflex."""
+    with FCIServer(_host().replace(".21.", ".29."), lockstep=True, camera=False, verbose=False,
+                   extra_worldbody=PLATE) as srv:
+        out = run_client(CLIENTS / "contact.py", srv.host, str(f_max))
+    if f_max > 50:
+        assert out["raised"] is None
+        assert out["F"][2] == pytest.approx(3000.0 * (out["z_d"] - out["z"]), rel=0.02)
+        assert out["F"][2] < -50.0 and max(abs(v) for v in out["F"][:2]) < 1.0
+        assert out["contact"][2] == 1.0 and out["collision"][2] == 0.0
+    else:
+        assert out["raised"] is not None and '"cartesian_reflex"' in out["raised"]
+        assert abs(out["F"][2]) == pytest.approx(f_max, rel=0.1)  # fired as the force crossed the threshold

@@ -147,7 +147,7 @@ class FCIRobot:
         self.lower_torque_thresholds = self.torque_thresholds.copy()
         self.lower_force_thresholds = self.force_thresholds.copy()
         self.joint_ctrl = JointImpedance(self.model, k=self.K_theta, coriolis=True, friction=True)
-        self.cart_ctrl = CartesianImpedance(self.model, k_translation=self.K_x[:3], k_rotation=self.K_x[3:])
+        self._update_cartesian_controller()
         self.gravity = np.array(self.model.config.gravity, dtype=float)
         sim.set_robot_state(FORCE_TORQUE)
         # the plant's joint velocity servos (views): the internal controllers' damping, integrated implicitly
@@ -181,14 +181,25 @@ class FCIRobot:
         """Pose of EE in O (4x4) at joint position q."""
         return self.model.fMe(q) @ self.NE_T_EE
 
-    def _J_EE(self, q: np.ndarray) -> np.ndarray:
-        """Jacobian (6, 7) of the EE frame's origin, base-frame axes, [v; w]."""
+    def _J_EE(self, q: np.ndarray, NE_p: np.ndarray | None = None) -> np.ndarray:
+        """Jacobian (6, 7), base-frame axes, [v; w], of the EE frame's origin, or of the point ``NE_p`` (3,)
+        given in the nominal end-effector frame NE."""
         J = self.model.fJe(q)
-        r = self.model.fMe(q)[:3, :3] @ self.NE_T_EE[:3, 3]
+        r = self.model.fMe(q)[:3, :3] @ (self.NE_T_EE[:3, 3] if NE_p is None else NE_p)
         if r.any():
             J = J.copy()
             J[:3] -= _skew(r) @ J[3:]
         return J
+
+    def _update_cartesian_controller(self) -> None:
+        """The Cartesian impedance acts on the stiffness frame K: its controller's model has K as end effector."""
+        from franka_vs_gym.model import FrankaModel
+        from franka_vs_gym.model.config import Tool
+
+        cfg = self.model.config
+        flMK = self.F_T_NE @ self.NE_T_EE @ self.EE_T_K
+        model = FrankaModel(cfg.copy(tool=Tool(cfg.tool.name, flMK, cfg.tool.body)))
+        self.cart_ctrl = CartesianImpedance(model, k_translation=self.K_x[:3], k_rotation=self.K_x[3:])
 
     def _reset_desired(self) -> None:
         """Desired signals follow the measured state (start of a motion, idle, after a reflex)."""
@@ -213,6 +224,7 @@ class FCIRobot:
     def set_cartesian_impedance(self, K_x: np.ndarray) -> None:
         self.K_x = np.asarray(K_x, dtype=float).copy()
         self.cart_ctrl.k = self.K_x.copy()
+        self.cart_ctrl.d = None  # critical damping recomputed from the new stiffness
 
     def set_collision_behavior(self, lower_torque: np.ndarray, upper_torque: np.ndarray, lower_force: np.ndarray,
                                upper_force: np.ndarray) -> None:
@@ -414,8 +426,10 @@ class FCIRobot:
         elif self.ctrl_mode == ControllerMode.EXTERNAL_CONTROLLER:
             return self.tau_J_d  # the last torque is held
         if self.ctrl_mode == ControllerMode.CARTESIAN_IMPEDANCE:
-            T = self.O_T_EE_c @ np.linalg.inv(self.NE_T_EE)
-            tau = self.cart_ctrl(q, dq, T, self.O_dP_EE_c)
+            T = self.O_T_EE_c @ self.EE_T_K  # goal of the stiffness frame
+            v = self.O_dP_EE_c.copy()
+            v[:3] += np.cross(v[3:], self.O_T_EE_c[:3, :3] @ self.EE_T_K[:3, 3])
+            tau = self.cart_ctrl(q, dq, T, v)
         else:
             tau = self._joint_impedance(q, dq, self.q_d, self.dq_d, self.ddq_d)
         self.tau_J_d = tau
@@ -450,6 +464,9 @@ class FCIRobot:
         sim = self.sim
         try:
             self._set_servo(0.0, 0.0)
+            if self.robot_mode == RobotMode.REFLEX and getattr(sim, "current_errors", ()):
+                sim.step()  # the simulator's brakes hold the arm until automatic_error_recovery
+                return ()
             tau = self.control_torque(cmd)
             if self._load_model is not None:
                 tau = tau + self._load_model.gravity(self.q) - self.model.gravity(self.q)
@@ -520,11 +537,13 @@ class FCIRobot:
         """Stiffness frame K in the end-effector frame (4x4)."""
         self.EE_T_K = np.array(EE_T_K, dtype=float)
         self._settings_changed = True
+        self._update_cartesian_controller()
 
     def set_NE_to_EE(self, NE_T_EE: np.ndarray) -> None:
         """End-effector frame in the nominal end-effector frame (4x4)."""
         self.NE_T_EE = np.array(NE_T_EE, dtype=float)
         self._settings_changed = True
+        self._update_cartesian_controller()
 
     def fill_state(self) -> RobotStateBuffer:
         st, f = self.state, self.state.f
@@ -573,7 +592,7 @@ class FCIRobot:
         tau_ext = self.external_torque()
         f["tau_ext_hat_filtered"][:] = tau_ext
         if tau_ext.any():
-            J = self._J_EE(q)
+            J = self._J_EE(q, (self.NE_T_EE @ self.EE_T_K)[:3, 3])  # the wrench acts at K's origin
             F = np.linalg.lstsq(J.T, tau_ext, rcond=1e-6)[0]
             R = (O_T_EE @ self.EE_T_K)[:3, :3]
             f["O_F_ext_hat_K"][:] = F
