@@ -110,6 +110,8 @@ def test_joint_impedance_example_reaches_target_bit_identically(server):
     ("torque_jump", "controller_torque_discontinuity"),
     ("position_limit", "joint_position_limits_violation"),
     ("velocity", "joint_motion_generator_velocity_limits_violation"),
+    ("acceleration", "joint_motion_generator_velocity_discontinuity"),
+    ("cartesian_speed", "cartesian_motion_generator_velocity_limits_violation"),
 ])
 def test_reflex_reason_and_recovery(server, kind, reason):
     out = run_client(CLIENTS / "reflex.py", server.host, kind)
@@ -255,3 +257,20 @@ def test_contact_wrench_and_cartesian_reflex(f_max):
     else:
         assert out["raised"] is not None and '"cartesian_reflex"' in out["raised"]
         assert abs(out["F"][2]) == pytest.approx(f_max, rel=0.1)  # fired as the force crossed the threshold
+
+
+def test_wall_mounting_from_a_model_file(tmp_path):
+    """--model FILE: a calibrated model with a wall-mounting gravity vector; the state's O_ddP_O carries it and
+    libfranka's gravity() (which uses it) matches FrankaModel and the measured torques at rest."""
+    from franka_vs_gym.model.config import ModelConfig
+
+    path = tmp_path / "wall.json"
+    ModelConfig().copy(gravity=np.array([0.0, -9.81, 0.0])).save(path)
+    with FCIServer(_host(30), lockstep=True, camera=False, verbose=False, model=path) as srv:
+        out = run_client(CLIENTS / "read_state.py", srv.host)
+    q = np.array(out["q"])
+    g = FrankaModel(str(path)).gravity(q)
+    assert np.allclose(out["O_ddP_O"], [0.0, -9.81, 0.0])
+    assert np.abs(np.array(out["gravity"]) - g).max() < 1e-4
+    assert np.abs(np.array(out["tau_J"]) - g).max() < 1e-3
+    assert np.abs(g - FrankaModel().gravity(q)).max() > 1.0  # really another mounting

@@ -42,16 +42,13 @@ from franka_vs_gym.fci.codec import (
     RobotMode,
     RobotStateBuffer,
 )
-from franka_vs_gym.fci.errors import error_bit, error_flags
+from franka_vs_gym.fci.errors import error_flags
 from franka_vs_gym.model.description import RobotDescription, robot_description
 from franka_vs_gym.sim import FORCE_TORQUE, JOINT_STATE, FrankaSim, SimulationDiverged
+from franka_vs_gym.sim.reflexes import ControlException
 
-try:  # the simulator's reflexes (libfranka reason names); absent in simulators without them
-    from franka_vs_gym.sim.reflexes import ControlException
-except ImportError:  # pragma: no cover
-    ControlException = RuntimeError  # type: ignore[misc,assignment]
-
-# Defaults of the FER's controllers and collision behaviour (Franka Control Interface documentation).
+# Defaults of the internal controllers' stiffness (libfranka's examples, setDefaultBehavior) and of the collision
+# thresholds (values libfranka's examples have used; the robot's own defaults are set in Desk).
 DEFAULT_K_THETA = (3000.0, 3000.0, 3000.0, 2500.0, 2500.0, 2000.0, 2000.0)  # Nm/rad
 DEFAULT_K_X = (3000.0, 3000.0, 3000.0, 300.0, 300.0, 300.0)  # N/m, Nm/rad
 DEFAULT_TORQUE_THRESHOLDS = (20.0, 20.0, 18.0, 18.0, 16.0, 14.0, 12.0)  # Nm
@@ -206,7 +203,6 @@ class FCIRobot:
         q = self.q.copy()
         self.q_d, self.dq_d, self.ddq_d = q, np.zeros(7), np.zeros(7)
         self.q_hold = q.copy()
-        self.q_c_prev = None
         self.O_T_EE_c = self.O_T_EE_of(q)
         self.O_dP_EE_c = np.zeros(6)
         self.O_ddP_EE_c = np.zeros(6)
@@ -356,13 +352,13 @@ class FCIRobot:
         v = pose_error(self.O_T_EE_c, T_new) / dt  # [translation; rotation vector in O] per step
         a = (v - self.O_dP_EE_c) / dt
         j = (a - self.O_ddP_EE_c) / dt
-        checks = ((v, c.v_max, c.w_max, "velocity_limits_violation", "m/s"),
-                  (a, c.a_max, c.alpha_max, "velocity_discontinuity", "m/s^2"),
-                  (j, c.j_max, c.rot_j_max, "acceleration_discontinuity", "m/s^3"))
+        checks = ((v, c.v_max, c.w_max, "velocity_limits_violation", "m/s", 1.0 + 1e-9),
+                  (a, c.a_max, c.alpha_max, "velocity_discontinuity", "m/s^2", tol),
+                  (j, c.j_max, c.rot_j_max, "acceleration_discontinuity", "m/s^3", tol))
         if not self._first_command:
-            for vec, lin, rot, name, unit in checks:
+            for vec, lin, rot, name, unit, k in checks:
                 nl, nr = _norm3(vec[:3]), _norm3(vec[3:])
-                if nl > lin * tol or nr > rot * tol:
+                if nl > lin * k or nr > rot * k:
                     raise Reflex([f"cartesian_motion_generator_{name}"],
                                  f"commanded end-effector {nl:.3g} {unit} (limit {lin}), "
                                  f"rotation {nr:.3g} (limit {rot})")
@@ -628,4 +624,4 @@ class FCIRobot:
         return tuple(reasons)
 
 
-__all__ = ["DEFAULT_K_THETA", "DEFAULT_K_X", "FCIRobot", "Reflex", "error_bit"]
+__all__ = ["DEFAULT_K_THETA", "DEFAULT_K_X", "MAX_MISSED_COMMANDS", "FCIRobot", "Reflex"]

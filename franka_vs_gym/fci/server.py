@@ -358,7 +358,7 @@ class FCIServer:
                     break
                 self._record()
             self._after_step(None, reasons)
-        else:
+        elif self.robot_conn is not None:  # (nobody to send to: the frozen plant needs no work)
             self._send_state(r.fill_state())
         self._send_gripper_state()
 
