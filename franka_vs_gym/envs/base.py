@@ -237,13 +237,11 @@ class FrankaEnv(gym.Env):
         R = R.reshape(3, 3)
         hand_inertia = (hand, float(m.body_mass[hand]), m.body_ipos[hand].copy(),
                         R @ np.diag(m.body_inertia[hand]) @ R.T, m.body_inertia[hand].copy(), m.body_iquat[hand].copy())
-        s = self.sim
         return {"links": links, "mass": m.body_mass[links].copy(), "inertia": m.body_inertia[links].copy(),
-                "payload": payload, "hand": hand_inertia,
-                "friction": (s._fa, s._fe, s._fvisc.copy(), s._fcoul.copy())}
+                "payload": payload, "hand": hand_inertia}
 
     def _randomise_dynamics(self) -> None:
-        m, nom, rng, s = self._m, self._nominal, self.np_random, self.sim
+        m, nom, rng = self._m, self._nominal, self.np_random
         info: dict[str, Any] = {}
         changed = False
         if self.link_mass_range is not None:
@@ -254,11 +252,7 @@ class FrankaEnv(gym.Env):
             changed = True
         if self.friction_scale_range is not None:
             k = float(rng.uniform(*self.friction_scale_range))
-            fa, fe, fv, fc = nom["friction"]
-            # FrankaSim's plant friction: a tanh(b dq + c) + e (+ viscous, Coulomb); scaling a, e, viscous and
-            # Coulomb scales the whole law.
-            s._fa, s._fe = fa * k, fe * k
-            s._fvisc, s._fcoul = fv * k, fc * k
+            self.sim.set_friction_scale(k)  # the plant's whole friction law times k
             info["friction_scale"] = k
         if self.payload_mass_range is not None and self.payload_declared:
             mass = float(rng.uniform(*self.payload_mass_range))

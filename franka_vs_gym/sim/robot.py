@@ -21,7 +21,9 @@ from franka_vs_gym.model.checks import as_pose, as_vector
 from franka_vs_gym.model.config import ModelConfig, RigidBody, Tool, resolve_config
 from franka_vs_gym.model.franka_model import FrankaModel
 from franka_vs_gym.model.geometry import pose_vector, twist_transform
+from franka_vs_gym.sim import plant
 from franka_vs_gym.sim.world import SimulationDiverged, SimWorld
+from franka_vs_gym.sim.world import no_op as _no_op
 
 
 class RobotState(enum.IntEnum):
@@ -58,10 +60,6 @@ DEFAULT_eMc = np.array([[1.0, 0.0, 0.0, 0.09], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 
 # Gains of the joint velocity servo (Nm s/rad) used in velocity and position control.
 VELOCITY_GAINS = np.array([120.0, 120.0, 80.0, 80.0, 15.0, 15.0, 6.0])
 _R_CV = np.diag([1.0, -1.0, -1.0])  # ViSP camera (z forward, y down) -> MuJoCo camera (-z forward, y up)
-
-
-def _no_op() -> None:
-    pass
 
 
 class FrankaSim:
@@ -166,6 +164,11 @@ class FrankaSim:
         self._fbuf = np.zeros(7)
         self._friction_enabled = bool(friction) and not fr.is_zero()
         self._simple_friction = not (fr.viscous.any() or fr.coulomb.any())
+        # the compiled plant applies the friction inside mj_step from the parameters in the model (jnt_user); the
+        # Python hooks below are the fallback without it (franka_vs_gym.sim.plant)
+        self._native = plant.install()
+        self._jids, self._friction_scale = jids, 1.0
+        self._write_plant_friction()
         n_delay = int(round(cfg.delay / self.dt))
         self._delay_steps = n_delay if cfg.delay_channel == "command" else 0
         self._meas_fifo: deque[np.ndarray] | None = None
@@ -197,16 +200,39 @@ class FrankaSim:
         self._friction_enabled = bool(on) and not self.spec.config.friction.is_zero()
         if not self._friction_enabled:
             self._qfrc_applied[:] = 0.0
+        self._write_plant_friction()
         hook = self._make_pre_step()
         self.world.replace_pre_step(self._hook, hook)
         self._hook = hook
 
+    def set_friction_scale(self, k: float) -> None:
+        """Multiply the plant's joint friction (the whole law: sigmoid, viscous and Coulomb terms) by ``k`` >= 0
+        relative to the configured one (domain randomisation); the robot's model is unaffected."""
+        k = float(k)
+        if not (k >= 0 and math.isfinite(k)):
+            raise ValueError(f"friction scale must be a finite number >= 0, got {k}")
+        fr = self.spec.config.friction
+        self._friction_scale = k
+        self._fa, self._fe = k * fr.phi1 / 2, k * (fr.phi1 / 2 - fr.phi1 / (1 + np.exp(-fr.phi2 * fr.phi3)))
+        self._fvisc, self._fcoul = k * fr.viscous, k * fr.coulomb
+        self._write_plant_friction()
+        hook = self._make_pre_step()
+        self.world.replace_pre_step(self._hook, hook)
+        self._hook = hook
+
+    def _write_plant_friction(self) -> None:
+        """The friction parameters into the model's joint user numbers, read by the compiled plant."""
+        on = self._native and self._friction_enabled
+        self._m.jnt_user[self._jids] = plant.friction_rows(self.spec.config.friction, self._friction_scale, on)
+
     def _make_pre_step(self):
-        """The per-physics-step hook (runs at 1 kHz before every mj_step). The common case, Gaz friction without
-        command delay, is a closure over preallocated buffers: qfrc_applied = -(a tanh(b dq + c) + e)."""
-        if self._delay_steps or (self._friction_enabled and not self._simple_friction):
+        """The per-physics-step hook (runs at 1 kHz before every mj_step): none with the compiled plant and no
+        command delay. Without the compiled plant, Gaz friction without command delay is a closure over
+        preallocated buffers: qfrc_applied = -(a tanh(b dq + c) + e)."""
+        friction_in_python = self._friction_enabled and not self._native
+        if self._delay_steps or (friction_in_python and not self._simple_friction):
             return self._pre_step
-        if not self._friction_enabled:
+        if not friction_in_python:
             return _no_op
         qvel, qfrc, buf = self._qvel, self._qfrc_applied, self._fbuf
         b, c, neg_a, neg_e = self._fb, self._fc, -self._fa, -self._fe
@@ -222,8 +248,8 @@ class FrankaSim:
         return gaz_friction
 
     def _pre_step(self) -> None:
-        """General hook: any friction law, and the command delay FIFO."""
-        if self._friction_enabled:
+        """General hook: any friction law (without the compiled plant), and the command delay FIFO."""
+        if self._friction_enabled and not self._native:
             buf = self._fbuf
             np.multiply(self._fb, self._qvel, out=buf)
             buf += self._fc
