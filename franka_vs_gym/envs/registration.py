@@ -7,6 +7,8 @@ is registered; ``gymnasium.make(..., max_episode_steps=N)`` still adds Gymnasium
 
 from __future__ import annotations
 
+import functools
+
 import gymnasium as gym
 
 ENVS: dict[str, str] = {
@@ -17,11 +19,19 @@ ENVS: dict[str, str] = {
 }
 
 
+def _vector_env(env_id: str, num_envs: int = 1, **kwargs):
+    from franka_vs_gym.envs.vector import make_vector_env
+
+    return make_vector_env(env_id, num_envs, **kwargs)
+
+
 def register_envs() -> None:
-    """Register every environment id (idempotent)."""
+    """Register every environment id (idempotent), with the batched vector env as its ``vector_entry_point``
+    (``gymnasium.make_vec(id, num_envs=N)``; ``vectorization_mode="sync"`` or ``"async"`` still give Gymnasium's)."""
     for env_id, entry_point in ENVS.items():
         if env_id not in gym.registry:
-            gym.register(id=env_id, entry_point=entry_point, disable_env_checker=False)
+            gym.register(id=env_id, entry_point=entry_point, disable_env_checker=False,
+                         vector_entry_point=functools.partial(_vector_env, env_id))
 
 
 register_envs()
