@@ -79,3 +79,47 @@ def test_same_step_autoreset_and_partial_reset():
         FrankaVectorEnv("FrankaTorqueTracking-v0", 0)
     with pytest.raises(ValueError, match="unknown environment id"):
         FrankaVectorEnv("Nope-v0", 2)
+
+
+def test_sb3_vec_env_equals_dummy_vec_env_of_agent_envs():
+    """The SB3 adapter over the batched env gives SB3 what DummyVecEnv over the training wrappers gives it."""
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from franka_vs_gym.envs.sb3 import make_agent_vec_env
+    from franka_vs_gym.envs.wrappers import make_agent_env
+
+    kw = dict(time_limit=0.5, link_mass_range=(0.9, 1.1))
+    ours = make_agent_vec_env("FrankaIBVS-v0", 2, 0.5, nthread=1, **kw)
+    ref = DummyVecEnv([lambda: make_agent_env("FrankaIBVS-v0", 0.5, **kw) for _ in range(2)])
+    ours.seed(11)
+    ref.seed(11)
+    assert np.array_equal(ours.reset(), ref.reset())
+    rng = np.random.default_rng(3)
+    dones = 0
+    for _ in range(14):
+        a = rng.uniform(-1, 1, (2, 7)).astype(np.float32)
+        ours.step_async(a)
+        ref.step_async(a)
+        o1, r1, d1, i1 = ours.step_wait()
+        o2, r2, d2, i2 = ref.step_wait()
+        assert np.array_equal(o1, o2) and np.array_equal(r1, r2) and np.array_equal(d1, d2)
+        for x, y in zip(i1, i2, strict=True):
+            assert x["TimeLimit.truncated"] == y["TimeLimit.truncated"]
+            if "terminal_observation" in y:
+                assert np.array_equal(x["terminal_observation"], y["terminal_observation"])
+        dones += int(d1.sum())
+    assert dones == 2  # both episodes (10 steps) ended and were reset within the step
+    ours.close()
+
+
+def test_ppo_trains_on_the_batched_env(tmp_path):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    r = subprocess.run([sys.executable, str(root / "baselines" / "train_sb3.py"), "--smoke", "--algo", "ppo",
+                        "--batched", "--n-envs", "4", "--out", str(tmp_path / "ppo"), "--tensorboard", "",
+                        "--eval-episodes", "0"], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert (tmp_path / "ppo.zip").is_file() and '"batched": true' in (tmp_path / "ppo.json").read_text()

@@ -55,6 +55,9 @@ class FrankaVectorEnv(VectorEnv):
         Threads of the batch (None: min(N, CPUs)). The results do not depend on it.
     autoreset_mode : gymnasium.vector.AutoresetMode or str
         NEXT_STEP (default) or SAME_STEP.
+    pipeline : bool
+        Overlap the environments' Python work with the batch's physics (two halves; default True). The physics
+        then runs on ``nthread`` threads while Python runs on the caller's: up to nthread + 1 busy cores.
     copy : bool
         Return copies of the observation buffers (default True); False returns the same preallocated arrays
         every step, overwritten by the next step.
@@ -67,7 +70,9 @@ class FrankaVectorEnv(VectorEnv):
 
     def __init__(self, env_id: str, num_envs: int = 1, *, nthread: int | None = None,
                  autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP, copy: bool = True,
-                 max_episode_steps: int | None = None, **kwargs: Any) -> None:
+                 max_episode_steps: int | None = None, pipeline: bool = True, **kwargs: Any) -> None:
+        from concurrent.futures import ThreadPoolExecutor
+
         from mujoco import batch as mjbatch
 
         from franka_vs_gym.envs.registration import ENVS
@@ -117,7 +122,8 @@ class FrankaVectorEnv(VectorEnv):
         self._terminated = np.zeros(self.num_envs, dtype=np.bool_)
         self._truncated = np.zeros(self.num_envs, dtype=np.bool_)
         self._autoreset = np.zeros(self.num_envs, dtype=np.bool_)
-        self._rng_seeded = False
+        self.pipeline = bool(pipeline)
+        self._pool = ThreadPoolExecutor(1, thread_name_prefix="franka-vec") if self.pipeline else None
 
     # ------------------------------------------------------------------ Gymnasium API
     def reset(self, *, seed: int | list[int | None] | None = None, options: dict[str, Any] | None = None):
@@ -135,26 +141,25 @@ class FrankaVectorEnv(VectorEnv):
         mask = np.ones(n, dtype=np.bool_) if mask is None else np.asarray(mask, dtype=np.bool_)
         if mask.shape != (n,):
             raise ValueError(f"reset_mask must have shape ({n},), got {mask.shape}")
-        infos: dict[str, Any] = {}
+        items = []
         obs_list = []
         for i, env in enumerate(self.envs):
             if mask[i]:
                 o, info = env.reset(seed=seeds[i], options=options)
-                infos = self._add_info(infos, info, i)
+                items.append((i, info))
                 self._autoreset[i] = False
             else:
                 o = env._last_obs
             obs_list.append(o)
         self.batch.set_models(self._models)  # the resets edited the models (randomised dynamics, control gains)
         self._obs = concatenate(self.single_observation_space, obs_list, self._obs)
-        return (self._copy(self._obs), infos)
+        return (self._copy(self._obs), self._batch_infos(items))
 
     def step(self, actions: Any):
         n = self.num_envs
         actions = np.asarray(actions)
         if actions.shape[:1] != (n,):
             raise ValueError(f"actions must have shape ({n}, ...), got {actions.shape}")
-        infos: dict[str, Any] = {}
         results: list[Any] = [None] * n
         stepping = []
         reset_any = False
@@ -164,13 +169,12 @@ class FrankaVectorEnv(VectorEnv):
                 results[i] = (o, 0.0, False, False, info)
                 reset_any = True
             else:
-                env._step_begin(actions[i])
                 stepping.append(i)
         if reset_any:
             self.batch.set_models(self._models)
         if stepping:
-            self._physics(stepping, results)
-        obs_list = []
+            self._step_groups(stepping, actions, results)
+        obs_list, items = [], []
         for i in range(n):
             o, r, term, trunc, info = results[i]
             if self.autoreset_mode == AutoresetMode.SAME_STEP and (term or trunc):
@@ -180,16 +184,73 @@ class FrankaVectorEnv(VectorEnv):
                 reset_any = True
             obs_list.append(o)
             self._rewards[i], self._terminated[i], self._truncated[i] = r, term, trunc
-            infos = self._add_info(infos, info, i)
+            items.append((i, info))
         if reset_any and self.autoreset_mode == AutoresetMode.SAME_STEP:
             self.batch.set_models(self._models)
         self._autoreset[:] = (self._terminated | self._truncated) & (self.autoreset_mode == AutoresetMode.NEXT_STEP)
         self._obs = concatenate(self.single_observation_space, obs_list, self._obs)
-        return (self._copy(self._obs), self._rewards.copy(), self._terminated.copy(), self._truncated.copy(), infos)
+        return (self._copy(self._obs), self._rewards.copy(), self._terminated.copy(), self._truncated.copy(),
+                self._batch_infos(items))
 
-    def _physics(self, ids: list[int], results: list[Any]) -> None:
-        """One control period of the environments ``ids`` on the batch, then their step results into
-        ``results``."""
+    def _batch_infos(self, items: list[tuple[int, dict[str, Any]]]) -> dict[str, Any]:
+        """Gymnasium's vector info layout (as ``VectorEnv._add_info`` builds it, one key at a time instead of one
+        environment at a time): ``info[key]`` (N, ...) typed by its first value, and the mask ``info["_" + key]``."""
+        n = self.num_envs
+        by_key: dict[str, list[tuple[int, Any]]] = {}
+        for i, info in items:
+            for k, v in info.items():
+                by_key.setdefault(k, []).append((i, v))
+        out: dict[str, Any] = {}
+        for k, pairs in by_key.items():
+            first = pairs[0][1]
+            if k == "final_obs":
+                arr = np.full(n, None, dtype=object)
+            elif isinstance(first, dict):
+                out[k] = self._batch_infos(pairs)
+                arr = None
+            elif type(first) in (int, float, bool) or isinstance(first, np.number):
+                arr = np.zeros(n, dtype=type(first))
+            elif isinstance(first, np.ndarray):
+                arr = np.zeros((n, *first.shape), dtype=first.dtype)
+            else:
+                arr = np.full(n, None, dtype=object)
+            idx = [i for i, _ in pairs]
+            if arr is not None:
+                for i, v in pairs:
+                    arr[i] = v
+                out[k] = arr
+            mask = np.zeros(n, dtype=np.bool_)
+            mask[idx] = True
+            out["_" + k] = mask
+        return out
+
+    def _step_groups(self, ids: list[int], actions: np.ndarray, results: list[Any]) -> None:
+        """Step the environments ``ids``: actions, batched physics, observations and rewards. With ``pipeline``,
+        in two halves whose Python work (actions, observations, rewards) runs while the other half's physics runs
+        on the batch (which releases the GIL); the results are the same either way."""
+        envs = self.envs
+        groups = [ids[: len(ids) // 2], ids[len(ids) // 2:]] if self.pipeline and len(ids) >= 2 else [ids]
+        for i in groups[0]:
+            envs[i]._step_begin(actions[i])
+        if len(groups) == 1:
+            self._finish(ids, *self._physics(ids), results)
+            return
+        fut = self._pool.submit(self._physics, groups[0])
+        try:
+            for i in groups[1]:
+                envs[i]._step_begin(actions[i])
+        finally:
+            done0 = fut.result()
+        fut = self._pool.submit(self._physics, groups[1])
+        try:
+            self._finish(groups[0], *done0, results)
+        finally:
+            done1 = fut.result()
+        self._finish(groups[1], *done1, results)
+
+    def _physics(self, ids: list[int]) -> tuple[dict[int, Any], np.ndarray]:
+        """One control period of the environments ``ids`` on the batch (camera frames taken between segments).
+        Returns their states before the period and which of them diverged."""
         envs, models, datas, state = self.envs, self._models, self._datas, self._state
         for i in ids:
             mujoco.mj_getState(models[i], datas[i], state[i], _STATE)
@@ -213,6 +274,11 @@ class FrankaVectorEnv(VectorEnv):
                     nxt.append(i)
             live = nxt
         bad = self._warning[:, _BAD, 1].sum(axis=1) > warn0
+        return before, bad
+
+    def _finish(self, ids: list[int], before: dict[int, Any], bad: np.ndarray, results: list[Any]) -> None:
+        """The step results (observation, reward, ...) of the environments ``ids`` after their physics."""
+        envs = self.envs
         for i in ids:
             env = envs[i]
             if bad[i]:
@@ -273,6 +339,8 @@ class FrankaVectorEnv(VectorEnv):
             setattr(env, name, v)
 
     def close_extras(self, **kwargs: Any) -> None:
+        if self._pool is not None:
+            self._pool.shutdown()
         for env in self.envs:
             env.close()
 
