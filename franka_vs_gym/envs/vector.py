@@ -55,9 +55,6 @@ class FrankaVectorEnv(VectorEnv):
         Threads of the batch (None: min(N, CPUs)). The results do not depend on it.
     autoreset_mode : gymnasium.vector.AutoresetMode or str
         NEXT_STEP (default) or SAME_STEP.
-    pipeline : bool
-        Overlap the environments' Python work with the batch's physics (two halves; default True). The physics
-        then runs on ``nthread`` threads while Python runs on the caller's: up to nthread + 1 busy cores.
     copy : bool
         Return copies of the observation buffers (default True); False returns the same preallocated arrays
         every step, overwritten by the next step.
@@ -70,9 +67,7 @@ class FrankaVectorEnv(VectorEnv):
 
     def __init__(self, env_id: str, num_envs: int = 1, *, nthread: int | None = None,
                  autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP, copy: bool = True,
-                 max_episode_steps: int | None = None, pipeline: bool = True, **kwargs: Any) -> None:
-        from concurrent.futures import ThreadPoolExecutor
-
+                 max_episode_steps: int | None = None, **kwargs: Any) -> None:
         from mujoco import batch as mjbatch
 
         from franka_vs_gym.envs.registration import ENVS
@@ -122,8 +117,6 @@ class FrankaVectorEnv(VectorEnv):
         self._terminated = np.zeros(self.num_envs, dtype=np.bool_)
         self._truncated = np.zeros(self.num_envs, dtype=np.bool_)
         self._autoreset = np.zeros(self.num_envs, dtype=np.bool_)
-        self.pipeline = bool(pipeline)
-        self._pool = ThreadPoolExecutor(1, thread_name_prefix="franka-vec") if self.pipeline else None
 
     # ------------------------------------------------------------------ Gymnasium API
     def reset(self, *, seed: int | list[int | None] | None = None, options: dict[str, Any] | None = None):
@@ -225,28 +218,10 @@ class FrankaVectorEnv(VectorEnv):
         return out
 
     def _step_groups(self, ids: list[int], actions: np.ndarray, results: list[Any]) -> None:
-        """Step the environments ``ids``: actions, batched physics, observations and rewards. With ``pipeline``,
-        in two halves whose Python work (actions, observations, rewards) runs while the other half's physics runs
-        on the batch (which releases the GIL); the results are the same either way."""
-        envs = self.envs
-        groups = [ids[: len(ids) // 2], ids[len(ids) // 2:]] if self.pipeline and len(ids) >= 2 else [ids]
-        for i in groups[0]:
-            envs[i]._step_begin(actions[i])
-        if len(groups) == 1:
-            self._finish(ids, *self._physics(ids), results)
-            return
-        fut = self._pool.submit(self._physics, groups[0])
-        try:
-            for i in groups[1]:
-                envs[i]._step_begin(actions[i])
-        finally:
-            done0 = fut.result()
-        fut = self._pool.submit(self._physics, groups[1])
-        try:
-            self._finish(groups[0], *done0, results)
-        finally:
-            done1 = fut.result()
-        self._finish(groups[1], *done1, results)
+        """Step the environments ``ids``: actions, batched physics, observations and rewards."""
+        for i in ids:
+            self.envs[i]._step_begin(actions[i])
+        self._finish(ids, *self._physics(ids), results)
 
     def _physics(self, ids: list[int]) -> tuple[dict[int, Any], np.ndarray]:
         """One control period of the environments ``ids`` on the batch (camera frames taken between segments).
@@ -339,8 +314,6 @@ class FrankaVectorEnv(VectorEnv):
             setattr(env, name, v)
 
     def close_extras(self, **kwargs: Any) -> None:
-        if self._pool is not None:
-            self._pool.shutdown()
         for env in self.envs:
             env.close()
 
