@@ -95,6 +95,7 @@ class ObservationPacker:
             i += n
         self.low, self.high = np.concatenate(lows), np.concatenate(highs)
         self._work = np.zeros(i)
+        self.last: np.ndarray | None = None  # the flat float32 buffer of the last observation (its keys' base)
 
     def __call__(self, raw: dict[str, Any]) -> dict[str, np.ndarray]:
         v = self._work
@@ -104,7 +105,7 @@ class ObservationPacker:
         np.minimum(v, self.high, out=v)
         if v.sum() != v.sum():  # NaN somewhere (defensive: a NaN never reaches the agent)
             v[np.isnan(v)] = 0.0
-        buf = v.astype(np.float32)
+        buf = self.last = v.astype(np.float32)
         return {k: buf[sl] if len(sh) == 1 else buf[sl].reshape(sh) for k, sl, sh in self.items}
 
 

@@ -28,7 +28,7 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
-from gymnasium.vector.utils import batch_space, concatenate, create_empty_array
+from gymnasium.vector.utils import batch_space, create_empty_array
 
 from franka_vs_gym.sim import SimulationDiverged, plant
 
@@ -113,6 +113,18 @@ class FrankaVectorEnv(VectorEnv):
         self._needs_scene = e0.observation_type in ("image", "features+image") or \
             getattr(e0, "feature_source", "ideal") == "detection"
         self._obs = create_empty_array(self.single_observation_space, self.num_envs)
+        # the packed (float32) keys as views of one (N, size) matrix, written one row per robot
+        pack = getattr(e0, "_pack", None)
+        self._flat = None
+        self._flat_keys: list[str] = []
+        self._other_keys = [k for k in self.single_observation_space.spaces]
+        if pack is not None and all(self.single_observation_space[k].dtype == np.float32 for k in pack.keys):
+            size = sum(sl.stop - sl.start for _, sl, _ in pack.items)
+            self._flat = np.zeros((self.num_envs, size), dtype=np.float32)
+            for k, sl, shape in pack.items:
+                self._obs[k] = self._flat[:, sl].reshape(self.num_envs, *shape)
+            self._flat_keys = list(pack.keys)
+            self._other_keys = [k for k in self._other_keys if k not in pack.keys]
         self._rewards = np.zeros(self.num_envs)
         self._terminated = np.zeros(self.num_envs, dtype=np.bool_)
         self._truncated = np.zeros(self.num_envs, dtype=np.bool_)
@@ -145,7 +157,7 @@ class FrankaVectorEnv(VectorEnv):
                 o = env._last_obs
             obs_list.append(o)
         self.batch.set_models(self._models)  # the resets edited the models (randomised dynamics, control gains)
-        self._obs = concatenate(self.single_observation_space, obs_list, self._obs)
+        self._write_obs(obs_list)
         return (self._copy(self._obs), self._batch_infos(items))
 
     def step(self, actions: Any):
@@ -181,9 +193,24 @@ class FrankaVectorEnv(VectorEnv):
         if reset_any and self.autoreset_mode == AutoresetMode.SAME_STEP:
             self.batch.set_models(self._models)
         self._autoreset[:] = (self._terminated | self._truncated) & (self.autoreset_mode == AutoresetMode.NEXT_STEP)
-        self._obs = concatenate(self.single_observation_space, obs_list, self._obs)
+        self._write_obs(obs_list)
         return (self._copy(self._obs), self._rewards.copy(), self._terminated.copy(), self._truncated.copy(),
                 self._batch_infos(items))
+
+    def _write_obs(self, obs_list: list[dict[str, np.ndarray]]) -> None:
+        """The robots' observations into the preallocated batched observation: one row copy per robot when its
+        observation is the environment's packed buffer (every regular step), key by key otherwise."""
+        flat, keys = self._flat, self._flat_keys
+        for i, (o, env) in enumerate(zip(obs_list, self.envs, strict=True)):
+            pack = getattr(env, "_pack", None)
+            if flat is not None and pack is not None and pack.last is not None and keys and \
+                    o[keys[0]].base is pack.last:
+                flat[i] = pack.last
+                for k in self._other_keys:
+                    self._obs[k][i] = o[k]
+            else:
+                for k, v in o.items():
+                    self._obs[k][i] = v
 
     def _batch_infos(self, items: list[tuple[int, dict[str, Any]]]) -> dict[str, Any]:
         """Gymnasium's vector info layout (as ``VectorEnv._add_info`` builds it, one key at a time instead of one
@@ -223,15 +250,24 @@ class FrankaVectorEnv(VectorEnv):
             self.envs[i]._step_begin(actions[i])
         self._finish(ids, *self._physics(ids), results)
 
-    def _physics(self, ids: list[int]) -> tuple[dict[int, Any], np.ndarray]:
+    def _physics(self, ids: list[int]) -> tuple[tuple[np.ndarray, list[Any]], np.ndarray]:
         """One control period of the environments ``ids`` on the batch (camera frames taken between segments).
         Returns their states before the period and which of them diverged."""
         envs, models, datas, state = self.envs, self._models, self._datas, self._state
         for i in ids:
             mujoco.mj_getState(models[i], datas[i], state[i], _STATE)
         plans = {i: list(envs[i]._segments()) for i in ids}
-        before = {i: (state[i].copy(), getattr(envs[i], "_k", None)) for i in ids}
+        before = (state.copy(), [getattr(env, "_k", None) for env in envs])
         warn0 = self._warning[:, _BAD, 1].sum(axis=1)
+        first = {p[0] for p in plans.values()}
+        if len(first) == 1 and all(len(p) == 1 for p in plans.values()):  # the common case: one call
+            nstep, capture = first.pop()
+            self.batch.step(None if len(ids) == self.num_envs else np.array(ids, dtype=np.int32), nstep=nstep)
+            for i in ids:
+                if capture:
+                    self._sync(i)
+                envs[i]._segment_done(nstep, capture)
+            return before, self._warning[:, _BAD, 1].sum(axis=1) > warn0
         live = list(ids)
         while live:
             groups: dict[int, list[int]] = defaultdict(list)
@@ -251,13 +287,14 @@ class FrankaVectorEnv(VectorEnv):
         bad = self._warning[:, _BAD, 1].sum(axis=1) > warn0
         return before, bad
 
-    def _finish(self, ids: list[int], before: dict[int, Any], bad: np.ndarray, results: list[Any]) -> None:
+    def _finish(self, ids: list[int], before: tuple[np.ndarray, list[Any]], bad: np.ndarray,
+                results: list[Any]) -> None:
         """The step results (observation, reward, ...) of the environments ``ids`` after their physics."""
         envs = self.envs
         for i in ids:
             env = envs[i]
             if bad[i]:
-                results[i] = self._rerun_alone(i, *before[i])
+                results[i] = self._rerun_alone(i, before[0][i], before[1][i])
                 continue
             self._sync(i)
             results[i] = env._step_end()
