@@ -112,7 +112,8 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
             algo.stop()
     summary = {"env_id": args.env_id, "env_kwargs": env_kwargs, "iterations": iterations,
                "env_runners": args.env_runners, "envs_per_runner": args.envs_per_runner,
-               "vector_env": vector_envs, "checkpoint": str(checkpoint), "history": history, "command": "python " + " ".join(sys.argv)}
+               "vector_env": vector_envs, "checkpoint": str(checkpoint), "history": history,
+               "command": "python " + " ".join(sys.argv)}
     (out / "summary.json").write_text(json.dumps(summary, indent=2, default=str))
     print(f"saved {checkpoint} and {out / 'summary.json'}", flush=True)
     return summary
