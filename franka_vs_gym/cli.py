@@ -2,13 +2,24 @@
 
 Each subcommand lives in its own module, imported only when that subcommand runs (so ``franka-vs diagnose`` does
 not pay for rendering or RL imports). A module provides ``add_arguments(parser)`` and ``main(args) -> int``.
+
+Exit status: 0 on success; 2 for a user's mistake (bad option, file or value: one line
+``franka-vs <command>: error: <message>`` on stderr, no traceback; see :mod:`franka_vs_gym.errors`); 130 when
+interrupted (Ctrl-C or SIGTERM: one line, the unfinished run folder renamed ``...-incomplete`` or removed). Any
+other exception is a bug and shows its traceback. No command writes over a file it reads
+(:func:`franka_vs_gym.io.command_scope`).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
+import signal
 import sys
+
+from franka_vs_gym import io
+from franka_vs_gym.errors import Interrupted, is_user_error, one_line
 
 # name -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -46,11 +57,37 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     module = importlib.import_module(COMMANDS[args.command][0])
+    with _sigterm_as_interrupt(), io.command_scope():
+        try:
+            return int(module.main(args) or 0)
+        except KeyboardInterrupt:
+            notes = io.abandon_runs()
+            print(f"franka-vs {args.command}: interrupted" + (f"; {'; '.join(notes)}" if notes else ""),
+                  file=sys.stderr)
+            return 130
+        except Exception as e:
+            if not is_user_error(e):
+                raise
+            print(f"franka-vs {args.command}: error: {one_line(e)}", file=sys.stderr)
+            return 2
+
+
+def _raise_interrupted(signum: int, frame: object) -> None:
+    raise Interrupted(f"signal {signum}")
+
+
+@contextlib.contextmanager
+def _sigterm_as_interrupt():
+    """SIGTERM stops the command like Ctrl-C (only in the main thread, where handlers can be installed)."""
     try:
-        return int(module.main(args) or 0)
-    except (ValueError, FileNotFoundError, FileExistsError) as e:
-        print(f"franka-vs {args.command}: error: {e}", file=sys.stderr)
-        return 2
+        old = signal.signal(signal.SIGTERM, _raise_interrupted)
+    except ValueError:  # not the main thread
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
 
 
 if __name__ == "__main__":

@@ -10,15 +10,20 @@ from typing import Any
 
 import numpy as np
 
+from franka_vs_gym.io import atomic_write, track_run
+
 
 def make_run_dir(name: str, out: str | Path | None = None, root: str | Path = "runs") -> Path:
     """Create a fresh output folder: ``out`` if given (it must not exist yet, or be empty), else
-    ``<root>/<name>-<YYYYmmdd-HHMMSS UTC>`` (suffixed -2, -3... if taken). Nothing existing is overwritten."""
+    ``<root>/<name>-<YYYYmmdd-HHMMSS UTC>`` (suffixed -2, -3... if taken). Nothing existing is overwritten.
+    The folder is tracked as an unfinished run: if the command is interrupted it is renamed ``...-incomplete``
+    (or removed when still empty)."""
     if out is not None:
         p = Path(out)
         if p.exists() and (not p.is_dir() or any(p.iterdir())):
             raise FileExistsError(f"output folder {p} exists and is not empty; choose another --out")
         p.mkdir(parents=True, exist_ok=True)
+        track_run(p)
         return p
     root = Path(root)
     if root.exists() and not root.is_dir():
@@ -29,6 +34,7 @@ def make_run_dir(name: str, out: str | Path | None = None, root: str | Path = "r
         p = base if k == 1 else base.with_name(f"{base.name}-{k}")
         try:
             p.mkdir(parents=True, exist_ok=False)
+            track_run(p)
             return p
         except FileExistsError:
             continue
@@ -56,6 +62,4 @@ def _jsonable(x: Any) -> Any:
 
 
 def write_json(path: str | Path, data: dict[str, Any]) -> Path:
-    p = Path(path)
-    p.write_text(json.dumps(_jsonable(data), indent=2))
-    return p
+    return atomic_write(path, json.dumps(_jsonable(data), indent=2))
