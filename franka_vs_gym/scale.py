@@ -31,7 +31,9 @@ def _ray():
     try:
         import ray
     except ImportError:
-        raise RuntimeError("distributed runs need Ray: pip install -e '.[scale]'") from None
+        from franka_vs_gym.errors import UserError
+
+        raise UserError("distributed runs need Ray: pip install -e '.[scale]'") from None
     return ray
 
 
@@ -178,8 +180,10 @@ def add_arguments(parser: Any) -> None:
 def main(args: Any) -> int:
     import json
 
-    if args.json and Path(args.json).exists():
-        raise FileExistsError(f"{args.json} exists; choose another file name")
+    from franka_vs_gym.io import atomic_write, check_output
+
+    if args.json:
+        check_output(args.json)  # refuse an existing file before the work, not after
     res = diagnose_folder(args.folder, args.model, fit=args.fit, rigid_body=args.rigid_body,
                           address=args.ray or None, num_cpus=args.ray_cpus, progress=not args.quiet)
     for r in res:
@@ -190,7 +194,6 @@ def main(args: Any) -> int:
                      f"{','.join(r['fit']['effects']) or 'nothing'}")
         print(line)
     if args.json:
-        with open(args.json, "x") as f:  # exclusive: never replaces a file
-            json.dump(res, f, indent=2)
+        atomic_write(args.json, json.dumps(res, indent=2))
         print(f"wrote {args.json}")
     return 0

@@ -177,7 +177,7 @@ def main() -> None:
         if name not in SECTIONS:
             raise SystemExit(f"unknown section {name!r}; choose from {', '.join(SECTIONS)}")
     if args.json and args.json != "-" and Path(args.json).exists():
-        raise SystemExit(f"{args.json} exists; choose another file name")
+        raise SystemExit(f"{args.json} exists; choose another file name")  # checked before the long run
     results = {}
     with contextlib.redirect_stdout(sys.stderr) if args.json == "-" else contextlib.nullcontext():
         for name in names:
@@ -187,8 +187,9 @@ def main() -> None:
         if args.json == "-":
             print(text)
         else:
-            with open(args.json, "x") as f:  # exclusive: never replaces a file
-                f.write(text + "\n")
+            from franka_vs_gym.io import atomic_write
+
+            atomic_write(args.json, text + "\n")  # never replaces a file
 
 
 if __name__ == "__main__":
