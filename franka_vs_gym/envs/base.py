@@ -95,18 +95,21 @@ class ObservationPacker:
             i += n
         self.low, self.high = np.concatenate(lows), np.concatenate(highs)
         self._work = np.zeros(i)
+        # (key, slice, None for a flat key or its shape), so that the hot path reshapes only where needed
+        self._views = [(k, sl, None if len(sh) == 1 else sh) for k, sl, sh in self.items]
         self.last: np.ndarray | None = None  # the flat float32 buffer of the last observation (its keys' base)
 
     def __call__(self, raw: dict[str, Any]) -> dict[str, np.ndarray]:
         v = self._work
-        for k, sl, _ in self.items:
+        for k, sl, _ in self._views:
             v[sl] = raw[k]
         np.maximum(v, self.low, out=v)
         np.minimum(v, self.high, out=v)
-        if v.sum() != v.sum():  # NaN somewhere (defensive: a NaN never reaches the agent)
+        total = v.sum()
+        if total != total:  # NaN somewhere (defensive: a NaN never reaches the agent)
             v[np.isnan(v)] = 0.0
         buf = self.last = v.astype(np.float32)
-        return {k: buf[sl] if len(sh) == 1 else buf[sl].reshape(sh) for k, sl, sh in self.items}
+        return {k: buf[sl] if sh is None else buf[sl].reshape(sh) for k, sl, sh in self._views}
 
 
 class FrankaEnv(gym.Env):
