@@ -33,6 +33,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "evaluate": ("franka_vs_gym.envs.cli_evaluate", "evaluate a scripted policy or an SB3 model on an environment"),
     "diagnose-folder": ("franka_vs_gym.scale", "diagnose (and fit) every log of a folder in parallel on Ray "
                         "(local or a cluster)"),
+    "serve": ("franka_vs_gym.fci.cli", "serve the simulated FER on libfranka's network interface (FCI)"),
 }
 
 
