@@ -92,8 +92,35 @@ def bench_vision(quick: bool) -> dict:
     from franka_vs_gym import vision
 
     res = vision.bench(quick=quick)
+    res["render + detect + PnP per frame, median (ms), target <= 10"] = _median_frame_ms(20 if quick else 100)
     table("Vision (one core)", [(k, v) for k, v in res.items()], ("what", "value"))
     return res
+
+
+def _median_frame_ms(n: int) -> float:
+    """Median time (ms) of rendering one 320x240 wrist frame and detecting the tag with PnP, over ``n`` frames of
+    an IBVS episode's start views (different seeds, so different views)."""
+    import time
+
+    import gymnasium as gym
+
+    import franka_vs_gym  # noqa: F401
+    from franka_vs_gym.vision import TagDetector, WristCamera, detected_measurement
+
+    env = gym.make("FrankaIBVS-v0", observation_type="features").unwrapped
+    cam, det, times = None, TagDetector(), []
+    try:
+        for seed in range(n):
+            env.reset(seed=seed)
+            if cam is None:
+                cam = WristCamera(env.sim, env.intrinsics)
+            t0 = time.perf_counter()
+            img = cam.render()
+            detected_measurement(img, det, env.tag_id, env.tag_size, env.intrinsics)
+            times.append(time.perf_counter() - t0)
+    finally:
+        env.close()
+    return float(np.median(times) * 1e3)
 
 
 def bench_envs(quick: bool) -> dict:
