@@ -72,3 +72,16 @@ def test_franky_gripper_move_and_grasp(block):
     else:  # nothing between the fingers: they close fully and the grasp fails
         assert not out["grasp"] and not out["is_grasped"]
         assert out["width_after_grasp"] < 1e-3
+
+
+def test_franky_ibvs_example_with_the_in_process_camera():
+    """examples/fci_franky_ibvs.py: franky joint velocities, tag detection on the simulated wrist camera read from
+    the in-process server; the corner error shrinks (lock-step; converging fully takes ~5 s of rendering)."""
+    script = Path(__file__).resolve().parents[1] / "examples" / "fci_franky_ibvs.py"
+    r = subprocess.run([sys.executable, str(script), "--lockstep", "--json", "--max-time", "3",
+                        "--host", _host().replace(".23.", ".24.")], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr[-3000:]
+    out = json.loads(r.stdout.strip().splitlines()[-1])
+    errors = [e for _, _, e in out["history"]]
+    assert errors[0] > 20.0
+    assert out["final_error_px"] < 0.3 * errors[0]

@@ -21,14 +21,12 @@ from gymnasium import spaces
 
 from franka_vs_gym.assets.mjcf import mat2quat
 from franka_vs_gym.model.config import ModelConfig, RigidBody, resolve_config
-from franka_vs_gym.model.franka_model import FrankaModel
 from franka_vs_gym.sim import CAMERA_FRAME, FORCE_TORQUE, JOINT_STATE, VELOCITY, FrankaSim, SimulationDiverged
 
 ACTION_TYPES = ("torque", "joint_velocity", "cartesian_velocity")
 OBSERVATION_TYPES = ("features", "image", "features+image", "state")
 # Cartesian camera-twist bounds of the contract: +-0.5 m/s, +-1 rad/s.
 CARTESIAN_BOUNDS = np.array([0.5, 0.5, 0.5, 1.0, 1.0, 1.0])
-_LIMITS = FrankaModel.limits()
 PAYLOAD_COM = (0.0, 0.0, 0.05)  # where a randomised payload is held, flange frame, m
 
 
@@ -130,6 +128,9 @@ class FrankaEnv(gym.Env):
         Episode duration after which the episode is truncated.
     model : ModelConfig, path to a calibrated model file (JSON from ``franka-vs fit``), or None
         The simulated robot (tool, friction, armature, ...). Both the plant and the robot's model use it.
+    robot : RobotDescription, a registered name ("fer", "fr3"), or None
+        The arm (default the FER); ``gymnasium.make("FrankaIBVS-v0", robot="fr3")``. With ``model`` given, it must
+        name the same robot.
     link_mass_range : (low, high) or None
         Domain randomisation: each link's mass and inertia are multiplied by a factor drawn uniformly in this
         range at every reset. The robot's own gravity compensation follows the true masses (as the FER's internal
@@ -161,7 +162,7 @@ class FrankaEnv(gym.Env):
 
     def __init__(self, *, action_type: str = "joint_velocity", observation_type: str = "features",
                  control_period: float = 0.05, physics_step: float = 0.001, time_limit: float = 6.0,
-                 model: Any = None, link_mass_range: Any = None, friction_scale_range: Any = None,
+                 model: Any = None, robot: Any = None, link_mass_range: Any = None, friction_scale_range: Any = None,
                  payload_mass_range: Any = None, payload_declared: bool = True, joint_noise: float = 0.0,
                  velocity_noise: float = 0.0,
                  clip_actions: bool = False, render_mode: str | None = None, render_width: int = 320,
@@ -197,7 +198,7 @@ class FrankaEnv(gym.Env):
         self.render_width, self.render_height = int(render_width), int(render_height)
         if self.render_width < 1 or self.render_height < 1:
             raise ValueError(f"render size must be >= 1 pixel, got {render_width}x{render_height}")
-        self.config: ModelConfig = resolve_config(model)
+        self.config: ModelConfig = resolve_config(model, robot)
         self.payload_declared = bool(payload_declared)
         payload = (RigidBody(1.0, PAYLOAD_COM, np.full(3, 0.4 * 0.03**2))
                    if self.payload_mass_range is not None and not self.payload_declared else None)
@@ -207,8 +208,9 @@ class FrankaEnv(gym.Env):
         self.world = self.sim.world
         self._m, self._d = self.world.model, self.world.data
         self._nominal = self._nominal_dynamics()
-        self.q_min, self.q_max = _LIMITS["q_min"], _LIMITS["q_max"]
-        self.dq_max, self.tau_max = _LIMITS["dq_max"], _LIMITS["tau_max"]
+        limits = self.sim.model.limits()
+        self.q_min, self.q_max = limits["q_min"], limits["q_max"]
+        self.dq_max, self.tau_max = limits["dq_max"], limits["tau_max"]
         # a joint within 1 mrad of its limit has hit the hard stop
         self._q_lo_fail, self._q_hi_fail = self.q_min + 1e-3, self.q_max - 1e-3
         if action_type == "torque":
@@ -242,10 +244,10 @@ class FrankaEnv(gym.Env):
         hand_inertia = (hand, float(m.body_mass[hand]), m.body_ipos[hand].copy(),
                         R @ np.diag(m.body_inertia[hand]) @ R.T, m.body_inertia[hand].copy(), m.body_iquat[hand].copy())
         return {"links": links, "mass": m.body_mass[links].copy(), "inertia": m.body_inertia[links].copy(),
-                "payload": payload, "hand": hand_inertia}
+                "payload": payload, "hand": hand_inertia, "friction_scale": self.sim.friction_scale}
 
     def _randomise_dynamics(self) -> None:
-        m, nom, rng = self._m, self._nominal, self.np_random
+        m, nom, rng, s = self._m, self._nominal, self.np_random, self.sim
         info: dict[str, Any] = {}
         changed = False
         if self.link_mass_range is not None:
@@ -256,7 +258,7 @@ class FrankaEnv(gym.Env):
             changed = True
         if self.friction_scale_range is not None:
             k = float(rng.uniform(*self.friction_scale_range))
-            self.sim.set_friction_scale(k)  # the plant's whole friction law times k
+            s.set_friction_scale(nom["friction_scale"] * k)  # scales the whole law of the plant
             info["friction_scale"] = k
         if self.payload_mass_range is not None and self.payload_declared:
             mass = float(rng.uniform(*self.payload_mass_range))
@@ -378,7 +380,7 @@ class FrankaEnv(gym.Env):
 
     def _robot_failure(self) -> str | None:
         """Joint limit reached or the arm in contact with the environment."""
-        q = self.sim._qpos
+        q = self.sim.q
         low = q < self._q_lo_fail
         high = q > self._q_hi_fail
         if low.any() or high.any():
@@ -397,7 +399,7 @@ class FrankaEnv(gym.Env):
         return None
 
     def _noisy_joint_state(self) -> tuple[np.ndarray, np.ndarray]:
-        q, dq = self.sim._qpos.copy(), self.sim._qvel.copy()
+        q, dq = self.sim.q, self.sim.dq
         if self.joint_noise:
             q += self.np_random.normal(0.0, self.joint_noise, 7)
         if self.velocity_noise:

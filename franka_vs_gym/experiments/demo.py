@@ -59,7 +59,6 @@ def run_torque_demo(args: argparse.Namespace) -> int:
     import matplotlib.pyplot as plt
 
     from franka_vs_gym.control import ComputedTorque
-    from franka_vs_gym.model import params
     from franka_vs_gym.sim import FORCE_TORQUE, JOINT_STATE, FrankaSim
 
     duration = 3.0 if args.duration is None else float(args.duration)
@@ -68,7 +67,7 @@ def run_torque_demo(args: argparse.Namespace) -> int:
     out = make_run_dir("demo-torque", args.out)
     sim = FrankaSim(camera=False)
     ctrl = ComputedTorque(sim.model)
-    q_start = params.as_array(params.Q_NEUTRAL)
+    q_start = sim.model.robot.neutral()
     waypoints = [q_start,
                  q_start + np.array([0.5, 0.3, -0.3, 0.4, 0.4, -0.3, 0.6]),
                  q_start + np.array([-0.4, -0.2, 0.3, -0.3, -0.4, 0.3, -0.5]),

@@ -14,9 +14,9 @@ import mujoco
 import numpy as np
 
 from franka_vs_gym.fci.codec import GripperCommand, GripperStatus
-from franka_vs_gym.model import params
+from franka_vs_gym.model.description import FRANKA_HAND
 
-MAX_WIDTH = 2 * params.HAND_FINGER_OPENING  # m
+MAX_WIDTH = 2 * FRANKA_HAND.finger_opening  # m
 MAX_SPEED = 0.1  # m/s
 HOMING_SPEED = 0.1  # m/s
 

@@ -140,6 +140,10 @@ class FCIRobot:
         self.cart_ctrl = CartesianImpedance(self.model, k_translation=self.K_x[:3], k_rotation=self.K_x[3:])
         self.gravity = np.array(self.model.config.gravity, dtype=float)
         sim.set_robot_state(FORCE_TORQUE)
+        # the plant's joint velocity servos (views): the internal controllers' damping, integrated implicitly
+        self._servo_gain = sim._m.actuator_gainprm[sim._vel, 0]
+        self._servo_bias = sim._m.actuator_biasprm[sim._vel, 2]
+        self._servo_ctrl = sim._ctrl_vel
         self.state = RobotStateBuffer()
         self.robot_mode = RobotMode.IDLE
         self.mg_mode = MotionGeneratorMode.IDLE
@@ -381,7 +385,7 @@ class FCIRobot:
         """Gravity-free joint torque for this cycle (may raise :class:`Reflex`)."""
         q, dq = self.q, self.dq
         if self.robot_mode != RobotMode.MOVE:
-            return self.joint_ctrl(q, dq, self.q_hold)
+            return self._joint_impedance(q, dq, self.q_hold, np.zeros(7), None)
         if cmd is not None:
             if self.mg_mode != MotionGeneratorMode.NONE:
                 self._apply_motion(cmd)
@@ -402,15 +406,36 @@ class FCIRobot:
             T = self.O_T_EE_c @ np.linalg.inv(self.NE_T_EE)
             tau = self.cart_ctrl(q, dq, T, self.O_dP_EE_c)
         else:
-            tau = self.joint_ctrl(q, dq, self.q_d, self.dq_d, self.ddq_d)
+            tau = self._joint_impedance(q, dq, self.q_d, self.dq_d, self.ddq_d)
         self.tau_J_d = tau
         return tau
+
+    def _joint_impedance(self, q: np.ndarray, dq: np.ndarray, q_d: np.ndarray, dq_d: np.ndarray,
+                         ddq_d: np.ndarray | None) -> np.ndarray:
+        """The internal joint impedance controller. Its damping ``D (dq_d - dq)`` runs in the plant's joint
+        velocity servos, which MuJoCo integrates implicitly; the rest (stiffness, inertial, Coriolis and friction
+        feed-forward) is the returned motor torque. The FER's joint controllers run faster than the 1 kHz
+        interface; an explicit 1 ms damping term would be unstable on the light coupled modes of the arm (e.g.
+        joints 1 and 3 turning against each other when aligned)."""
+        D = self.joint_ctrl.damping(q)
+        self._set_servo(D, dq_d)
+        tau = self.joint_ctrl(q, dq, q_d, dq_d, ddq_d) - D * (dq_d - dq)
+        if ddq_d is not None:  # implicit damping acts on the end-of-step velocity: feed its share of ddq_d forward
+            tau += self.dt * D * ddq_d
+        return tau
+
+    def _set_servo(self, D: np.ndarray | float, dq_d: np.ndarray | float) -> None:
+        """Gains (Nm s/rad) and set point (rad/s) of the plant's joint velocity servos."""
+        self._servo_gain[:] = D
+        self._servo_bias[:] = -np.asarray(D)
+        self._servo_ctrl[:] = dq_d
 
     def step(self, cmd: RobotCommand | None) -> tuple[str, ...]:
         """Apply ``cmd`` (or hold), step the plant 1 ms, check the reflexes. Returns the reflex reasons (empty if
         none fired); on a reflex the robot is already in REFLEX mode."""
         sim = self.sim
         try:
+            self._set_servo(0.0, 0.0)
             tau = self.control_torque(cmd)
             if self._load_model is not None:
                 tau = tau + self._load_model.gravity(self.q) - self.model.gravity(self.q)

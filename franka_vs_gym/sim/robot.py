@@ -16,10 +16,11 @@ import mujoco
 import numpy as np
 
 from franka_vs_gym.assets.mjcf import RobotSpec, SceneSpec, TagSpec, mat2quat
-from franka_vs_gym.model import params
 from franka_vs_gym.model.checks import as_pose, as_vector
 from franka_vs_gym.model.config import ModelConfig, RigidBody, Tool, resolve_config
+from franka_vs_gym.model.description import RobotDescription
 from franka_vs_gym.model.franka_model import FrankaModel
+from franka_vs_gym.model.friction import make_plant_friction
 from franka_vs_gym.model.geometry import pose_vector, twist_transform
 from franka_vs_gym.sim import plant
 from franka_vs_gym.sim.world import SimulationDiverged, SimWorld
@@ -82,6 +83,8 @@ class FrankaSim:
     ----------
     model : ModelConfig, FrankaModel, path to a calibrated model file, or None
         The robot (tool, payload, gravity, friction...). Both the plant and ``self.model`` are built from it.
+    robot : RobotDescription, a registered name ("fer", "fr3"), or None
+        The arm when ``model`` is None (``FrankaSim(robot="fr3")``); with a ``model`` it must name the same robot.
     friction : bool
         Apply the configured joint friction in the plant (default True). The model's friction is unaffected.
     camera : bool
@@ -96,13 +99,13 @@ class FrankaSim:
     seed : seed of the measurement-noise generator.
     """
 
-    def __init__(self, model: Any = None, *, friction: bool = True, camera: bool = True,
-                 tags: list[TagSpec] | None = None, table: bool = True, timestep: float = 0.001,
+    def __init__(self, model: Any = None, *, robot: RobotDescription | str | None = None, friction: bool = True,
+                 camera: bool = True, tags: list[TagSpec] | None = None, table: bool = True, timestep: float = 0.001,
                  world: SimWorld | None = None, prefix: str = "r0_", q0: Any = None, ft_sensor: bool = False,
                  undeclared_payload: RigidBody | None = None, torque_noise: float = 0.0, seed: int | None = None,
                  extra_worldbody: str = "", extra_assets: str = "") -> None:
         if world is None:
-            cfg = resolve_config(model)
+            cfg = resolve_config(model, robot)
             spec = RobotSpec(prefix=prefix, config=cfg, camera=camera, ft_sensor=ft_sensor,
                              undeclared_payload=undeclared_payload)
             if not (timestep > 0 and math.isfinite(timestep)):
@@ -151,23 +154,18 @@ class FrankaSim:
             fs = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SENSOR, f"{prefix}ft_force")
             ts = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SENSOR, f"{prefix}ft_torque")
             self._ft = (int(m.sensor_adr[fs]), int(m.sensor_adr[ts]))
-        lim = FrankaModel.limits()
+        lim = self.model.limits()
         self.q_min, self.q_max, self.dq_max, self.tau_max = lim["q_min"], lim["q_max"], lim["dq_max"], lim["tau_max"]
-        # Friction in the plant: tau_f = a tanh(b dq + c) + e0 (the Gaz sigmoid written with tanh), plus viscous and
-        # Coulomb terms, written into qfrc_applied as -tau_f with preallocated buffers (this runs at 1 kHz).
+        # Friction in the plant: -tau_f(dq) of the configured law (franka_vs_gym.model.friction) written into
+        # qfrc_applied in place before every physics step (this runs at 1 kHz).
         fr = cfg.friction
-        self._fa = fr.phi1 / 2
-        self._fb = fr.phi2 / 2
-        self._fc = fr.phi2 * fr.phi3 / 2
-        self._fe = fr.phi1 / 2 - fr.phi1 / (1 + np.exp(-fr.phi2 * fr.phi3))
-        self._fvisc, self._fcoul, self._fcv = fr.viscous, fr.coulomb, fr.coulomb_vel
-        self._fbuf = np.zeros(7)
         self._friction_enabled = bool(friction) and not fr.is_zero()
-        self._simple_friction = not (fr.viscous.any() or fr.coulomb.any())
+        self._friction_scale = 1.0
+        self._friction_step = self._make_friction_step()
         # the compiled plant applies the friction inside mj_step from the parameters in the model (jnt_user); the
-        # Python hooks below are the fallback without it (franka_vs_gym.sim.plant)
+        # Python friction step is the fallback without it (franka_vs_gym.sim.plant)
         self._native = plant.install()
-        self._jids, self._friction_scale = jids, 1.0
+        self._jids = jids
         self._write_plant_friction()
         n_delay = int(round(cfg.delay / self.dt))
         self._delay_steps = n_delay if cfg.delay_channel == "command" else 0
@@ -187,7 +185,7 @@ class FrankaSim:
         world.add_pre_step(self._hook)
         if self._cam >= 0:
             self.set_eMc(self._eMc)
-        self.reset(params.as_array(params.Q_NEUTRAL) if q0 is None else q0)
+        self.reset(cfg.robot.neutral() if q0 is None else q0)
 
     # ------------------------------------------------------------------ stepping
     @property
@@ -198,23 +196,25 @@ class FrankaSim:
     @friction_enabled.setter
     def friction_enabled(self, on: bool) -> None:
         self._friction_enabled = bool(on) and not self.spec.config.friction.is_zero()
+        self._refresh_hook()
+
+    @property
+    def friction_scale(self) -> float:
+        """Factor on the whole plant friction law (1 by default; domain randomisation), dimensionless."""
+        return self._friction_scale
+
+    def set_friction_scale(self, scale: float) -> None:
+        """Scale the plant's friction law (every term) by ``scale`` >= 0; the model's friction is unaffected."""
+        scale = float(scale)
+        if not (scale >= 0 and math.isfinite(scale)):
+            raise ValueError(f"friction scale must be a finite number >= 0, got {scale}")
+        self._friction_scale = scale
+        self._friction_step = self._make_friction_step()
+        self._refresh_hook()
+
+    def _refresh_hook(self) -> None:
         if not self._friction_enabled:
             self._qfrc_applied[:] = 0.0
-        self._write_plant_friction()
-        hook = self._make_pre_step()
-        self.world.replace_pre_step(self._hook, hook)
-        self._hook = hook
-
-    def set_friction_scale(self, k: float) -> None:
-        """Multiply the plant's joint friction (the whole law: sigmoid, viscous and Coulomb terms) by ``k`` >= 0
-        relative to the configured one (domain randomisation); the robot's model is unaffected."""
-        k = float(k)
-        if not (k >= 0 and math.isfinite(k)):
-            raise ValueError(f"friction scale must be a finite number >= 0, got {k}")
-        fr = self.spec.config.friction
-        self._friction_scale = k
-        self._fa, self._fe = k * fr.phi1 / 2, k * (fr.phi1 / 2 - fr.phi1 / (1 + np.exp(-fr.phi2 * fr.phi3)))
-        self._fvisc, self._fcoul = k * fr.viscous, k * fr.coulomb
         self._write_plant_friction()
         hook = self._make_pre_step()
         self.world.replace_pre_step(self._hook, hook)
@@ -225,40 +225,23 @@ class FrankaSim:
         on = self._native and self._friction_enabled
         self._m.jnt_user[self._jids] = plant.friction_rows(self.spec.config.friction, self._friction_scale, on)
 
+    def _make_friction_step(self):
+        fr = self.spec.config.friction
+        return make_plant_friction(self._qvel, self._qfrc_applied, fr.phi1, fr.phi2, fr.phi3, fr.viscous,
+                                   fr.coulomb, fr.coulomb_vel, self._friction_scale)
+
     def _make_pre_step(self):
         """The per-physics-step hook (runs at 1 kHz before every mj_step): none with the compiled plant and no
-        command delay. Without the compiled plant, Gaz friction without command delay is a closure over
-        preallocated buffers: qfrc_applied = -(a tanh(b dq + c) + e)."""
-        friction_in_python = self._friction_enabled and not self._native
-        if self._delay_steps or (friction_in_python and not self._simple_friction):
+        command delay; without the compiled plant, the friction step itself (allocation-free,
+        :func:`franka_vs_gym.model.friction.make_plant_friction`)."""
+        if self._delay_steps:
             return self._pre_step
-        if not friction_in_python:
-            return _no_op
-        qvel, qfrc, buf = self._qvel, self._qfrc_applied, self._fbuf
-        b, c, neg_a, neg_e = self._fb, self._fc, -self._fa, -self._fe
-        mul, add, tanh = np.multiply, np.add, np.tanh
-
-        def gaz_friction() -> None:
-            mul(b, qvel, out=buf)
-            add(buf, c, out=buf)
-            tanh(buf, out=buf)
-            mul(buf, neg_a, out=qfrc)
-            add(qfrc, neg_e, out=qfrc)
-
-        return gaz_friction
+        return self._friction_step if self._friction_enabled and not self._native else _no_op
 
     def _pre_step(self) -> None:
-        """General hook: any friction law (without the compiled plant), and the command delay FIFO."""
+        """General hook: friction (without the compiled plant), and the command delay FIFO."""
         if self._friction_enabled and not self._native:
-            buf = self._fbuf
-            np.multiply(self._fb, self._qvel, out=buf)
-            buf += self._fc
-            np.tanh(buf, out=buf)
-            buf *= self._fa
-            buf += self._fe
-            if not self._simple_friction:
-                buf += self._fvisc * self._qvel + self._fcoul * np.tanh(self._qvel / self._fcv)
-            np.negative(buf, out=self._qfrc_applied)
+            self._friction_step()
         if self._delay_steps and self._state == RobotState.STATE_FORCE_TORQUE_CONTROL:
             self._tau_fifo.append(self._tau_cmd.copy())
             self._ctrl_tau[:] = self._tau_fifo.popleft() if len(self._tau_fifo) > self._delay_steps else 0.0
@@ -421,6 +404,16 @@ class FrankaSim:
         self._ctrl_vel[:] = 0.0
 
     # ------------------------------------------------------------------ measurements
+    @property
+    def q(self) -> np.ndarray:
+        """Joint position (7,), rad (a copy; the cheapest read for a control loop)."""
+        return self._qpos.copy()
+
+    @property
+    def dq(self) -> np.ndarray:
+        """Joint velocity (7,), rad/s (a copy)."""
+        return self._qvel.copy()
+
     def get_position(self, frame: ControlFrame | int = ControlFrame.JOINT_STATE) -> np.ndarray:
         """JOINT_STATE: q (7,) rad. END_EFFECTOR_FRAME/REFERENCE_FRAME: pose vector of e in f (6,)
         (t, theta-u). CAMERA_FRAME: pose vector of c in f."""
