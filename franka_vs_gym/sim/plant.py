@@ -47,12 +47,17 @@ _reason: str | None = None
 if os.environ.get("FRANKA_VS_GYM_PURE_PYTHON", "") not in ("", "0"):
     _reason = "FRANKA_VS_GYM_PURE_PYTHON is set"
 else:
-    try:
-        from franka_vs_gym.sim import _plant as _native
-    except ImportError as e:
-        _reason = (f"the compiled plant (franka_vs_gym.sim._plant) is not built ({e}); reinstall with a C compiler "
-                   "(pip install -e .) for the fast plant and batched environments")
+    import importlib.util
+
+    if importlib.util.find_spec("franka_vs_gym.sim._plant") is None:
+        _reason = ("the compiled plant (franka_vs_gym.sim._plant) was not built (no C compiler at install?); "
+                   "reinstall with one (pip install -e .) for the fast plant and batched environments")
     else:
+        try:
+            from franka_vs_gym.sim import _plant as _native
+        except ImportError as e:
+            _reason = f"the compiled plant (franka_vs_gym.sim._plant) does not load: {e}; reinstall (pip install -e .)"
+    if _native is not None:
         if _native.MJ_VERSION_HEADER != mujoco.mj_version() or _native.TAG != TAG or _native.NUSER != NUSER:
             _reason = (f"the compiled plant was built against MuJoCo {_native.MJ_VERSION_HEADER} but MuJoCo "
                        f"{mujoco.mj_version()} is installed; reinstall franka_vs_gym (pip install -e .)")
