@@ -129,6 +129,7 @@ class FrankaVectorEnv(VectorEnv):
         self._terminated = np.zeros(self.num_envs, dtype=np.bool_)
         self._truncated = np.zeros(self.num_envs, dtype=np.bool_)
         self._autoreset = np.zeros(self.num_envs, dtype=np.bool_)
+        self._synced: set[int] = set()
 
     # ------------------------------------------------------------------ Gymnasium API
     def reset(self, *, seed: int | list[int | None] | None = None, options: dict[str, Any] | None = None):
@@ -260,12 +261,14 @@ class FrankaVectorEnv(VectorEnv):
         before = (state.copy(), [getattr(env, "_k", None) for env in envs])
         warn0 = self._warning[:, _BAD, 1].sum(axis=1)
         first = {p[0] for p in plans.values()}
+        self._synced = synced = set()
         if len(first) == 1 and all(len(p) == 1 for p in plans.values()):  # the common case: one call
             nstep, capture = first.pop()
             self.batch.step(None if len(ids) == self.num_envs else np.array(ids, dtype=np.int32), nstep=nstep)
             for i in ids:
                 if capture:
                     self._sync(i)
+                    synced.add(i)  # the final state of this period: _finish need not copy it again
                 envs[i]._segment_done(nstep, capture)
             return before, self._warning[:, _BAD, 1].sum(axis=1) > warn0
         live = list(ids)
@@ -296,7 +299,8 @@ class FrankaVectorEnv(VectorEnv):
             if bad[i]:
                 results[i] = self._rerun_alone(i, before[0][i], before[1][i])
                 continue
-            self._sync(i)
+            if i not in self._synced:
+                self._sync(i)
             results[i] = env._step_end()
 
     def _sync(self, i: int) -> None:
