@@ -24,9 +24,11 @@ CLIENTS = Path(__file__).parent / "fci_clients"
 BLOCK = '<body name="block" pos="0.3069 0 0.49"><geom type="box" size="0.01 0.015 0.01" rgba="0.8 0.2 0.2 1"/></body>'
 
 
-def _host() -> str:
-    worker = os.environ.get("PYTEST_XDIST_WORKER", "gw0")
-    return f"127.0.23.{1 + int(worker[2:] or 0)}"
+def _host(net: int = 23) -> str:
+    """A loopback address of its own for this test process (the FCI ports are fixed): 127.<net>.x.y from the pid,
+    so parallel workers and parallel test runs on one machine do not collide."""
+    pid = os.getpid()
+    return f"127.{net}.{(pid // 250) % 250 + 1}.{pid % 250 + 1}"
 
 
 def run_client(script: str, *args: str) -> dict:
@@ -79,9 +81,18 @@ def test_franky_ibvs_example_with_the_in_process_camera():
     the in-process server; the corner error shrinks (lock-step; converging fully takes ~5 s of rendering)."""
     script = Path(__file__).resolve().parents[1] / "examples" / "fci_franky_ibvs.py"
     r = subprocess.run([sys.executable, str(script), "--lockstep", "--json", "--max-time", "3",
-                        "--host", _host().replace(".23.", ".24.")], capture_output=True, text=True, timeout=120)
+                        "--host", _host(24)], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr[-3000:]
     out = json.loads(r.stdout.strip().splitlines()[-1])
     errors = [e for _, _, e in out["history"]]
     assert errors[0] > 20.0
     assert out["final_error_px"] < 0.3 * errors[0]
+
+
+def test_franky_gripper_stop():
+    with FCIServer(_host(), lockstep=True, camera=False, verbose=False) as srv:
+        out = run_client("gripper_stop.py", srv.host)
+    assert out["width_start"] == pytest.approx(0.08, abs=1e-6) and out["stop"]
+    assert "aborted" in str(out["move_result"])  # the interrupted move is answered "aborted"
+    assert 0.0 < out["width_after_stop"] < 0.08
+    assert out["width_later"] == out["width_after_stop"]  # the fingers stay where they stopped

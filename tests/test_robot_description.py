@@ -158,3 +158,166 @@ def test_the_friction_law_is_written_once():
     pat = re.compile(r"(np|math)\.exp\(\s*-\s*\(?\s*(phi2|p2|fr\.phi2|self\._fb)")
     bad = [rel for rel, text in _sources(("model/friction.py",)) if pat.search(text)]
     assert not bad, bad
+
+
+# ---------------------------------------------------------------- every registered robot: model, plant, limits
+# Joint origins (xyz m, rpy rad) of franka_description's kinematics.yaml, the same for the FER and the FR3: an
+# independent route to the kinematics (URDF roll-pitch-yaw parsed by pinocchio, not the modified-DH rows).
+_HALF_PI = 1.570796326794897
+URDF_JOINTS = [((0, 0, 0.333), (0, 0, 0)), ((0, 0, 0), (-_HALF_PI, 0, 0)), ((0, -0.316, 0), (_HALF_PI, 0, 0)),
+               ((0.0825, 0, 0), (_HALF_PI, 0, 0)), ((-0.0825, 0.384, 0), (-_HALF_PI, 0, 0)),
+               ((0, 0, 0), (_HALF_PI, 0, 0)), ((0.088, 0, 0), (_HALF_PI, 0, 0))]
+URDF_FLANGE_Z = 0.107
+
+
+def _independent_urdf(desc) -> str:
+    out = ['<robot name="x"><link name="link0"/>']
+    for i, ((xyz, rpy), link) in enumerate(zip(URDF_JOINTS, desc.links, strict=True)):
+        ixx, ixy, ixz, iyy, iyz, izz = link.inertia
+        out.append(f'<link name="link{i + 1}"><inertial><origin xyz="{" ".join(map(repr, link.com))}"/>'
+                   f'<mass value="{link.mass!r}"/><inertia ixx="{ixx!r}" ixy="{ixy!r}" ixz="{ixz!r}" iyy="{iyy!r}" '
+                   f'iyz="{iyz!r}" izz="{izz!r}"/></inertial></link>')
+        out.append(f'<joint name="j{i + 1}" type="revolute"><origin xyz="{" ".join(map(str, xyz))}" '
+                   f'rpy="{" ".join(map(str, rpy))}"/><parent link="link{i}"/><child link="link{i + 1}"/>'
+                   '<axis xyz="0 0 1"/><limit effort="100" velocity="10" lower="-7" upper="7"/></joint>')
+    out.append(f'<link name="link8"/><joint name="flange" type="fixed"><origin xyz="0 0 {URDF_FLANGE_Z}"/>'
+               '<parent link="link7"/><child link="link8"/></joint></robot>')
+    return "".join(out)
+
+
+def _random_q(desc, rng, n, margin=0.05):
+    lim = desc.limit_arrays()
+    return rng.uniform(lim["q_min"] + margin, lim["q_max"] - margin, (n, 7))
+
+
+@pytest.mark.parametrize("name", sorted(ROBOTS))
+def test_model_matches_an_independent_urdf_model(name, rng):
+    """B(q), C dq + g and the flange pose of FrankaModel(robot=..., tool=None) equal those of a pinocchio model
+    parsed from a URDF written with the published joint origins and link inertials."""
+    import pinocchio as pin
+
+    desc = robot_description(name)
+    ref = pin.buildModelFromXML(_independent_urdf(desc))
+    data = ref.createData()
+    fl = ref.getFrameId("link8")
+    model = FrankaModel(robot=name, tool=None)
+    assert model.config.friction.is_zero() == (desc.friction is None)
+    for q in _random_q(desc, rng, 20):
+        dq = rng.uniform(-2, 2, 7)
+        B = np.triu(pin.crba(ref, data, q))
+        np.testing.assert_allclose(model.mass_matrix(q), B + np.triu(B, 1).T, atol=1e-10)
+        np.testing.assert_allclose(model.bias(q, dq), pin.nonLinearEffects(ref, data, q, dq), atol=1e-9)
+        pin.framesForwardKinematics(ref, data, q)
+        np.testing.assert_allclose(model.fMfl(q), data.oMf[fl].homogeneous, atol=1e-12)
+
+
+@pytest.mark.parametrize("name", sorted(ROBOTS))
+def test_model_matches_the_plant(name, rng):
+    """The MuJoCo plant built from the description agrees with the model library (hand, payload, armature)."""
+    import mujoco
+
+    from franka_vs_gym.assets.mjcf import RobotSpec, SceneSpec, scene_xml
+    from franka_vs_gym.model import RigidBody
+
+    cfg = ModelConfig(robot=name, payload=RigidBody(0.8, [0.01, 0.0, 0.06], [1e-3, 2e-3, 1e-3]),
+                      armature=np.full(7, 0.1))
+    fm = FrankaModel(cfg)
+    m = mujoco.MjModel.from_xml_string(scene_xml(SceneSpec(robots=[RobotSpec(config=cfg, camera=False)],
+                                                           table=False)))
+    d = mujoco.MjData(m)
+    M = np.zeros((7, 7))
+    for q in _random_q(cfg.robot, rng, 20):
+        d.qpos[:] = q
+        d.qvel[:] = rng.uniform(-2, 2, 7)
+        mujoco.mj_forward(m, d)
+        mujoco.mj_fullM(m, d, M)
+        np.testing.assert_allclose(fm.mass_matrix(q), M, atol=1e-6)
+        np.testing.assert_allclose(fm.bias(q, d.qvel), d.qfrc_bias, atol=1e-6)
+    lim = cfg.robot.limits
+    np.testing.assert_allclose(m.jnt_range, np.c_[lim.q_min, lim.q_max])
+    np.testing.assert_allclose(m.actuator_ctrlrange[7:], np.c_[-np.array(lim.dq_max), lim.dq_max])
+
+
+@pytest.mark.parametrize("name", sorted(ROBOTS))
+def test_simulator_respects_the_robots_limits(name):
+    from franka_vs_gym.sim import FORCE_TORQUE, JOINT_STATE, VELOCITY, FrankaSim
+
+    desc = robot_description(name)
+    lim = desc.limit_arrays()
+    sim = FrankaSim(robot=name, camera=False)
+    assert sim.model.robot is desc
+    np.testing.assert_allclose(sim.get_position(), desc.q_neutral)
+    bad = desc.neutral()
+    bad[5] = lim["q_min"][5] - 0.1  # below joint 6's lower limit
+    with pytest.raises(ValueError, match="outside the joint limits"):
+        sim.reset(bad)
+    # a joint velocity command far beyond the limits is scaled down to them (direction kept)
+    sim.set_robot_state(VELOCITY)
+    cmd = np.zeros(7)
+    cmd[4] = 10.0
+    sim.set_velocity(JOINT_STATE, cmd)
+    sim.wait(0.3)
+    assert abs(sim.get_velocity()[4]) == pytest.approx(lim["dq_max"][4], rel=0.03)
+    # torque commands beyond the limits are saturated: the joint torque (command + gravity) stays within tau_max
+    sim.reset(desc.q_neutral)
+    sim.set_robot_state(FORCE_TORQUE)
+    sim.set_force_torque(JOINT_STATE, np.full(7, 500.0))
+    sim.step()
+    tau = sim.get_force_torque()
+    assert (np.abs(tau) <= lim["tau_max"] + 1e-9).all()
+    assert tau[0] == pytest.approx(lim["tau_max"][0])
+
+
+@pytest.mark.parametrize("name", sorted(ROBOTS))
+def test_every_environment_takes_the_robot(name):
+    import gymnasium as gym
+
+    from franka_vs_gym.envs.registration import ENVS
+
+    lim = robot_description(name).limit_arrays()
+    for env_id in sorted(ENVS):
+        env = gym.make(env_id, robot=name)
+        u = env.unwrapped
+        assert u.config.robot.name == name
+        _, info = env.reset(seed=1)
+        q = u.robot.get_position()
+        assert (q >= lim["q_min"]).all() and (q <= lim["q_max"]).all()
+        hi = lim["tau_max"] if u.action_type == "torque" else lim["dq_max"]
+        if u.action_type in ("torque", "joint_velocity"):
+            np.testing.assert_allclose(env.action_space.high, hi.astype(np.float32))
+        env.step(np.zeros(env.action_space.shape, dtype=np.float32))
+        env.close()
+
+
+def test_fr3_numbers_are_the_published_ones():
+    """Spot checks against franka_description robots/fr3 (joint_limits.yaml, inertials.yaml) and the FCI limits."""
+    from franka_vs_gym.model.description import FR3
+
+    assert FR3.limits.q_min[5] == 0.5445 and FR3.limits.q_max[5] == 4.5169
+    assert FR3.limits.dq_max == (2.62, 2.62, 2.62, 2.62, 5.26, 4.18, 5.26)
+    assert FR3.links[0].mass == 2.9274653454 and FR3.links[6].com == (0.0045225817, 0.0086261921, -0.0161633251)
+    assert FR3.limits.ddq_max == (10.0,) * 7 and FR3.cartesian_limits.v_max == 3.0
+    assert FR3.friction is None and FR3.joint_names[0] == "fr3_joint1"
+    for link in FR3.links:  # physically consistent: positive definite, triangle inequality on principal moments
+        w = np.linalg.eigvalsh(link.inertia_matrix())
+        assert w.min() > 0 and w[0] + w[1] >= w[2]
+
+
+def test_no_module_outside_sim_touches_franka_sim_private_attributes():
+    """Environments, the workbench, the FCI server... use FrankaSim's public methods (set_dynamics, set_tool,
+    joint_views...), never its underscore attributes."""
+    from franka_vs_gym.sim import FrankaSim
+
+    sim = FrankaSim(camera=False)
+    private = sorted(k for k in vars(sim) if k.startswith("_")) + sorted(
+        k for k in vars(FrankaSim) if k.startswith("_") and not k.startswith("__"))
+    pat = re.compile(r"\b(?!self\b)[A-Za-z_]\w*\.(" + "|".join(map(re.escape, private)) + r")\b")
+    roots = [PACKAGE, PACKAGE.parent / "baselines", PACKAGE.parent / "scripts", PACKAGE.parent / "examples"]
+    bad = []
+    for root in roots:
+        for p in sorted(root.rglob("*.py")):
+            rel = p.relative_to(PACKAGE.parent).as_posix()
+            if rel.startswith("franka_vs_gym/sim/"):
+                continue
+            bad += [f"{rel}: {m.group(0)}" for m in pat.finditer(p.read_text())]
+    assert not bad, bad

@@ -19,7 +19,6 @@ import mujoco
 import numpy as np
 from gymnasium import spaces
 
-from franka_vs_gym.assets.mjcf import mat2quat
 from franka_vs_gym.model.config import ModelConfig, RigidBody, resolve_config
 from franka_vs_gym.sim import CAMERA_FRAME, FORCE_TORQUE, JOINT_STATE, VELOCITY, FrankaSim, SimulationDiverged
 
@@ -207,7 +206,6 @@ class FrankaEnv(gym.Env):
         self.robot = self.sim  # the FrankaSim (vpRobotFranka-style API): env.unwrapped.robot.model is its FrankaModel
         self.world = self.sim.world
         self._m, self._d = self.world.model, self.world.data
-        self._nominal = self._nominal_dynamics()
         limits = self.sim.model.limits()
         self.q_min, self.q_max = limits["q_min"], limits["q_max"]
         self.dq_max, self.tau_max = limits["dq_max"], limits["tau_max"]
@@ -233,72 +231,28 @@ class FrankaEnv(gym.Env):
         self._episode_params: dict[str, Any] = {}
 
     # ------------------------------------------------------------------ dynamics randomisation
-    def _nominal_dynamics(self) -> dict[str, Any]:
-        m, p = self._m, self.sim.prefix
-        links = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"{p}link{i + 1}") for i in range(7)]
-        payload = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"{p}undeclared_payload")
-        hand = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"{p}hand")
-        R = np.zeros(9)
-        mujoco.mju_quat2Mat(R, m.body_iquat[hand])
-        R = R.reshape(3, 3)
-        hand_inertia = (hand, float(m.body_mass[hand]), m.body_ipos[hand].copy(),
-                        R @ np.diag(m.body_inertia[hand]) @ R.T, m.body_inertia[hand].copy(), m.body_iquat[hand].copy())
-        return {"links": links, "mass": m.body_mass[links].copy(), "inertia": m.body_inertia[links].copy(),
-                "payload": payload, "hand": hand_inertia, "friction_scale": self.sim.friction_scale}
-
     def _randomise_dynamics(self) -> None:
-        m, nom, rng, s = self._m, self._nominal, self.np_random, self.sim
+        """Draw this episode's plant (FrankaSim.set_dynamics); the draws are reported in the reset info."""
+        rng, sim = self.np_random, self.sim
         info: dict[str, Any] = {}
-        changed = False
         if self.link_mass_range is not None:
             k = rng.uniform(*self.link_mass_range, size=7)
-            m.body_mass[nom["links"]] = nom["mass"] * k
-            m.body_inertia[nom["links"]] = nom["inertia"] * k[:, None]
+            sim.set_dynamics(link_mass_scale=k)
             info["link_mass_scale"] = k
-            changed = True
         if self.friction_scale_range is not None:
             k = float(rng.uniform(*self.friction_scale_range))
-            s.set_friction_scale(nom["friction_scale"] * k)  # scales the whole law of the plant
+            sim.set_dynamics(friction_scale=k)  # scales the whole law of the plant
             info["friction_scale"] = k
-        if self.payload_mass_range is not None and self.payload_declared:
+        if self.payload_mass_range is not None:
             mass = float(rng.uniform(*self.payload_mass_range))
-            self._set_declared_payload(mass)
+            # a small solid sphere of radius 3 cm held at PAYLOAD_COM in the flange frame
+            body = RigidBody(mass, PAYLOAD_COM, np.full(3, 0.4 * mass * 0.03**2))
+            if self.payload_declared:
+                sim.set_dynamics(payload=body if mass > 0 else None)
+            else:
+                sim.set_dynamics(undeclared_payload=body)
             info["payload_mass"] = mass
-            changed = True
-        elif self.payload_mass_range is not None and nom["payload"] >= 0:
-            mass = float(rng.uniform(*self.payload_mass_range))
-            # a small solid sphere of radius 3 cm (MuJoCo needs a positive mass on a body with inertia)
-            mass_eff = max(mass, 1e-9)
-            m.body_mass[nom["payload"]] = mass_eff
-            m.body_inertia[nom["payload"]] = 0.4 * mass_eff * 0.03**2
-            info["payload_mass"] = mass
-            changed = True
-        if changed:
-            mujoco.mj_setConst(m, self._d)
         self._episode_params = info
-
-    def _set_declared_payload(self, mass: float) -> None:
-        """Merge a payload sphere (radius 3 cm, at PAYLOAD_COM in the flange frame) into the hand body, whose weight
-        the robot's gravity compensation (MuJoCo gravcomp on the arm and hand) then includes."""
-        m = self._m
-        hand, mh, ch, Ih, diag0, quat0 = self._nominal["hand"]
-        if mass <= 0:
-            m.body_mass[hand], m.body_ipos[hand] = mh, ch
-            m.body_inertia[hand], m.body_iquat[hand] = diag0, quat0
-            return
-        p = np.asarray(PAYLOAD_COM)
-        mt = mh + mass
-        c = (mh * ch + mass * p) / mt
-
-        def shift(r: np.ndarray) -> np.ndarray:  # parallel-axis term of a unit mass at r from the new com
-            return (r @ r) * np.eye(3) - np.outer(r, r)
-
-        inertia = Ih + mh * shift(ch - c) + 0.4 * mass * 0.03**2 * np.eye(3) + mass * shift(p - c)
-        w, V = np.linalg.eigh(inertia)
-        if np.linalg.det(V) < 0:
-            V[:, 0] = -V[:, 0]
-        m.body_mass[hand], m.body_ipos[hand] = mt, c
-        m.body_inertia[hand], m.body_iquat[hand] = w, mat2quat(V)
 
     # ------------------------------------------------------------------ action handling
     def _check_action(self, action: Any) -> np.ndarray:

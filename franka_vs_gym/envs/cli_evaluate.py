@@ -1,10 +1,12 @@
 """``franka-vs evaluate``: run a scripted policy or a trained agent on an environment and print its scores.
 
 Policies:
-  ``ibvs`` / ``pbvs``           baselines.IBVSPolicy / PBVSPolicy (visual-servoing envs; joint_velocity actions, or
-                                cartesian_velocity with --env-kwargs '{"action_type": "cartesian_velocity"}')
-  ``computed-torque`` / ``impedance``   baselines torque policies (FrankaTorqueTracking-v0)
+  ``ibvs`` / ``pbvs``           franka_vs_gym.policies.IBVSPolicy / PBVSPolicy (visual-servoing envs;
+                                joint_velocity actions, or cartesian_velocity with
+                                --env-kwargs '{"action_type": "cartesian_velocity"}')
+  ``computed-torque`` / ``impedance``   franka_vs_gym.policies torque policies (FrankaTorqueTracking-v0)
   ``zero``                      a zero action (a reference: what doing nothing scores)
+  ``ibvs_ppo``                  a shipped agent (franka_vs_gym.policies.shipped_agents(); needs the [rl] extra)
   ``path/to/agent.zip``         a stable-baselines3 agent saved by baselines/train_sb3.py (with its .json)
 """
 
@@ -20,7 +22,8 @@ SCRIPTED = ("ibvs", "pbvs", "computed-torque", "impedance", "zero")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("policy", help=f"one of {', '.join(SCRIPTED)}, or the path of an agent .zip")
+    parser.add_argument("policy", help=f"one of {', '.join(SCRIPTED)}, a shipped agent (ibvs_ppo), or the path of "
+                        "an agent .zip")
     parser.add_argument("--env", default=None, help="environment id (default: the agent's, or FrankaIBVS-v0 for "
                         "ibvs/pbvs/zero, FrankaTorqueTracking-v0 for the torque policies)")
     parser.add_argument("--episodes", type=int, default=20)
@@ -36,12 +39,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _scripted(name: str, env_kwargs: dict[str, Any]) -> tuple[Any, str, dict[str, Any]]:
-    import baselines
+    from franka_vs_gym import policies
 
     if name in ("ibvs", "pbvs"):
-        cls = getattr(baselines, "IBVSPolicy" if name == "ibvs" else "PBVSPolicy", None)
-        if cls is None:
-            raise ValueError(f"baselines does not provide the {name.upper()} policy in this installation")
+        cls = policies.IBVSPolicy if name == "ibvs" else policies.PBVSPolicy
         kw = {"action_type": "joint_velocity", "observation_type": "features"} | env_kwargs
         if kw["action_type"] not in ("joint_velocity", "cartesian_velocity"):
             raise ValueError(f"the {name.upper()} policy commands joint_velocity or cartesian_velocity actions, "
@@ -50,9 +51,7 @@ def _scripted(name: str, env_kwargs: dict[str, Any]) -> tuple[Any, str, dict[str
         if name == "ibvs" and "tag_size" in kw:
             pkw["tag_size"] = kw["tag_size"]
         return cls(**pkw), "FrankaIBVS-v0" if name == "ibvs" else "FrankaPBVS-v0", kw
-    from baselines import torque
-
-    cls = torque.ComputedTorquePolicy if name == "computed-torque" else torque.JointImpedancePolicy
+    cls = policies.ComputedTorquePolicy if name == "computed-torque" else policies.JointImpedancePolicy
     return cls(env_kwargs.get("model")), "FrankaTorqueTracking-v0", {"action_type": "torque"} | env_kwargs
 
 
@@ -68,10 +67,11 @@ def _zero_policy(env_id: str, env_kwargs: dict[str, Any]):
 
 def resolve_policy(name: str, env: str | None, env_kwargs: dict[str, Any]) -> tuple[Any, str, dict[str, Any]]:
     """(policy, env id, env kwargs) for a policy name of the command line (see the module docstring)."""
-    if name.endswith(".zip") or Path(name).suffix == ".zip" or Path(name + ".zip").is_file():
-        from franka_vs_gym.envs.wrappers import AgentPolicy
+    from franka_vs_gym.policies import load_agent, shipped_agents
 
-        policy = AgentPolicy.load(name)
+    if (name.endswith(".zip") or Path(name).suffix == ".zip" or Path(name + ".zip").is_file()
+            or name in shipped_agents()):
+        policy = load_agent(name)
         env_id = env or policy.env_id
         kw = {"observation_type": "features", "action_type": "joint_velocity"} | policy.env_kwargs | env_kwargs
     elif name == "zero":
@@ -82,7 +82,8 @@ def resolve_policy(name: str, env: str | None, env_kwargs: dict[str, Any]) -> tu
         policy, default_env, kw = _scripted(name, env_kwargs)
         env_id = env or default_env
     else:
-        raise ValueError(f"unknown policy {name!r}: use one of {', '.join(SCRIPTED)} or an agent .zip path")
+        raise ValueError(f"unknown policy {name!r}: use one of {', '.join(SCRIPTED + tuple(shipped_agents()))} "
+                         "or an agent .zip path")
     return policy, env_id, kw
 
 

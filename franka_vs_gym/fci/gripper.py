@@ -30,7 +30,7 @@ class SimulatedHand:
 
     def __init__(self, sim) -> None:
         self.sim = sim
-        m = sim._m
+        m = sim.world.model
         p = sim.prefix
         self._m = m
         self.fingers = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"{p}{s}finger") for s in ("left", "right")]
@@ -93,7 +93,7 @@ class SimulatedHand:
         return self.action is not None
 
     def _touching(self) -> bool:
-        d = self.sim._d
+        d = self.sim.world.data
         fingers = self.fingers
         mb = self._m.geom_bodyid
         for i in range(d.ncon):

@@ -57,6 +57,7 @@ _TICK = 0.001  # s of wall time between idle states (and the real-time control p
 # Lock-step, between a Move and its first command: frozen states keep the client from waiting forever, but every
 # extra one the client drains changes the time step it sees, so they are rare.
 _START_PHASE_PERIOD = 0.05
+_MAX_LATE = 0.002  # s: real-time cycles later than this are dropped (plant time falls behind wall time)
 _HAND_STEPS_PER_TICK = 25  # lock-step physics steps per wall-time tick while only the hand moves
 
 
@@ -151,6 +152,7 @@ class FCIServer:
         self._rows: list[np.ndarray] = []
         self.deadlines_met = 0
         self.deadlines_total = 0
+        self.late_cycles = 0  # real-time cycles the server itself could not run in time (dropped)
         self._renderers: dict[tuple[int, int], Any] = {}
 
     # ------------------------------------------------------------------ lifecycle
@@ -276,8 +278,9 @@ class FCIServer:
                 now = time.perf_counter()
                 if now >= next_tick:
                     next_tick += _TICK
-                    if now - next_tick > 0.05:  # far behind (debugger, overloaded machine): do not catch up
-                        next_tick = now + _TICK
+                    if now - next_tick > _MAX_LATE:  # the server itself fell behind (machine overloaded): the
+                        self.late_cycles += int((now - next_tick) / _TICK)  # lost cycles are dropped, not
+                        next_tick = now + _TICK  # replayed back to back (that would count as client misses)
                     if self.lockstep:
                         self._lockstep_tick()
                     else:
@@ -355,7 +358,7 @@ class FCIServer:
                     break
                 self._record()
             self._after_step(None, reasons)
-        else:
+        elif self.robot_conn is not None:  # (nobody to send to: the frozen plant needs no work)
             self._send_state(r.fill_state())
         self._send_gripper_state()
 
@@ -528,9 +531,13 @@ class FCIServer:
                     conn.send(codec.status_response(cmd, cid, RecoveryStatus.COMMAND_NOT_POSSIBLE_REJECTED))
                     return
                 r.automatic_error_recovery()
+                self._send_state(r.fill_state())  # in the client's queue before the reply: it reads the recovery
                 conn.send(codec.status_response(cmd, cid, RecoveryStatus.SUCCESS))
             else:
-                conn.send(codec.status_response(cmd, cid, self._setter(cmd, payload)))
+                status = self._setter(cmd, payload)
+                if not r.moving:
+                    self._send_state(r.fill_state())  # ... and the new setting
+                conn.send(codec.status_response(cmd, cid, status))
 
     def _setter(self, cmd: Command, payload: bytes) -> SetterStatus:
         r = self.robot
@@ -561,9 +568,9 @@ class FCIServer:
             if not (np.allclose(R @ R.T, np.eye(3), atol=1e-6) and np.allclose(T[3], (0, 0, 0, 1))):
                 return SetterStatus.INVALID_ARGUMENT_REJECTED
             if cmd == Command.SET_EE_TO_K:
-                r.EE_T_K = T
+                r.set_EE_to_K(T)
             else:
-                r.NE_T_EE = T
+                r.set_NE_to_EE(T)
         elif cmd == Command.SET_LOAD:
             m, com, inertia = values[0], values[1:4], values[4:13].reshape(3, 3, order="F")
             if m < 0 or not np.allclose(inertia, inertia.T, atol=1e-9):
@@ -624,9 +631,9 @@ class FCIServer:
         key = (width, height)
         r = self._renderers.get(key)
         if r is None:
-            r = self._renderers[key] = mujoco.Renderer(self.sim._m, height, width)
+            r = self._renderers[key] = mujoco.Renderer(self.sim.world.model, height, width)
         with self.lock:
-            r.update_scene(self.sim._d, camera=self.sim.camera_name())
+            r.update_scene(self.sim.world.data, camera=self.sim.camera_name())
         return r.render()
 
     def state(self) -> dict[str, Any]:

@@ -21,7 +21,7 @@ from franka_vs_gym.model.config import ModelConfig, RigidBody, Tool, resolve_con
 from franka_vs_gym.model.description import RobotDescription
 from franka_vs_gym.model.franka_model import FrankaModel
 from franka_vs_gym.model.friction import make_plant_friction
-from franka_vs_gym.model.geometry import pose_vector, twist_transform
+from franka_vs_gym.model.geometry import combine_inertials, pose_vector, twist_transform
 from franka_vs_gym.sim import plant
 from franka_vs_gym.sim.world import SimulationDiverged, SimWorld
 from franka_vs_gym.sim.world import no_op as _no_op
@@ -545,10 +545,137 @@ class FrankaSim:
         M[:3, 3] = d.xpos[self._base_body]
         return M
 
-    def set_tool(self, flMe: Any, mass: float = 0.0, flMcom: Any = (0, 0, 0), inertia: Any = None) -> None:
+    def set_tool(self, flMe: Any, mass: float = 0.0, flMcom: Any = (0, 0, 0), inertia: Any = None, *,
+                 plant: bool = False) -> None:
         """Declare the tool to the robot's model (as the real robot's end-effector settings): updates the model
-        used by the getters and Cartesian commands. The plant's physical tool is fixed at construction."""
-        self.model.set_tool(as_pose(flMe, "flMe"), mass, flMcom, inertia)
+        used by the getters and Cartesian commands.
+
+        flMe (4, 4): end-effector pose in the flange frame; mass (kg), flMcom (3,) m in the flange frame and inertia
+        (3, 3) or (3,) kg m^2 about the centre of mass. With ``plant=True`` the simulated tool changes too (its
+        inertia, the end-effector site and the wrist camera mount follow; the tool's meshes stay as built).
+        """
+        flMe = as_pose(flMe, "flMe")
+        self.model.set_tool(flMe, mass, flMcom, inertia)
+        if plant:
+            tool = self.model.config.tool
+            self._plant_nominal()["tool"] = tool
+            self._apply_hand_body()
+            self._m.site_pos[self._ee_site] = flMe[:3, 3]
+            self._m.site_quat[self._ee_site] = mat2quat(flMe[:3, :3])
+            if self._cam >= 0:
+                self.set_eMc(self._eMc)
+            mujoco.mj_setConst(self._m, self._d)
+            mujoco.mj_forward(self._m, self._d)
+
+    # ------------------------------------------------------------------ plant dynamics (randomisation, injection)
+    def set_dynamics(self, *, link_mass_scale: Any = None, friction_scale: float | None = None,
+                     payload: RigidBody | None | bool = False, undeclared_payload: RigidBody | None = None,
+                     delay: float | None = None) -> None:
+        """Change the simulated plant's dynamics in place (domain randomisation, effect injection); the robot's
+        model (``self.model``, used by controllers) is not told, as a real robot's would not be.
+
+        Parameters (each left out keeps its current value)
+        ----------
+        link_mass_scale : (7,) factors on the mass and inertia of links 1..7 relative to the built plant (1 = as
+            built). The robot's internal gravity compensation follows the true masses.
+        friction_scale : factor >= 0 on the plant's whole friction law (:meth:`set_friction_scale`).
+        payload : a load held by the tool and declared to the robot's internal gravity compensation (as after
+            libfranka's ``setLoad``): a RigidBody in the flange frame, merged into the hand body; None removes it.
+        undeclared_payload : new mass, centre of mass and inertia of the undeclared payload body (only for a robot
+            built with ``undeclared_payload``); a mass of 0 is stored as 1e-9 kg.
+        delay : command delay, s (torque commands reach the joints this late; rounded to physics steps).
+        """
+        nom = self._plant_nominal()
+        m = self._m
+        changed = False
+        if link_mass_scale is not None:
+            k = as_vector(link_mass_scale, 7, "link_mass_scale")
+            if (k <= 0).any():
+                raise ValueError(f"link_mass_scale must be > 0, got {k}")
+            m.body_mass[nom["links"]] = nom["mass"] * k
+            m.body_inertia[nom["links"]] = nom["inertia"] * k[:, None]
+            changed = True
+        if friction_scale is not None:
+            self.set_friction_scale(friction_scale)
+        if payload is not False:
+            nom["payload"] = payload
+            self._apply_hand_body()
+            changed = True
+        if undeclared_payload is not None:
+            b = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"{self.prefix}undeclared_payload")
+            if b < 0:
+                raise ValueError("this robot has no undeclared payload body (construct with undeclared_payload=...)")
+            self._set_body_inertial(b, RigidBody(max(undeclared_payload.mass, 1e-9), undeclared_payload.com,
+                                                 undeclared_payload.inertia))
+            changed = True
+        if delay is not None:
+            delay = float(delay)
+            if not (delay >= 0 and math.isfinite(delay)):
+                raise ValueError(f"delay must be a finite number >= 0 s, got {delay}")
+            self._delay_steps = int(round(delay / self.dt))
+            self._tau_fifo.clear()
+            self._refresh_hook()
+        if changed:
+            mujoco.mj_setConst(m, self._d)
+
+    def _plant_nominal(self) -> dict[str, Any]:
+        """The plant's dynamics as built (captured on first use)."""
+        nom = getattr(self, "_nominal", None)
+        if nom is None:
+            m, p = self._m, self.prefix
+            links = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"{p}link{i + 1}") for i in range(7)]
+            h = self._hand_body
+            nom = self._nominal = {"links": links, "mass": m.body_mass[links].copy(),
+                                   "inertia": m.body_inertia[links].copy(), "tool": self.spec.config.tool,
+                                   "payload": None, "hand": (float(m.body_mass[h]), m.body_ipos[h].copy(),
+                                                             m.body_inertia[h].copy(), m.body_iquat[h].copy())}
+        return nom
+
+    def _apply_hand_body(self) -> None:
+        """The hand body's inertial = tool + configured payload + declared extra payload (flange frame)."""
+        nom = self._plant_nominal()
+        cfg = self.spec.config
+        extra = [nom["payload"]] if nom["payload"] is not None and nom["payload"].mass > 0 else []
+        if not extra and nom["tool"] is cfg.tool:  # as built: restore MuJoCo's own compiled values exactly
+            m, h = self._m, self._hand_body
+            m.body_mass[h], m.body_ipos[h], m.body_inertia[h], m.body_iquat[h] = nom["hand"]
+            return
+        body = cfg.copy(tool=nom["tool"]).flange_body()
+        if extra:
+            body = RigidBody(*combine_inertials([(body.mass, body.com, body.inertia)]
+                                                + [(b.mass, b.com, b.inertia) for b in extra]))
+        self._set_body_inertial(self._hand_body, body if body.mass > 0 else RigidBody(1e-9, np.zeros(3),
+                                                                                      np.eye(3) * 1e-12))
+
+    def _set_body_inertial(self, b: int, body: RigidBody) -> None:
+        w, V = np.linalg.eigh(body.inertia)
+        if np.linalg.det(V) < 0:
+            V[:, 0] = -V[:, 0]
+        m = self._m
+        m.body_mass[b], m.body_ipos[b] = body.mass, body.com
+        m.body_inertia[b], m.body_iquat[b] = w, mat2quat(V)
+
+    # ------------------------------------------------------------------ views for in-process servers
+    @property
+    def dof_slice(self) -> slice:
+        """Indices of this robot's 7 joints in the world's qvel/qacc/qfrc arrays (``world.data``)."""
+        return self._vs
+
+    def joint_views(self) -> tuple[np.ndarray, np.ndarray]:
+        """Live views (q (7,) rad, dq (7,) rad/s) into the simulator state, for 1 kHz loops that must not copy.
+        Read them; writing moves the robot without physics."""
+        return self._qpos, self._qvel
+
+    def velocity_servo_views(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Live views (gain Kv (7,) Nm s/rad, bias (7,) = -Kv, set-point (7,) rad/s) of the plant's joint velocity
+        servos, integrated implicitly by MuJoCo: a controller may write them to add joint damping
+        ``Kv (dq_set - dq)`` (e.g. an in-process FCI server's internal impedance controller)."""
+        m = self._m
+        return m.actuator_gainprm[self._vel, 0], m.actuator_biasprm[self._vel, 2], self._ctrl_vel
+
+    def stop_joints(self) -> None:
+        """Zero the joint velocities at once (the brakes engaging after a reflex)."""
+        self._qvel[:] = 0.0
 
     def camera_name(self) -> str:
         if self._cam < 0:

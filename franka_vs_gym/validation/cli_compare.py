@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from franka_vs_gym.validation.cli_common import add_common, settings_from
+from franka_vs_gym.validation.cli_common import add_common, load_from, settings_from
 from franka_vs_gym.validation.compare import compare, format_compare, progress
 
 
@@ -20,7 +20,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     verbose = not args.quiet
-    res = compare(args.log, args.model, rigid_body=args.rigid_body, settings=settings_from(args),
+    res = compare(load_from(args), args.model, tool=args.tool, robot=args.robot, rigid_body=args.rigid_body,
+                  settings=settings_from(args),
                   do_replay=not args.no_replay, replay_mode=args.replay_mode, verbose=verbose)
     if args.report:
         from franka_vs_gym.validation.report import markdown_report
