@@ -62,8 +62,6 @@ else:
             _reason = (f"the compiled plant was built against MuJoCo {_native.MJ_VERSION_HEADER} but MuJoCo "
                        f"{mujoco.mj_version()} is installed; reinstall franka_vs_gym (pip install -e .)")
             _native = None
-    if _reason is not None:
-        warnings.warn(f"franka_vs_gym: pure-Python plant friction (slower): {_reason}", RuntimeWarning, stacklevel=2)
 
 NATIVE: bool = _native is not None
 _CB_TYPE = ctypes.CFUNCTYPE(None, ctypes.c_void_p, ctypes.c_void_p)
