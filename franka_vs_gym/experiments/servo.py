@@ -27,7 +27,7 @@ import numpy as np
 
 from franka_vs_gym.assets.mjcf import TagSpec
 from franka_vs_gym.assets.textures import BORDER_CELLS, TAG_CELLS
-from franka_vs_gym.model.geometry import inverse_pose, pose_vector
+from franka_vs_gym.model.geometry import desired_tag_pose, inverse_pose, pose_vector
 from franka_vs_gym.sim import JOINT_STATE, VELOCITY, FrankaSim
 from franka_vs_gym.vision import (
     CameraIntrinsics,
@@ -50,11 +50,9 @@ def _rot(axis: np.ndarray, angle: float) -> np.ndarray:
 
 
 def desired_pose(distance: float) -> np.ndarray:
-    """cdMo: tag centred, parallel, ``distance`` m in front of the camera (tag z towards the camera)."""
-    M = np.eye(4)
-    M[:3, :3] = np.diag([1.0, -1.0, -1.0])
-    M[2, 3] = distance
-    return M
+    """cdMo: tag centred, parallel, ``distance`` m in front of the camera (:func:`~franka_vs_gym.model.geometry.
+    desired_tag_pose`)."""
+    return desired_tag_pose(distance)
 
 
 @dataclass
