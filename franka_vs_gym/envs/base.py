@@ -92,21 +92,26 @@ class ObservationPacker:
             i += n
         self.low, self.high = np.concatenate(lows), np.concatenate(highs)
         self._work = np.zeros(i)
+        # (key, slice, None for a flat key or its shape), so that the hot path reshapes only where needed
+        self._views = [(k, sl, None if len(sh) == 1 else sh) for k, sl, sh in self.items]
+        self.last: np.ndarray | None = None  # the flat float32 buffer of the last observation (its keys' base)
 
     def __call__(self, raw: dict[str, Any]) -> dict[str, np.ndarray]:
         v = self._work
-        for k, sl, _ in self.items:
+        for k, sl, _ in self._views:
             v[sl] = raw[k]
         np.maximum(v, self.low, out=v)
         np.minimum(v, self.high, out=v)
-        if v.sum() != v.sum():  # NaN somewhere (defensive: a NaN never reaches the agent)
+        total = v.sum()
+        if total != total:  # NaN somewhere (defensive: a NaN never reaches the agent)
             v[np.isnan(v)] = 0.0
-        buf = v.astype(np.float32)
-        return {k: buf[sl] if len(sh) == 1 else buf[sl].reshape(sh) for k, sl, sh in self.items}
+        buf = self.last = v.astype(np.float32)
+        return {k: buf[sl] if sh is None else buf[sl].reshape(sh) for k, sl, sh in self._views}
 
 
 class FrankaEnv(gym.Env):
-    """Base class: a FER (FrankaSim) driven through one of three action types.
+    """Base class: a Franka arm (FrankaSim; the FER unless ``robot`` says otherwise) driven through one of three
+    action types.
 
     Parameters (shared by every task; all are ``gymnasium.make`` keyword arguments)
     ----------
@@ -296,9 +301,19 @@ class FrankaEnv(gym.Env):
     def _after_reset(self) -> None:
         """Called once the robot is at q0 (e.g. to take the first camera frame)."""
 
+    def _segments(self) -> tuple[tuple[int, bool], ...]:
+        """The physics of the next control period as (substeps, camera frame after them) segments (tasks with a
+        camera capture frames in between); the batched vector env runs them on mujoco.batch."""
+        return ((self.n_substeps, False),)
+
+    def _segment_done(self, n: int, capture: bool) -> None:
+        """Called after each segment of :meth:`_segments` has run."""
+
     def _advance(self) -> None:
-        """Run the physics for one control period (tasks with a camera capture frames in between)."""
-        self.world.step(self.n_substeps)
+        """Run the physics for one control period."""
+        for n, capture in self._segments():
+            self.world.step(n)
+            self._segment_done(n, capture)
 
     def _get_obs(self) -> dict[str, np.ndarray]:
         raise NotImplementedError
@@ -376,20 +391,31 @@ class FrankaEnv(gym.Env):
         return {}
 
     def step(self, action: Any):
+        self._step_begin(action)
+        try:
+            self._advance()
+        except SimulationDiverged as e:
+            return self._step_diverged(e)
+        return self._step_end()
+
+    # the three parts of a step, run by the batched vector env around its batched physics
+    def _step_begin(self, action: Any) -> None:
         if self._diverged is not None:
             raise RuntimeError(f"the simulation diverged ({self._diverged}); call reset() before step()")
         if self._last_obs is None:
             raise RuntimeError("call reset() before step()")
         a = self._check_action(action)
         self._apply_action(a)
-        try:
-            self._advance()
-        except SimulationDiverged as e:
-            self._diverged = str(e)
-            info = {"time": self.episode_time, "is_success": False, "failure": f"diverged: {e}",
-                    **self._episode_params}
-            obs = {k: v.copy() for k, v in self._last_obs.items()}  # the last valid state, never NaN
-            return obs, -self._failure_cost(), True, False, info
+        self._action = a
+
+    def _step_diverged(self, e: SimulationDiverged):
+        self._diverged = str(e)
+        info = {"time": self.episode_time, "is_success": False, "failure": f"diverged: {e}", **self._episode_params}
+        obs = {k: v.copy() for k, v in self._last_obs.items()}  # the last valid state, never NaN
+        return obs, -self._failure_cost(), True, False, info
+
+    def _step_end(self):
+        a = self._action
         self._steps += 1
         obs = self._get_obs()
         self._last_obs = obs

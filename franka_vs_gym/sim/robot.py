@@ -22,7 +22,9 @@ from franka_vs_gym.model.description import RobotDescription
 from franka_vs_gym.model.franka_model import FrankaModel
 from franka_vs_gym.model.friction import make_plant_friction
 from franka_vs_gym.model.geometry import combine_inertials, pose_vector, twist_transform
+from franka_vs_gym.sim import plant
 from franka_vs_gym.sim.world import SimulationDiverged, SimWorld
+from franka_vs_gym.sim.world import no_op as _no_op
 
 
 class RobotState(enum.IntEnum):
@@ -61,12 +63,9 @@ VELOCITY_GAINS = np.array([120.0, 120.0, 80.0, 80.0, 15.0, 15.0, 6.0])
 _R_CV = np.diag([1.0, -1.0, -1.0])  # ViSP camera (z forward, y down) -> MuJoCo camera (-z forward, y up)
 
 
-def _no_op() -> None:
-    pass
-
-
 class FrankaSim:
-    """A simulated Franka Emika Robot (FER) with the API of ViSP's vpRobotFranka.
+    """A simulated Franka arm (the FER by default, or any registered robot: ``robot="fr3"``) with the API of ViSP's
+    vpRobotFranka.
 
     Control states (``set_robot_state``): STOP, POSITION (``set_position`` moves there), VELOCITY (``set_velocity``
     in JOINT_STATE, END_EFFECTOR_FRAME, CAMERA_FRAME or REFERENCE_FRAME) and FORCE_TORQUE (``set_force_torque``
@@ -164,6 +163,11 @@ class FrankaSim:
         self._friction_enabled = bool(friction) and not fr.is_zero()
         self._friction_scale = 1.0
         self._friction_step = self._make_friction_step()
+        # the compiled plant applies the friction inside mj_step from the parameters in the model (jnt_user); the
+        # Python friction step is the fallback without it (franka_vs_gym.sim.plant)
+        self._native = plant.install()
+        self._jids = jids
+        self._write_plant_friction()
         n_delay = int(round(cfg.delay / self.dt))
         self._delay_steps = n_delay if cfg.delay_channel == "command" else 0
         self._meas_fifo: deque[np.ndarray] | None = None
@@ -212,9 +216,15 @@ class FrankaSim:
     def _refresh_hook(self) -> None:
         if not self._friction_enabled:
             self._qfrc_applied[:] = 0.0
+        self._write_plant_friction()
         hook = self._make_pre_step()
         self.world.replace_pre_step(self._hook, hook)
         self._hook = hook
+
+    def _write_plant_friction(self) -> None:
+        """The friction parameters into the model's joint user numbers, read by the compiled plant."""
+        on = self._native and self._friction_enabled
+        self._m.jnt_user[self._jids] = plant.friction_rows(self.spec.config.friction, self._friction_scale, on)
 
     def _make_friction_step(self):
         fr = self.spec.config.friction
@@ -222,15 +232,16 @@ class FrankaSim:
                                    fr.coulomb, fr.coulomb_vel, self._friction_scale)
 
     def _make_pre_step(self):
-        """The per-physics-step hook (runs at 1 kHz before every mj_step). Without command delay it is the friction
-        step itself (allocation-free, :func:`franka_vs_gym.model.friction.make_plant_friction`)."""
+        """The per-physics-step hook (runs at 1 kHz before every mj_step): none with the compiled plant and no
+        command delay; without the compiled plant, the friction step itself (allocation-free,
+        :func:`franka_vs_gym.model.friction.make_plant_friction`)."""
         if self._delay_steps:
             return self._pre_step
-        return self._friction_step if self._friction_enabled else _no_op
+        return self._friction_step if self._friction_enabled and not self._native else _no_op
 
     def _pre_step(self) -> None:
-        """General hook: friction, and the command delay FIFO."""
-        if self._friction_enabled:
+        """General hook: friction (without the compiled plant), and the command delay FIFO."""
+        if self._friction_enabled and not self._native:
             self._friction_step()
         if self._delay_steps and self._state == RobotState.STATE_FORCE_TORQUE_CONTROL:
             self._tau_fifo.append(self._tau_cmd.copy())
