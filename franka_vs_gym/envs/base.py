@@ -23,6 +23,7 @@ from franka_vs_gym.assets.mjcf import mat2quat
 from franka_vs_gym.model.config import ModelConfig, RigidBody, resolve_config
 from franka_vs_gym.model.franka_model import FrankaModel
 from franka_vs_gym.sim import CAMERA_FRAME, FORCE_TORQUE, JOINT_STATE, VELOCITY, FrankaSim, SimulationDiverged
+from franka_vs_gym.sim.reflexes import ControlException
 
 ACTION_TYPES = ("torque", "joint_velocity", "cartesian_velocity")
 OBSERVATION_TYPES = ("features", "image", "features+image", "state")
@@ -431,9 +432,17 @@ class FrankaEnv(gym.Env):
         if self._last_obs is None:
             raise RuntimeError("call reset() before step()")
         a = self._check_action(action)
-        self._apply_action(a)
         try:
+            self._apply_action(a)
             self._advance()
+            self.sim.check_reflexes()
+        except ControlException as e:  # a reflex stopped the robot (held by its brakes): the episode ends
+            self._steps += 1
+            obs = self._get_obs()
+            self._last_obs = obs
+            info = {"time": self.episode_time, "is_success": False, "failure": ",".join(e.reasons),
+                    "reflex": e.detail, **self._episode_params}
+            return obs, -self._failure_cost(), True, False, info
         except SimulationDiverged as e:
             self._diverged = str(e)
             info = {"time": self.episode_time, "is_success": False, "failure": f"diverged: {e}",

@@ -16,6 +16,8 @@ import math
 from pathlib import Path
 from typing import Any
 
+from franka_vs_gym.errors import UserError
+
 SCRIPTED = ("ibvs", "pbvs", "computed-torque", "impedance", "zero")
 
 
@@ -62,8 +64,44 @@ def _zero_policy(env_id: str, env_kwargs: dict[str, Any]):
     return lambda obs: np.zeros(shape, dtype=dtype)
 
 
+def check_env_kwargs(env_id: str, kwargs: dict[str, Any]) -> None:
+    """Refuse (one line) an unknown environment id or a keyword its constructor does not take."""
+    import inspect
+
+    import gymnasium as gym
+
+    import franka_vs_gym.envs  # noqa: F401  (registers the environments)
+
+    try:
+        spec = gym.spec(env_id)
+    except gym.error.Error as e:
+        raise UserError(f"unknown environment {env_id!r} ({' '.join(str(e).split())})") from None
+    ep = spec.entry_point
+    if isinstance(ep, str):
+        mod, _, attr = ep.partition(":")
+        import importlib
+
+        ep = getattr(importlib.import_module(mod), attr)
+    known: set[str] = set()
+    for cls in (ep.__mro__ if inspect.isclass(ep) else ()):
+        init = cls.__dict__.get("__init__")
+        if init is None:
+            continue
+        params = inspect.signature(init).parameters.values()
+        known |= {p.name for p in params if p.kind in (p.KEYWORD_ONLY, p.POSITIONAL_OR_KEYWORD) and p.name != "self"}
+        if not any(p.kind == p.VAR_KEYWORD for p in params):
+            break
+    if not known:
+        return
+    unknown = sorted(set(kwargs) - known - {"render_mode"})
+    if unknown:
+        raise UserError(f"--env-kwargs: {env_id} takes no keyword {', '.join(map(repr, unknown))} (it takes "
+                        f"{', '.join(sorted(known))})")
+
+
 def main(args: argparse.Namespace) -> int:
     import franka_vs_gym
+    from franka_vs_gym.io import atomic_write, check_output
 
     try:
         env_kwargs = json.loads(args.env_kwargs)
@@ -73,8 +111,8 @@ def main(args: argparse.Namespace) -> int:
         raise ValueError("--env-kwargs must be a JSON object")
     if args.episodes < 1:
         raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
-    if args.json and Path(args.json).exists() and not args.force:
-        raise FileExistsError(f"{args.json} exists; pass --force to overwrite it")
+    if args.json:
+        check_output(args.json, args.force, what="--json file")
     name = args.policy
     if name.endswith(".zip") or Path(name).suffix == ".zip" or Path(name + ".zip").is_file():
         from franka_vs_gym.envs.wrappers import AgentPolicy
@@ -82,13 +120,16 @@ def main(args: argparse.Namespace) -> int:
         policy = AgentPolicy.load(name)
         env_id = args.env or policy.env_id
         kw = {"observation_type": "features", "action_type": "joint_velocity"} | policy.env_kwargs | env_kwargs
+        check_env_kwargs(env_id, kw)
     elif name == "zero":
         env_id = args.env or "FrankaIBVS-v0"
         kw = env_kwargs
+        check_env_kwargs(env_id, kw)
         policy = _zero_policy(env_id, kw)
     elif name in SCRIPTED:
         policy, default_env, kw = _scripted(name, env_kwargs)
         env_id = args.env or default_env
+        check_env_kwargs(env_id, kw)
     else:
         raise ValueError(f"unknown policy {name!r}: use one of {', '.join(SCRIPTED)} or an agent .zip path")
     r = franka_vs_gym.evaluate(policy, env_id, args.episodes, args.seed, env_kwargs=kw, progress=not args.quiet)
@@ -107,8 +148,7 @@ def main(args: argparse.Namespace) -> int:
                 return [clean(v) for v in x]
             return x
 
-        p = Path(args.json)
-        p.parent.mkdir(parents=True, exist_ok=True)
-        p.write_text(json.dumps(clean({"policy": name, "env_id": env_id, "env_kwargs": kw, **r}), indent=2))
+        p = atomic_write(args.json, json.dumps(clean({"policy": name, "env_id": env_id, "env_kwargs": kw, **r}),
+                                               indent=2), force=args.force, what="--json file")
         print(f"wrote {p}")
     return 0

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 
 from franka_vs_gym.validation.cli_common import add_common, settings_from
 from franka_vs_gym.validation.compare import compare, format_compare, progress
@@ -19,15 +20,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    verbose = not args.quiet
-    res = compare(args.log, args.model, rigid_body=args.rigid_body, settings=settings_from(args),
-                  do_replay=not args.no_replay, replay_mode=args.replay_mode, verbose=verbose)
-    if args.report:
-        from franka_vs_gym.validation.report import markdown_report
+    from franka_vs_gym.io import OutputSet
+    from franka_vs_gym.validation.logs import sidecar_path
 
-        progress("writing the report and figures", verbose)
-        path = markdown_report(res, args.report, overwrite=args.force)
-        progress(f"report: {path}", verbose)
+    verbose = not args.quiet
+    inputs = [p for p in (args.log, sidecar_path(args.log), args.model) if p]
+    # the report folder is refused (exists without --force, is an input...) before the comparison runs, and
+    # appears complete or not at all
+    with OutputSet(force=args.force, inputs=inputs) as outputs:
+        report_tmp = outputs.folder(args.report, what="report folder") if args.report else None
+        res = compare(args.log, args.model, rigid_body=args.rigid_body, settings=settings_from(args),
+                      do_replay=not args.no_replay, replay_mode=args.replay_mode, verbose=verbose)
+        if report_tmp is not None:
+            from franka_vs_gym.validation.report import markdown_report
+
+            progress("writing the report and figures", verbose)
+            markdown_report(res, report_tmp, overwrite=True)
+    if args.report:
+        progress(f"report: {Path(args.report) / 'report.md'}", verbose)
     if args.json:
         print(json.dumps(res.to_dict()))
     else:

@@ -25,20 +25,26 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    from franka_vs_gym.io import OutputSet
     from franka_vs_gym.validation.diagnose import diagnose
+    from franka_vs_gym.validation.logs import sidecar_path
 
     verbose = not args.quiet
     effects = None if args.effects is None else [e for e in args.effects.split(",") if e.strip()]
-    d = diagnose(args.log, args.model, rigid_body=args.rigid_body, effects=effects, settings=settings_from(args),
-                 verbose=verbose)
-    if args.report:
-        from franka_vs_gym.validation.compare import compare
-        from franka_vs_gym.validation.report import markdown_report
+    inputs = [p for p in (args.log, sidecar_path(args.log), args.model) if p]
+    with OutputSet(force=args.force, inputs=inputs) as outputs:
+        report_tmp = outputs.folder(args.report, what="report folder") if args.report else None
+        d = diagnose(args.log, args.model, rigid_body=args.rigid_body, effects=effects, settings=settings_from(args),
+                     verbose=verbose)
+        if report_tmp is not None:
+            from franka_vs_gym.validation.compare import compare
+            from franka_vs_gym.validation.report import markdown_report
 
-        progress("writing the report and figures", verbose)
-        res = compare(d.context.data, d.config, do_replay=False)
-        path = markdown_report(res, args.report, diagnosis=d, overwrite=args.force)
-        progress(f"report: {path}", verbose)
+            progress("writing the report and figures", verbose)
+            res = compare(d.context.data, d.config, do_replay=False)
+            markdown_report(res, report_tmp, diagnosis=d, overwrite=True)
+    if args.report:
+        progress(f"report: {args.report}/report.md", verbose)
     if args.json:
         print(json.dumps(d.to_dict()))
         return 0

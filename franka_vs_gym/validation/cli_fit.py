@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -22,29 +23,39 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    from franka_vs_gym.io import OutputSet
     from franka_vs_gym.validation.diagnose import fit_effects
+    from franka_vs_gym.validation.logs import sidecar_path
 
     out = Path(args.output)
-    if out.exists() and not args.force:
-        raise FileExistsError(f"{out} exists; pass --force to replace it")
     effects = [e for e in args.add.split(",") if e.strip()]
     if not effects:
         raise ValueError("--add needs at least one effect")
     verbose = not args.quiet
-    res = fit_effects(args.log, effects, args.model, rigid_body=args.rigid_body, settings=settings_from(args),
-                      verbose=verbose)
-    res.after.save(out, overwrite=args.force)
+    # the model and the report appear together or not at all; outputs are refused before the fit runs, and no
+    # output may be one of the inputs (the log, its sidecar, --model), whatever --force says
+    inputs = [p for p in (args.log, sidecar_path(args.log), args.model) if p]
+    with OutputSet(force=args.force, inputs=inputs) as outputs:
+        model_tmp = outputs.file(out, what="calibrated model file")
+        report_tmp = outputs.folder(args.report, what="report folder") if args.report else None
+        res = fit_effects(args.log, effects, args.model, rigid_body=args.rigid_body, settings=settings_from(args),
+                          verbose=verbose)
+        res.after.save(model_tmp, overwrite=True)
+        if report_tmp is not None:
+            from franka_vs_gym.validation.compare import compare
+            from franka_vs_gym.validation.report import markdown_report
+
+            progress("writing the report and figures", verbose)
+            cmp_after = compare(res.data, res.after, do_replay=False)
+            markdown_report(cmp_after, report_tmp, fit=res, overwrite=True)
     progress(f"calibrated model written to {out}", verbose)
     if args.report:
-        from franka_vs_gym.validation.compare import compare
-        from franka_vs_gym.validation.report import markdown_report
-
-        progress("writing the report and figures", verbose)
-        cmp_after = compare(res.data, res.after, do_replay=False)
-        path = markdown_report(cmp_after, args.report, fit=res, overwrite=args.force)
-        progress(f"report: {path}", verbose)
+        progress(f"report: {Path(args.report) / 'report.md'}", verbose)
+    warnings = res.after.plausibility_warnings()
+    for w in warnings:
+        print(f"franka-vs fit: warning: {w}", file=sys.stderr)
     if args.json:
-        print(json.dumps({**res.to_dict(), "model_file": str(out)}))
+        print(json.dumps({**res.to_dict(), "model_file": str(out), "warnings": warnings}))
         return 0
     print("joint   before   after   noise floor  (torque RMSE, Nm)")
     for j in range(7):
