@@ -9,7 +9,7 @@ baseline).
 
 Examples::
 
-    python baselines/train_sb3.py --algo sac --timesteps 60000 --out baselines/policies/ibvs_sac
+    python baselines/train_sb3.py --algo sac --timesteps 60000 --out runs/sb3/ibvs_sac
     python baselines/train_sb3.py --smoke            # a few hundred steps (CI)
     tensorboard --logdir runs/sb3
 """

@@ -31,13 +31,14 @@ def table(title: str, rows: list[tuple], headers: tuple[str, ...]) -> None:
 def bench_core(quick: bool) -> None:
     import mujoco
 
-    from franka_vs_gym.model import FrankaModel, params
+    from franka_vs_gym.model import FrankaModel
     from franka_vs_gym.sim import FORCE_TORQUE, JOINT_STATE, FrankaSim
 
     n = 2000 if quick else 20000
     m = FrankaModel()
     rng = np.random.default_rng(0)
-    q = rng.uniform(params.as_array(params.Q_MIN), params.as_array(params.Q_MAX))
+    lim = m.limits()
+    q = rng.uniform(lim["q_min"], lim["q_max"])
     dq = rng.uniform(-1, 1, 7)
     rows = []
     for name, fn, target in [
@@ -108,7 +109,21 @@ def bench_validation(quick: bool) -> None:
           ("what", "value"))
 
 
-SECTIONS = {"core": bench_core, "vision": bench_vision, "envs": bench_envs, "validation": bench_validation}
+def bench_fci(quick: bool) -> None:
+    import importlib.util
+
+    if importlib.util.find_spec("pylibfranka") is None:
+        print("\n## FCI server: skipped (pip install -e '.[fci]' for pylibfranka)")
+        return
+    from franka_vs_gym.fci.bench import bench_fci as run
+
+    res = run(quick)
+    table("FCI server (franka-vs serve) with a pylibfranka client in its own process",
+          [(k, v) for k, v in res.items()], ("what", "value"))
+
+
+SECTIONS = {"core": bench_core, "vision": bench_vision, "envs": bench_envs, "validation": bench_validation,
+            "fci": bench_fci}
 
 
 def main() -> None:

@@ -14,7 +14,6 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from baselines.torque import ComputedTorquePolicy, JointImpedancePolicy
 from franka_vs_gym.control import (
     CartesianComputedTorque,
     CartesianImpedance,
@@ -28,6 +27,7 @@ from franka_vs_gym.control import (
 from franka_vs_gym.experiments.tracking import Q0, desired_trajectory, pid_gains, run_tracking
 from franka_vs_gym.model import FrankaModel, ModelConfig
 from franka_vs_gym.model.config import Friction, RigidBody
+from franka_vs_gym.policies import ComputedTorquePolicy, JointImpedancePolicy
 from franka_vs_gym.sim.robot import FORCE_TORQUE, JOINT_STATE, FrankaSim
 
 

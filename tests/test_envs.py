@@ -7,6 +7,7 @@ import math
 import warnings
 
 import gymnasium as gym
+import mujoco
 import numpy as np
 import pytest
 
@@ -295,8 +296,9 @@ def test_zero_torque_holds_the_arm_and_undeclared_payload_sags():
 def test_link_mass_randomisation_changes_the_plant():
     env = make("FrankaTorqueTracking-v0", link_mass_range=(0.5, 1.5))
     u = env.unwrapped
-    links = u._nominal["links"]
-    nominal = u._nominal["mass"].copy()
+    m = u.world.model
+    links = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"{u.sim.prefix}link{i + 1}") for i in range(7)]
+    nominal = m.body_mass[links].copy()  # as built, before the first reset draws
     _, info = env.reset(seed=0)
     np.testing.assert_allclose(u.world.model.body_mass[links], nominal * info["link_mass_scale"])
     assert np.all((info["link_mass_scale"] >= 0.5) & (info["link_mass_scale"] <= 1.5))
@@ -312,7 +314,7 @@ def test_model_file_is_used(tmp_path):
     path = cfg.save(tmp_path / "calibrated.json")
     env = gym.make("FrankaTorqueTracking-v0", model=str(path))
     u = env.unwrapped
-    np.testing.assert_allclose(u.world.model.dof_armature[u.sim._vs], 0.123)
+    np.testing.assert_allclose(u.world.model.dof_armature[u.sim.dof_slice], 0.123)
     np.testing.assert_allclose(u.sim.model.config.armature, 0.123)
     env.close()
 
@@ -471,6 +473,7 @@ def test_declared_payload_is_compensated_like_set_load():
     np.testing.assert_allclose(tau_diff, model.gravity(q) - g0, atol=2e-3)
     # and the inertia seen by the joints grows (the payload is a real mass)
     u = env.unwrapped
-    assert u.world.model.body_mass[u._nominal["hand"][0]] == pytest.approx(u._nominal["hand"][1] + 1.5)
+    hand = mujoco.mj_name2id(u.world.model, mujoco.mjtObj.mjOBJ_BODY, f"{u.sim.prefix}hand")
+    assert u.world.model.body_mass[hand] == pytest.approx(u.config.flange_body().mass + 1.5)
     env.close()
     bare.close()

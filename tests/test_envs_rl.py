@@ -22,7 +22,7 @@ from franka_vs_gym.envs.wrappers import (
 )
 
 ROOT = Path(__file__).resolve().parents[1]
-SHIPPED = ROOT / "baselines" / "policies" / "ibvs_ppo.zip"
+SHIPPED = ROOT / "franka_vs_gym" / "policies" / "agents" / "ibvs_ppo.zip"
 
 
 def test_agent_env_passes_checkers_and_scales_actions():
@@ -101,7 +101,8 @@ def test_ppo_training_smoke(tmp_path):
 
 
 def test_shipped_agent_success_rate():
-    """The agent shipped in baselines/policies reaches the goal on unseen episodes (seeds not used in training)."""
+    """The agent shipped in franka_vs_gym/policies/agents reaches the goal on unseen episodes (seeds not used in
+    training)."""
     assert SHIPPED.is_file(), f"missing shipped agent {SHIPPED}"
     assert SHIPPED.stat().st_size < 5e6
     agent = AgentPolicy.load(SHIPPED)
@@ -112,7 +113,7 @@ def test_shipped_agent_success_rate():
 
 def test_classical_ibvs_on_the_same_interface():
     """The scripted IBVS baseline and the agent run through the same evaluate() on the same episodes."""
-    from baselines import IBVSPolicy
+    from franka_vs_gym.policies import IBVSPolicy
 
     res = franka_vs_gym.evaluate(IBVSPolicy(), "FrankaIBVS-v0", 5, seed=50_000)
     assert res["success_rate"] == 1.0 and res["mean_time_to_converge"] < 5.0
@@ -135,9 +136,24 @@ def test_cli_evaluate_zero_policy(tmp_path, capsys):
 def test_cli_evaluate_shipped_agent(capsys):
     from franka_vs_gym.cli import main
 
-    rc = main(["evaluate", str(SHIPPED), "--episodes", "2", "--seed", "60000", "--quiet"])
+    rc = main(["evaluate", "ibvs_ppo", "--episodes", "2", "--seed", "60000", "--quiet"])  # by its shipped name
     assert rc == 0
     assert "success rate" in capsys.readouterr().out
+
+
+def test_policies_are_package_data_and_baselines_is_not_a_package():
+    import tomllib
+
+    from franka_vs_gym.policies import agent_path, load_agent, shipped_agents
+
+    assert "ibvs_ppo" in shipped_agents() and agent_path("ibvs_ppo") == SHIPPED
+    assert load_agent("ibvs_ppo").env_id == "FrankaIBVS-v0"
+    with pytest.raises(ValueError, match="unknown shipped agent 'nope'"):
+        agent_path("nope")
+    cfg = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
+    assert cfg["packages"]["find"]["include"] == ["franka_vs_gym*"]
+    assert cfg["package-data"]["franka_vs_gym.policies"] == ["agents/*.zip", "agents/*.json"]
+    assert not (ROOT / "baselines" / "__init__.py").exists() and (ROOT / "baselines" / "train_sb3.py").is_file()
 
 
 def test_cli_evaluate_scripted_baselines(capsys):

@@ -7,17 +7,21 @@ hands out) are independent computations compared here.
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import os
 import socket
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-pytest.importorskip("pylibfranka")
+# the clients run in their own processes (pylibfranka and franky cannot share one): only check it is installed
+if importlib.util.find_spec("pylibfranka") is None:
+    pytest.skip("pylibfranka is not installed (pip install -e '.[fci]')", allow_module_level=True)
 
 from franka_vs_gym.fci import FCIServer, codec  # noqa: E402
 from franka_vs_gym.model import FrankaModel  # noqa: E402
@@ -26,10 +30,11 @@ CLIENTS = Path(__file__).parent / "fci_clients"
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _host() -> str:
-    """A loopback address of its own per xdist worker (the FCI ports are fixed)."""
-    worker = os.environ.get("PYTEST_XDIST_WORKER", "gw0")
-    return f"127.0.21.{1 + int(worker[2:] or 0)}"
+def _host(net: int = 21) -> str:
+    """A loopback address of its own for this test process (the FCI ports are fixed): 127.<net>.x.y from the pid,
+    so parallel workers and parallel test runs on one machine do not collide."""
+    pid = os.getpid()
+    return f"127.{net}.{(pid // 250) % 250 + 1}.{pid % 250 + 1}"
 
 
 def run_client(script: str | Path, *args: str, timeout: float = 60) -> dict:
@@ -96,7 +101,7 @@ def test_internal_joint_impedance_tracks_joint_position_motion(server):
 def test_joint_impedance_example_reaches_target_bit_identically(server):
     a = run_client(ROOT / "examples" / "fci_joint_impedance.py", server.host, "--json")
     assert a["error"] < 1e-3
-    with FCIServer(server.host.replace(".21.", ".22."), lockstep=True, camera=False, verbose=False) as other:
+    with FCIServer(_host(22), lockstep=True, camera=False, verbose=False) as other:
         b = run_client(ROOT / "examples" / "fci_joint_impedance.py", other.host, "--json")
     assert a["log"] == b["log"]  # lock-step: two identical runs, identical trajectories bit for bit
 
@@ -116,3 +121,154 @@ def test_reflex_reason_and_recovery(server, kind, reason):
     if kind == "position_limit":
         assert out["q_at_reflex"][6] > 2.8973 - 1e-3
         assert out["q_end"][6] < out["q_at_reflex"][6] - 0.02  # moving back out of the limit is allowed
+
+
+def test_frames_and_declared_load(server):
+    out = run_client(CLIENTS / "settings.py", server.host)
+    q = np.array(out["q"])
+    NE_T_EE, EE_T_K = np.eye(4), np.eye(4)
+    NE_T_EE[2, 3], EE_T_K[0, 3] = 0.1, 0.02
+    assert np.abs(np.array(out["NE_T_EE"]).reshape(4, 4, order="F") - NE_T_EE).max() < 1e-7
+    assert np.abs(np.array(out["EE_T_K"]).reshape(4, 4, order="F") - EE_T_K).max() < 1e-7
+    model = FrankaModel()
+    assert np.abs(np.array(out["O_T_EE"]).reshape(4, 4, order="F") - model.fMe(q) @ NE_T_EE).max() < 1e-6
+    # libfranka's model with the declared load = FrankaModel with that payload
+    assert out["m_load"] == pytest.approx(1.0) and out["m_total"] == pytest.approx(1.73, abs=1e-6)
+    model.set_payload(1.0, [0.0, 0.0, 0.05], [1e-3, 1e-3, 1e-3])
+    assert np.abs(np.array(out["gravity"]) - model.gravity(q)).max() < 1e-4
+    assert np.abs(np.array(out["mass"]).reshape(7, 7, order="F") - model.mass_matrix(q)).max() < 1e-6
+    # the robot compensates the declared 1 kg the plant does not carry: with zero torques the arm moves
+    assert np.abs(np.array(out["q_after_50ms"]) - q).max() > 1e-3
+
+
+def test_cartesian_and_velocity_motions(server):
+    out = run_client(CLIENTS / "motions.py", server.host)
+    a, b = (np.array(out["cart_pose"][k]).reshape(4, 4, order="F") for k in ("start", "end"))
+    assert b[:3, 3] - a[:3, 3] == pytest.approx([0.0, 0.0, -0.03], abs=2e-4)  # Cartesian impedance, settled
+    assert np.abs(b[:3, :3] - a[:3, :3]).max() < 1e-3
+    a, b = (np.array(out["cart_velocity"][k]).reshape(4, 4, order="F") for k in ("start", "end"))
+    assert b[:3, 3] - a[:3, 3] == pytest.approx([0.2 / np.pi, 0.0, 0.0], abs=2e-4)  # integral of 0.1 sin(pi t)
+    a, b = (np.array(out["joint_velocity"][k]) for k in ("start", "end"))
+    expected = np.zeros(7)
+    expected[3] = 0.8 / np.pi
+    assert b - a == pytest.approx(expected, abs=2e-4)
+
+
+def test_fr3_model_from_its_description():
+    with FCIServer(_host(25), lockstep=True, camera=False, verbose=False, robot="fr3") as srv:
+        out = run_client(CLIENTS / "read_state.py", srv.host)
+    q = np.array(out["q"])
+    model = FrankaModel(robot="fr3")
+    assert np.abs(np.array(out["mass"]).reshape(7, 7, order="F") - model.mass_matrix(q)).max() < 1e-6
+    assert np.abs(np.array(out["gravity"]) - model.gravity(q)).max() < 1e-4
+    assert np.abs(np.array(out["O_T_EE"]).reshape(4, 4, order="F") - model.fMe(q)).max() < 1e-5
+
+
+def test_record_writes_a_workbench_log(tmp_path):
+    from franka_vs_gym.validation.logs import load_log
+
+    log_path = tmp_path / "session.csv"
+    with FCIServer(_host(26), lockstep=True, camera=False, verbose=False,
+                   record=log_path) as srv:
+        out = run_client(CLIENTS / "torque_hold.py", srv.host, "300")
+    log = load_log(log_path)
+    assert log.n == 300 and (tmp_path / "session.csv.json").exists()
+    assert np.allclose(np.diff(log.time), 0.001)
+    assert np.abs(log.q - np.array(out["q"])).max() < 1e-6  # what the client read (float32 on the wire)
+    assert np.abs(log.tau_J - np.array(out["tau_J"])).max() < 1e-4
+    assert log.tool == "franka_hand" and np.allclose(log.gravity, [0, 0, -9.81])
+    with pytest.raises(FileExistsError):  # never overwritten
+        FCIServer(_host(), lockstep=True, camera=False, verbose=False, record=log_path)
+
+
+@pytest.mark.parametrize("stall, reflex", [(0.005, False), (0.06, True)])
+def test_real_time_missed_deadlines(stall, reflex):
+    """Real-time mode: a client that stalls lowers control_command_success_rate; beyond the tolerance the
+    communication-constraints reflex stops the motion."""
+    with FCIServer(_host(27), camera=False, verbose=False) as srv:
+        out = run_client(CLIENTS / "stall.py", srv.host, str(stall))
+    if reflex:
+        assert out["raised"] is not None and '"communication_constraints_violation"' in out["raised"]
+    else:
+        assert out["raised"] is None and len(out["rates"]) == 600
+        assert min(out["rates"]) < 1.0  # the stall shows
+
+
+def test_serve_command_line():
+    """`franka-vs serve` prints one ready line, serves a client, stops on SIGINT; bad input is one line, exit 2."""
+    import signal
+
+    host = _host(28)
+    p = subprocess.Popen([sys.executable, "-m", "franka_vs_gym.cli", "serve", "--host", host, "--lockstep",
+                          "--scene", "tag", "--no-camera"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        line = p.stdout.readline()
+        assert "ready at " + host in line and "lock-step" in line
+        out = run_client(CLIENTS / "read_state.py", host)
+        assert out["robot_mode"].endswith("Idle")
+        r = subprocess.run([sys.executable, "-m", "franka_vs_gym.cli", "serve", "--host", host], capture_output=True,
+                           text=True, timeout=60)
+        assert r.returncode == 2 and "in use" in r.stderr, r.stderr  # a second server on the same address
+    finally:
+        p.send_signal(signal.SIGINT)
+        p.wait(timeout=20)
+    assert p.returncode == 0
+    for args, msg in ((["--robot", "ur5"], "unknown robot"), (["--host", "10.255.255.1"], "cannot bind"),
+                      (["--q0", "0", "0", "0", "0", "0", "0", "0"], "joint limits")):
+        r = subprocess.run([sys.executable, "-m", "franka_vs_gym.cli", "serve", *args], capture_output=True,
+                           text=True, timeout=60)
+        assert r.returncode == 2 and msg in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+
+
+def test_reconnect_after_a_client_dies_mid_motion(server):
+    p = subprocess.Popen([sys.executable, str(CLIENTS / "torque_hold.py"), server.host, "1000000"],
+                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 30
+        while server.steps < 500 and time.monotonic() < deadline:  # the motion is running
+            time.sleep(0.01)
+        assert server.robot.moving
+    finally:
+        p.kill()
+        p.wait()
+    out = run_client(CLIENTS / "read_state.py", server.host)  # the next client finds the robot idle
+    assert out["robot_mode"].endswith("Idle") and not out["errors"]
+    out = run_client(CLIENTS / "read_state.py", server.host)  # and another one after it
+    assert out["robot_mode"].endswith("Idle")
+
+
+PLATE = '<body name="plate" pos="0.3069 0 0.45"><geom type="box" size="0.05 0.05 0.02"/></body>'
+
+
+@pytest.mark.parametrize("f_max", [100.0, 20.0])
+def test_contact_wrench_and_cartesian_reflex(f_max):
+    """Pressing the hand onto a plate with the internal Cartesian impedance: the estimated wrench is the spring's
+    force K (z_d - z) (what the robot applies to the environment); above the collision threshold: cartesian_reflex."""
+    with FCIServer(_host(29), lockstep=True, camera=False, verbose=False,
+                   extra_worldbody=PLATE) as srv:
+        out = run_client(CLIENTS / "contact.py", srv.host, str(f_max))
+    if f_max > 50:
+        assert out["raised"] is None
+        assert out["F"][2] == pytest.approx(3000.0 * (out["z_d"] - out["z"]), rel=0.02)
+        assert out["F"][2] < -50.0 and max(abs(v) for v in out["F"][:2]) < 1.0
+        assert out["contact"][2] == 1.0 and out["collision"][2] == 0.0
+    else:
+        assert out["raised"] is not None and '"cartesian_reflex"' in out["raised"]
+        assert abs(out["F"][2]) == pytest.approx(f_max, rel=0.1)  # fired as the force crossed the threshold
+
+
+def test_wall_mounting_from_a_model_file(tmp_path):
+    """--model FILE: a calibrated model with a wall-mounting gravity vector; the state's O_ddP_O carries it and
+    libfranka's gravity() (which uses it) matches FrankaModel and the measured torques at rest."""
+    from franka_vs_gym.model.config import ModelConfig
+
+    path = tmp_path / "wall.json"
+    ModelConfig().copy(gravity=np.array([0.0, -9.81, 0.0])).save(path)
+    with FCIServer(_host(30), lockstep=True, camera=False, verbose=False, model=path) as srv:
+        out = run_client(CLIENTS / "read_state.py", srv.host)
+    q = np.array(out["q"])
+    g = FrankaModel(str(path)).gravity(q)
+    assert np.allclose(out["O_ddP_O"], [0.0, -9.81, 0.0])
+    assert np.abs(np.array(out["gravity"]) - g).max() < 1e-4
+    assert np.abs(np.array(out["tau_J"]) - g).max() < 1e-3
+    assert np.abs(g - FrankaModel().gravity(q)).max() > 1.0  # really another mounting

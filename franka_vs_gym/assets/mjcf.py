@@ -1,19 +1,22 @@
-"""MJCF generation for the FER + Franka Hand and its scenes.
+"""MJCF generation for a Franka arm (FER, FR3) + Franka Hand and its scenes.
 
-Every kinematic and inertial number comes from :mod:`franka_vs_gym.model.params` through a
-:class:`~franka_vs_gym.model.config.ModelConfig`, so the MuJoCo plant and the pinocchio model describe the same
-robot. Several robots can share a scene; each gets a name prefix (``"r0_"`` ...) on all its elements.
+Every kinematic, inertial and limit number comes from the configuration's robot description
+(:class:`~franka_vs_gym.model.config.ModelConfig` ``.robot``, typed in :mod:`franka_vs_gym.model.params`), so the
+MuJoCo plant and the pinocchio model describe the same robot. The meshes are the FER's collision meshes for every
+robot (the FR3 has the same kinematics; its covers differ slightly in shape). Several robots can share a scene;
+each gets a name prefix (``"r0_"`` ...) on all its elements.
 
 Modelling choices (documented because they matter when comparing with the pinocchio model):
 
-- Links 1..7 carry the Gaz et al. inertials; the tool (default the Franka Hand, fingers locked) and any *declared*
-  payload are lumped into one ``hand`` body welded to link 7 at the flange, with the combined inertia of
-  ``ModelConfig.flange_body``. An *undeclared* payload (one the robot does not know about) is a separate welded body.
+- Links 1..7 carry the description's inertials (Gaz et al. for the FER); the tool (default the Franka Hand, fingers
+  locked) and any *declared* payload are lumped into one ``hand`` body welded to link 7 at the flange, with the
+  combined inertia of ``ModelConfig.flange_body``. An *undeclared* payload (one the robot does not know about) is a
+  separate welded body.
 - The robot's internal gravity compensation is MuJoCo's ``gravcomp`` on the arm and hand bodies, routed through the
   joint actuators (``actuatorgravcomp``), so the actuator force equals the commanded gravity-free torque plus g(q),
   like the FER's ``tau_J_d + g``. Undeclared bodies are not compensated.
 - Each joint has a torque motor (``<prefix>motor<i>``) and a velocity servo (``<prefix>vel<i>``, gain set at run
-  time by the robot's control mode). Actuator forces are clamped per joint at the FER torque limits.
+  time by the robot's control mode). Actuator forces are clamped per joint at the robot's torque limits.
 - Arm geoms collide with the environment (table, objects) but not with each other.
 """
 
@@ -27,8 +30,8 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from franka_vs_gym.model import params
 from franka_vs_gym.model.config import ModelConfig, RigidBody
+from franka_vs_gym.model.description import FRANKA_HAND, TAG_SIZE
 
 # contype/conaffinity: arm geoms collide with the environment but not with each other.
 ARM_COLLISION = 'contype="2" conaffinity="1"'
@@ -76,7 +79,7 @@ class TagSpec:
     """An AprilTag 36h11 target: id, black-square side ``size`` (m), pose in the world (or in ``parent`` body)."""
 
     tag_id: int = 0
-    size: float = params.TAG_SIZE
+    size: float = TAG_SIZE
     pos: tuple[float, float, float] = (0.55, 0.0, 0.0)
     quat: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
     parent: str | None = None  # a body name (e.g. "r0_hand" to be held by a robot); None: the world
@@ -85,7 +88,7 @@ class TagSpec:
 
 @dataclass
 class RobotSpec:
-    """One FER in a scene.
+    """One robot arm in a scene (which arm: ``config.robot``).
 
     prefix: name prefix of all its elements; base_pos (3,) m and base_quat (w, x, y, z) of the base in the world;
     config: the robot's model configuration; camera: add the wrist camera; ft_sensor: add a wrist force/torque
@@ -119,14 +122,15 @@ class SceneSpec:
 def _robot_bodies(r: RobotSpec) -> tuple[str, str, str, str]:
     """(worldbody xml, actuator xml, sensor xml, contact-exclude xml) of one robot."""
     p, cfg = r.prefix, r.config
+    robot, lim = cfg.robot, cfg.robot.limits
     xml = [f'<body name="{p}link0" pos="{_fmt(r.base_pos)}" quat="{_fmt(r.base_quat)}">',
            '<geom class="fer_visual" mesh="link0"/><geom class="fer_collision" mesh="link0"/>']
     closing = ["</body>"]
     for i, (mass, com, inertia) in enumerate(cfg.link_inertials()):
-        M = params.dh_placement(i)
+        M = robot.dh_placement(i)
         body = RigidBody(mass, com, inertia)
-        lo, hi = params.Q_MIN[i], params.Q_MAX[i]
-        tau = params.TAU_MAX[i]
+        lo, hi = lim.q_min[i], lim.q_max[i]
+        tau = lim.tau_max[i]
         xml.append(f'<body name="{p}link{i + 1}" pos="{_fmt(M[:3, 3])}" quat="{_fmt(mat2quat(M[:3, :3]))}" '
                    f'gravcomp="1">')
         xml.append(_inertial(body))
@@ -134,7 +138,7 @@ def _robot_bodies(r: RobotSpec) -> tuple[str, str, str, str]:
                    f'actuatorfrcrange="{-tau} {tau}" actuatorgravcomp="true" {JOINT_STOP}/>')
         xml.append(f'<geom class="fer_visual" mesh="link{i + 1}"/><geom class="fer_collision" mesh="link{i + 1}"/>')
         closing.append("</body>")
-    Mfl = params.flange_placement()
+    Mfl = robot.flange_placement()
     hand = cfg.flange_body()
     xml.append(f'<body name="{p}hand" pos="{_fmt(Mfl[:3, 3])}" gravcomp="1">')
     if hand.mass > 0:
@@ -144,13 +148,13 @@ def _robot_bodies(r: RobotSpec) -> tuple[str, str, str, str]:
     xml.append(f'<site name="{p}ee" pos="{_fmt(flMe[:3, 3])}" quat="{_fmt(mat2quat(flMe[:3, :3]))}" size="0.005" '
                f'rgba="0 1 0 0"/>')
     if cfg.tool.name == "franka_hand":
-        Rh = params.hand_placement()[:3, :3]
+        Rh = FRANKA_HAND.placement()[:3, :3]
         yaw = f'quat="{_fmt(mat2quat(Rh))}"'
-        o = params.HAND_FINGER_OPENING / 2
+        o = FRANKA_HAND.finger_opening / 2
         xml.append(f'<body name="{p}hand_geoms" {yaw}>')
         xml.append('<geom class="fer_visual" mesh="hand"/><geom class="fer_collision" mesh="hand"/>')
         for side, y, q in (("left", o, "1 0 0 0"), ("right", -o, "0 0 0 1")):
-            xml.append(f'<body name="{p}{side}finger" pos="0 {y} {params.HAND_FINGER_Z}" quat="{q}">'
+            xml.append(f'<body name="{p}{side}finger" pos="0 {y} {FRANKA_HAND.finger_z}" quat="{q}">'
                        '<geom class="fer_visual" mesh="finger"/><geom class="fer_collision" mesh="finger"/></body>')
         xml.append("</body>")
     if r.camera:
@@ -162,11 +166,11 @@ def _robot_bodies(r: RobotSpec) -> tuple[str, str, str, str]:
     xml.extend(closing)
     act = []
     for i in range(7):
-        tau = params.TAU_MAX[i]
+        tau = lim.tau_max[i]
         act.append(f'<motor name="{p}motor{i + 1}" joint="{p}joint{i + 1}" ctrlrange="{-tau} {tau}"/>')
     for i in range(7):
         act.append(f'<velocity name="{p}vel{i + 1}" joint="{p}joint{i + 1}" kv="0" '
-                   f'ctrlrange="{-params.DQ_MAX[i]} {params.DQ_MAX[i]}"/>')
+                   f'ctrlrange="{-lim.dq_max[i]} {lim.dq_max[i]}"/>')
     sens = []
     if r.ft_sensor:
         sens.append(f'<force name="{p}ft_force" site="{p}flange"/><torque name="{p}ft_torque" site="{p}flange"/>')

@@ -19,9 +19,7 @@ import mujoco
 import numpy as np
 from gymnasium import spaces
 
-from franka_vs_gym.assets.mjcf import mat2quat
 from franka_vs_gym.model.config import ModelConfig, RigidBody, resolve_config
-from franka_vs_gym.model.franka_model import FrankaModel
 from franka_vs_gym.sim import CAMERA_FRAME, FORCE_TORQUE, JOINT_STATE, VELOCITY, FrankaSim, SimulationDiverged
 from franka_vs_gym.sim.reflexes import ControlException
 
@@ -29,7 +27,6 @@ ACTION_TYPES = ("torque", "joint_velocity", "cartesian_velocity")
 OBSERVATION_TYPES = ("features", "image", "features+image", "state")
 # Cartesian camera-twist bounds of the contract: +-0.5 m/s, +-1 rad/s.
 CARTESIAN_BOUNDS = np.array([0.5, 0.5, 0.5, 1.0, 1.0, 1.0])
-_LIMITS = FrankaModel.limits()
 PAYLOAD_COM = (0.0, 0.0, 0.05)  # where a randomised payload is held, flange frame, m
 
 
@@ -127,6 +124,9 @@ class FrankaEnv(gym.Env):
         Episode duration after which the episode is truncated.
     model : ModelConfig, path to a calibrated model file (JSON from ``franka-vs fit``), or None
         The simulated robot (tool, friction, armature, ...). Both the plant and the robot's model use it.
+    robot : RobotDescription, a registered name ("fer", "fr3"), or None
+        The arm (default the FER); ``gymnasium.make("FrankaIBVS-v0", robot="fr3")``. With ``model`` given, it must
+        name the same robot.
     link_mass_range : (low, high) or None
         Domain randomisation: each link's mass and inertia are multiplied by a factor drawn uniformly in this
         range at every reset. The robot's own gravity compensation follows the true masses (as the FER's internal
@@ -158,7 +158,7 @@ class FrankaEnv(gym.Env):
 
     def __init__(self, *, action_type: str = "joint_velocity", observation_type: str = "features",
                  control_period: float = 0.05, physics_step: float = 0.001, time_limit: float = 6.0,
-                 model: Any = None, link_mass_range: Any = None, friction_scale_range: Any = None,
+                 model: Any = None, robot: Any = None, link_mass_range: Any = None, friction_scale_range: Any = None,
                  payload_mass_range: Any = None, payload_declared: bool = True, joint_noise: float = 0.0,
                  velocity_noise: float = 0.0,
                  clip_actions: bool = False, render_mode: str | None = None, render_width: int = 320,
@@ -194,7 +194,7 @@ class FrankaEnv(gym.Env):
         self.render_width, self.render_height = int(render_width), int(render_height)
         if self.render_width < 1 or self.render_height < 1:
             raise ValueError(f"render size must be >= 1 pixel, got {render_width}x{render_height}")
-        self.config: ModelConfig = resolve_config(model)
+        self.config: ModelConfig = resolve_config(model, robot)
         self.payload_declared = bool(payload_declared)
         payload = (RigidBody(1.0, PAYLOAD_COM, np.full(3, 0.4 * 0.03**2))
                    if self.payload_mass_range is not None and not self.payload_declared else None)
@@ -203,9 +203,9 @@ class FrankaEnv(gym.Env):
         self.robot = self.sim  # the FrankaSim (vpRobotFranka-style API): env.unwrapped.robot.model is its FrankaModel
         self.world = self.sim.world
         self._m, self._d = self.world.model, self.world.data
-        self._nominal = self._nominal_dynamics()
-        self.q_min, self.q_max = _LIMITS["q_min"], _LIMITS["q_max"]
-        self.dq_max, self.tau_max = _LIMITS["dq_max"], _LIMITS["tau_max"]
+        limits = self.sim.model.limits()
+        self.q_min, self.q_max = limits["q_min"], limits["q_max"]
+        self.dq_max, self.tau_max = limits["dq_max"], limits["tau_max"]
         # a joint within 1 mrad of its limit has hit the hard stop
         self._q_lo_fail, self._q_hi_fail = self.q_min + 1e-3, self.q_max - 1e-3
         if action_type == "torque":
@@ -228,78 +228,28 @@ class FrankaEnv(gym.Env):
         self._episode_params: dict[str, Any] = {}
 
     # ------------------------------------------------------------------ dynamics randomisation
-    def _nominal_dynamics(self) -> dict[str, Any]:
-        m, p = self._m, self.sim.prefix
-        links = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"{p}link{i + 1}") for i in range(7)]
-        payload = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"{p}undeclared_payload")
-        hand = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"{p}hand")
-        R = np.zeros(9)
-        mujoco.mju_quat2Mat(R, m.body_iquat[hand])
-        R = R.reshape(3, 3)
-        hand_inertia = (hand, float(m.body_mass[hand]), m.body_ipos[hand].copy(),
-                        R @ np.diag(m.body_inertia[hand]) @ R.T, m.body_inertia[hand].copy(), m.body_iquat[hand].copy())
-        s = self.sim
-        return {"links": links, "mass": m.body_mass[links].copy(), "inertia": m.body_inertia[links].copy(),
-                "payload": payload, "hand": hand_inertia,
-                "friction": (s._fa, s._fe, s._fvisc.copy(), s._fcoul.copy())}
-
     def _randomise_dynamics(self) -> None:
-        m, nom, rng, s = self._m, self._nominal, self.np_random, self.sim
+        """Draw this episode's plant (FrankaSim.set_dynamics); the draws are reported in the reset info."""
+        rng, sim = self.np_random, self.sim
         info: dict[str, Any] = {}
-        changed = False
         if self.link_mass_range is not None:
             k = rng.uniform(*self.link_mass_range, size=7)
-            m.body_mass[nom["links"]] = nom["mass"] * k
-            m.body_inertia[nom["links"]] = nom["inertia"] * k[:, None]
+            sim.set_dynamics(link_mass_scale=k)
             info["link_mass_scale"] = k
-            changed = True
         if self.friction_scale_range is not None:
             k = float(rng.uniform(*self.friction_scale_range))
-            fa, fe, fv, fc = nom["friction"]
-            # FrankaSim's plant friction: a tanh(b dq + c) + e (+ viscous, Coulomb); scaling a, e, viscous and
-            # Coulomb scales the whole law.
-            s._fa, s._fe = fa * k, fe * k
-            s._fvisc, s._fcoul = fv * k, fc * k
+            sim.set_dynamics(friction_scale=k)  # scales the whole law of the plant
             info["friction_scale"] = k
-        if self.payload_mass_range is not None and self.payload_declared:
+        if self.payload_mass_range is not None:
             mass = float(rng.uniform(*self.payload_mass_range))
-            self._set_declared_payload(mass)
+            # a small solid sphere of radius 3 cm held at PAYLOAD_COM in the flange frame
+            body = RigidBody(mass, PAYLOAD_COM, np.full(3, 0.4 * mass * 0.03**2))
+            if self.payload_declared:
+                sim.set_dynamics(payload=body if mass > 0 else None)
+            else:
+                sim.set_dynamics(undeclared_payload=body)
             info["payload_mass"] = mass
-            changed = True
-        elif self.payload_mass_range is not None and nom["payload"] >= 0:
-            mass = float(rng.uniform(*self.payload_mass_range))
-            # a small solid sphere of radius 3 cm (MuJoCo needs a positive mass on a body with inertia)
-            mass_eff = max(mass, 1e-9)
-            m.body_mass[nom["payload"]] = mass_eff
-            m.body_inertia[nom["payload"]] = 0.4 * mass_eff * 0.03**2
-            info["payload_mass"] = mass
-            changed = True
-        if changed:
-            mujoco.mj_setConst(m, self._d)
         self._episode_params = info
-
-    def _set_declared_payload(self, mass: float) -> None:
-        """Merge a payload sphere (radius 3 cm, at PAYLOAD_COM in the flange frame) into the hand body, whose weight
-        the robot's gravity compensation (MuJoCo gravcomp on the arm and hand) then includes."""
-        m = self._m
-        hand, mh, ch, Ih, diag0, quat0 = self._nominal["hand"]
-        if mass <= 0:
-            m.body_mass[hand], m.body_ipos[hand] = mh, ch
-            m.body_inertia[hand], m.body_iquat[hand] = diag0, quat0
-            return
-        p = np.asarray(PAYLOAD_COM)
-        mt = mh + mass
-        c = (mh * ch + mass * p) / mt
-
-        def shift(r: np.ndarray) -> np.ndarray:  # parallel-axis term of a unit mass at r from the new com
-            return (r @ r) * np.eye(3) - np.outer(r, r)
-
-        inertia = Ih + mh * shift(ch - c) + 0.4 * mass * 0.03**2 * np.eye(3) + mass * shift(p - c)
-        w, V = np.linalg.eigh(inertia)
-        if np.linalg.det(V) < 0:
-            V[:, 0] = -V[:, 0]
-        m.body_mass[hand], m.body_ipos[hand] = mt, c
-        m.body_inertia[hand], m.body_iquat[hand] = w, mat2quat(V)
 
     # ------------------------------------------------------------------ action handling
     def _check_action(self, action: Any) -> np.ndarray:
@@ -371,7 +321,7 @@ class FrankaEnv(gym.Env):
 
     def _robot_failure(self) -> str | None:
         """Joint limit reached or the arm in contact with the environment."""
-        q = self.sim._qpos
+        q = self.sim.q
         low = q < self._q_lo_fail
         high = q > self._q_hi_fail
         if low.any() or high.any():
@@ -390,7 +340,7 @@ class FrankaEnv(gym.Env):
         return None
 
     def _noisy_joint_state(self) -> tuple[np.ndarray, np.ndarray]:
-        q, dq = self.sim._qpos.copy(), self.sim._qvel.copy()
+        q, dq = self.sim.q, self.sim.dq
         if self.joint_noise:
             q += self.np_random.normal(0.0, self.joint_noise, 7)
         if self.velocity_noise:

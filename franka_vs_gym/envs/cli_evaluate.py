@@ -1,10 +1,12 @@
 """``franka-vs evaluate``: run a scripted policy or a trained agent on an environment and print its scores.
 
 Policies:
-  ``ibvs`` / ``pbvs``           baselines.IBVSPolicy / PBVSPolicy (visual-servoing envs; joint_velocity actions, or
-                                cartesian_velocity with --env-kwargs '{"action_type": "cartesian_velocity"}')
-  ``computed-torque`` / ``impedance``   baselines torque policies (FrankaTorqueTracking-v0)
+  ``ibvs`` / ``pbvs``           franka_vs_gym.policies.IBVSPolicy / PBVSPolicy (visual-servoing envs;
+                                joint_velocity actions, or cartesian_velocity with
+                                --env-kwargs '{"action_type": "cartesian_velocity"}')
+  ``computed-torque`` / ``impedance``   franka_vs_gym.policies torque policies (FrankaTorqueTracking-v0)
   ``zero``                      a zero action (a reference: what doing nothing scores)
+  ``ibvs_ppo``                  a shipped agent (franka_vs_gym.policies.shipped_agents(); needs the [rl] extra)
   ``path/to/agent.zip``         a stable-baselines3 agent saved by baselines/train_sb3.py (with its .json)
 """
 
@@ -22,7 +24,8 @@ SCRIPTED = ("ibvs", "pbvs", "computed-torque", "impedance", "zero")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("policy", help=f"one of {', '.join(SCRIPTED)}, or the path of an agent .zip")
+    parser.add_argument("policy", help=f"one of {', '.join(SCRIPTED)}, a shipped agent (ibvs_ppo), or the path of "
+                        "an agent .zip")
     parser.add_argument("--env", default=None, help="environment id (default: the agent's, or FrankaIBVS-v0 for "
                         "ibvs/pbvs/zero, FrankaTorqueTracking-v0 for the torque policies)")
     parser.add_argument("--episodes", type=int, default=20)
@@ -34,12 +37,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _scripted(name: str, env_kwargs: dict[str, Any]) -> tuple[Any, str, dict[str, Any]]:
-    import baselines
+    from franka_vs_gym import policies
 
     if name in ("ibvs", "pbvs"):
-        cls = getattr(baselines, "IBVSPolicy" if name == "ibvs" else "PBVSPolicy", None)
-        if cls is None:
-            raise ValueError(f"baselines does not provide the {name.upper()} policy in this installation")
+        cls = policies.IBVSPolicy if name == "ibvs" else policies.PBVSPolicy
         kw = {"action_type": "joint_velocity", "observation_type": "features"} | env_kwargs
         if kw["action_type"] not in ("joint_velocity", "cartesian_velocity"):
             raise ValueError(f"the {name.upper()} policy commands joint_velocity or cartesian_velocity actions, "
@@ -48,9 +49,7 @@ def _scripted(name: str, env_kwargs: dict[str, Any]) -> tuple[Any, str, dict[str
         if name == "ibvs" and "tag_size" in kw:
             pkw["tag_size"] = kw["tag_size"]
         return cls(**pkw), "FrankaIBVS-v0" if name == "ibvs" else "FrankaPBVS-v0", kw
-    from baselines import torque
-
-    cls = torque.ComputedTorquePolicy if name == "computed-torque" else torque.JointImpedancePolicy
+    cls = policies.ComputedTorquePolicy if name == "computed-torque" else policies.JointImpedancePolicy
     return cls(env_kwargs.get("model")), "FrankaTorqueTracking-v0", {"action_type": "torque"} | env_kwargs
 
 
@@ -113,11 +112,12 @@ def main(args: argparse.Namespace) -> int:
         raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
     if args.json:
         check_output(args.json, args.force, what="--json file")
-    name = args.policy
-    if name.endswith(".zip") or Path(name).suffix == ".zip" or Path(name + ".zip").is_file():
-        from franka_vs_gym.envs.wrappers import AgentPolicy
+    from franka_vs_gym.policies import load_agent, shipped_agents
 
-        policy = AgentPolicy.load(name)
+    name = args.policy
+    if (name.endswith(".zip") or Path(name).suffix == ".zip" or Path(name + ".zip").is_file()
+            or name in shipped_agents()):
+        policy = load_agent(name)
         env_id = args.env or policy.env_id
         kw = {"observation_type": "features", "action_type": "joint_velocity"} | policy.env_kwargs | env_kwargs
         check_env_kwargs(env_id, kw)
@@ -131,7 +131,8 @@ def main(args: argparse.Namespace) -> int:
         env_id = args.env or default_env
         check_env_kwargs(env_id, kw)
     else:
-        raise ValueError(f"unknown policy {name!r}: use one of {', '.join(SCRIPTED)} or an agent .zip path")
+        raise ValueError(f"unknown policy {name!r}: use one of {', '.join(SCRIPTED + tuple(shipped_agents()))} "
+                         "or an agent .zip path")
     r = franka_vs_gym.evaluate(policy, env_id, args.episodes, args.seed, env_kwargs=kw, progress=not args.quiet)
     t = r["mean_time_to_converge"]
     print(f"{name} on {env_id} ({args.episodes} episodes, seeds {args.seed}..{args.seed + args.episodes - 1}): "

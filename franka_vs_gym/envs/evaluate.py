@@ -56,8 +56,9 @@ def evaluate(policy: Any, env_id_or_env: Any, n_episodes: int = 20, seed: int = 
     Parameters
     ----------
     policy :
-        A stable-baselines3 model, a scripted policy with ``predict(obs) -> action`` (e.g. ``baselines.IBVSPolicy``;
-        its ``reset()`` is called at each episode start if it has one), or a function ``obs -> action``.
+        A stable-baselines3 model, a scripted policy with ``predict(obs) -> action`` (e.g.
+        ``franka_vs_gym.policies.IBVSPolicy``; its ``reset()`` is called at each episode start if it has one), or a
+        function ``obs -> action``.
     env_id_or_env :
         A registered id (made with ``env_kwargs`` and closed afterwards) or an environment instance (possibly
         wrapped, e.g. with the action/observation wrappers the agent was trained with; not closed).

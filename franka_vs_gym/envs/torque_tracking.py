@@ -9,7 +9,6 @@ import numpy as np
 from gymnasium import spaces
 
 from franka_vs_gym.envs.base import FrankaEnv, ObservationPacker, _positive
-from franka_vs_gym.model import params
 
 
 class FrankaTorqueTrackingEnv(FrankaEnv):
@@ -96,7 +95,7 @@ class FrankaTorqueTrackingEnv(FrankaEnv):
             "time": spaces.Box(f32(0.0), f32(self.time_limit + 1.0), (1,), dtype=f32),
         })
         self._pack = ObservationPacker(self.observation_space)
-        self._q0 = np.array(params.Q_NEUTRAL)
+        self._q0 = self.config.robot.neutral()
         self._A = np.zeros(7)
         self._w = np.zeros(7)
         self._sq_err = 0.0
@@ -111,7 +110,7 @@ class FrankaTorqueTrackingEnv(FrankaEnv):
         rng = self.np_random
         margin = 0.3
         lo, hi = self.q_min + margin, self.q_max - margin
-        neutral = np.array(params.Q_NEUTRAL)
+        neutral = self.config.robot.neutral()
         q0 = np.clip(neutral + rng.uniform(-0.3, 0.3, 7), lo, hi)
         A = rng.uniform(0.05, self.amplitude, 7) * rng.choice([-1.0, 1.0], 7)
         # keep q0 + 2A (the far end of the motion) inside the limits: flip the sign, then shrink if needed
@@ -134,7 +133,7 @@ class FrankaTorqueTrackingEnv(FrankaEnv):
 
     def _evaluate(self, action: np.ndarray) -> tuple[float, bool, str | None, dict[str, Any]]:
         qd = self._desired_now[0]  # computed for this step's observation
-        err = float(np.linalg.norm(self.sim._qpos - qd))
+        err = float(np.linalg.norm(self.sim.q - qd))
         self._sq_err += err * err
         rms = float(np.sqrt(self._sq_err / max(self._steps, 1)))
         success = self._steps >= self.max_steps and rms < self.success_threshold

@@ -7,7 +7,6 @@ camera model, projection, detection and pose estimation are :mod:`franka_vs_gym.
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import mujoco
@@ -16,38 +15,18 @@ from gymnasium import spaces
 
 from franka_vs_gym.assets.mjcf import TagSpec, mat2quat
 from franka_vs_gym.envs.base import FrankaEnv, ObservationPacker, _nonneg, _positive, _range, substeps
-from franka_vs_gym.model import params
-from franka_vs_gym.model.geometry import homogeneous, inverse_pose, pose_vector
+from franka_vs_gym.model.description import TAG_SIZE
+from franka_vs_gym.model.geometry import desired_tag_pose, homogeneous, inverse_pose, pose_vector, rot_x, rot_y, rot_z
 
 FEATURE_SOURCES = ("ideal", "detection")
 
-
-def rot_x(a: float) -> np.ndarray:
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[1.0, 0, 0], [0, c, -s], [0, s, c]])
-
-
-def rot_y(a: float) -> np.ndarray:
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[c, 0, s], [0, 1.0, 0], [-s, 0, c]])
-
-
-def rot_z(a: float) -> np.ndarray:
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
-
-
-def desired_tag_pose(distance: float) -> np.ndarray:
-    """cdMo: the tag centred, ``distance`` m in front of the camera, facing it (tag z towards the camera, tag x
-    along the camera x), as in ViSP's Franka visual-servoing examples."""
-    return homogeneous(rot_x(math.pi), (0.0, 0.0, distance))
 
 
 class VisualServoEnv(FrankaEnv):
     """Base of the visual-servoing tasks. See :class:`~franka_vs_gym.envs.ibvs.FrankaIBVSEnv` for the tables."""
 
     def __init__(self, *, observation_type: str = "features", camera_period: float = 0.05,
-                 tag_size: float = params.TAG_SIZE, tag_id: int = 0, tag_x_range: Any = (0.45, 0.60),
+                 tag_size: float = TAG_SIZE, tag_id: int = 0, tag_x_range: Any = (0.45, 0.60),
                  tag_y_range: Any = (-0.10, 0.10), tag_yaw_range: Any = (-0.5, 0.5), desired_distance: float = 0.20,
                  start_distance_range: Any = (0.26, 0.40), start_offset: float = 0.05, start_roll: float = 0.5,
                  start_tilt: float = 0.15, feature_noise: float = 0.0, feature_source: str = "ideal",
@@ -92,7 +71,7 @@ class VisualServoEnv(FrankaEnv):
             raise ValueError(f"the goal pose does not show the whole tag (tag_size {self.tag_size} m at "
                              f"desired_distance {self.desired_distance} m)")
         self.tag_pose_desired = pose_vector(self.cdMo)
-        self._q_goal_guess = np.array(params.Q_NEUTRAL)
+        self._q_goal_guess = self.config.robot.neutral()
         self._k = 0  # physics steps since the episode start
         self._frame: dict[str, np.ndarray] = {}
         self._truth_cache: tuple[int, dict[str, np.ndarray]] = (-1, {})

@@ -1,13 +1,14 @@
 """Wrappers and adapters for learning agents on the visual-servoing environments.
 
 RL algorithms learn best with actions in [-1, 1] and a flat, roughly unit-scaled observation vector, while the
-environments speak physical units and the dict contract shared with the classical baselines. This module bridges
+environments speak physical units and the dict contract shared with the classical policies. This module bridges
 the two, in both directions:
 
 - :class:`ScaledAction` and :class:`ServoVectorObservation` wrap an environment for training;
 - :class:`AgentPolicy` wraps a trained stable-baselines3 model so that it takes the *contract* observation and
-  returns a *physical* action, exactly like ``baselines.IBVSPolicy``; ``evaluate(agent, "FrankaIBVS-v0")`` then
-  runs the agent and the classical controller on the same, unwrapped environment.
+  returns a *physical* action, exactly like ``franka_vs_gym.policies.IBVSPolicy``;
+  ``evaluate(agent, "FrankaIBVS-v0")`` then runs the agent and the classical controller on the same, unwrapped
+  environment.
 """
 
 from __future__ import annotations
@@ -84,7 +85,7 @@ class ScaledAction(gym.ActionWrapper, gym.utils.RecordConstructorArgs):
 
 
 def make_agent_env(env_id: str = "FrankaIBVS-v0", action_scale: Any = 0.5, **env_kwargs: Any) -> gym.Env:
-    """The training environment of :mod:`baselines.train_sb3`: ``env_id`` with features observations and
+    """The training environment of ``baselines/train_sb3.py``: ``env_id`` with features observations and
     joint-velocity actions by default, actions scaled from [-1, 1] to +-``action_scale`` rad/s, flat observation."""
     import franka_vs_gym  # noqa: F401  (registers the ids)
 

@@ -60,7 +60,6 @@ def run_torque_demo(args: argparse.Namespace) -> int:
 
     from franka_vs_gym.control import ComputedTorque
     from franka_vs_gym.errors import UserError
-    from franka_vs_gym.model import params
     from franka_vs_gym.sim import FORCE_TORQUE, JOINT_STATE, FrankaSim
     from franka_vs_gym.sim.reflexes import position_profile_time
 
@@ -70,7 +69,7 @@ def run_torque_demo(args: argparse.Namespace) -> int:
     out = make_run_dir("demo-torque", args.out)  # (an unfinished run folder is removed or renamed by the CLI)
     sim = FrankaSim(camera=False)
     ctrl = ComputedTorque(sim.model)
-    q_start = params.as_array(params.Q_NEUTRAL)
+    q_start = sim.model.robot.neutral()
     waypoints = [q_start,
                  q_start + np.array([0.5, 0.3, -0.3, 0.4, 0.4, -0.3, 0.6]),
                  q_start + np.array([-0.4, -0.2, 0.3, -0.3, -0.4, 0.3, -0.5]),

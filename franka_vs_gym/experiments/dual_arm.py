@@ -42,7 +42,7 @@ import numpy as np
 
 from franka_vs_gym.model.config import ModelConfig, RigidBody
 from franka_vs_gym.model.franka_model import FrankaModel
-from franka_vs_gym.model.geometry import homogeneous
+from franka_vs_gym.model.geometry import desired_tag_pose, homogeneous
 
 LEFT_BASE = np.array([0.0, 0.4, 0.0])
 RIGHT_BASE = np.array([0.0, -0.4, 0.0])
@@ -64,7 +64,7 @@ RIGHT_eMc = np.array([[1.0, 0.0, 0.0, 0.06], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.
 Q_SEED_LEFT = np.array([-0.6, 0.0, 0.15, -2.3, -1.9, 1.9, 0.0])
 Q_SEED_RIGHT = np.array([0.3, 0.0, -0.2, -2.25, 1.65, 1.66, -1.48])
 # Desired tag pose in the right camera: centred, 0.20 m ahead, facing the camera (x_o = x_c, z_o = -z_c).
-cdMo = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0.0, 0.0, -1.0, PBVS_DEPTH], [0.0, 0.0, 0.0, 1.0]])
+cdMo = desired_tag_pose(PBVS_DEPTH)
 # Obstacle: a box on the table under the lowest part of the right gripper's path (contype 1 / conaffinity 2).
 # Its y extent covers the hand and fingers (flange at y ~ -0.24, finger tips at y ~ -0.14) but not link 7; its top
 # (0.30 m) is ~1.7 cm above the lowest point the hand reaches when following the circle.

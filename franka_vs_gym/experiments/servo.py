@@ -3,8 +3,9 @@ convergence study (``scripts/eval_servo.py``).
 
 The robot runs in VELOCITY control at 1 kHz; the camera delivers a frame every ``camera_period`` (20 ms by
 default), from which the tag is measured (rendered image + AprilTag detection + PnP, or the fast "ideal features"
-projection) and the scripted policy (:class:`baselines.IBVSPolicy` / :class:`baselines.PBVSPolicy`) computes a new
-joint-velocity command, held until the next frame, as on the real robot with ViSP.
+projection) and the scripted policy (:class:`franka_vs_gym.policies.IBVSPolicy` /
+:class:`~franka_vs_gym.policies.PBVSPolicy`) computes a new joint-velocity command, held until the next frame, as on
+the real robot with ViSP.
 
 Goal: the tag centred and parallel to the image plane, ``desired_distance`` (0.20 m) in front of the camera. Start:
 the camera displaced from the goal by up to ``max_offset`` (0.15 m) and rotated by up to ``max_angle_deg`` (30 deg)
@@ -143,7 +144,7 @@ def run_servo(kind: str, seed: int, *, features: str = "ideal", duration: float 
               max_offset: float = 0.15, max_angle_deg: float = 30.0, record_frames: bool = False,
               hold: float = 0.3, show_progress: bool = False, interaction: str = "MEAN") -> ServoResult:
     """Run IBVS or PBVS from a seeded start; stops ``hold`` s after convergence or at ``duration``."""
-    from baselines import IBVSPolicy, PBVSPolicy
+    from franka_vs_gym.policies import IBVSPolicy, PBVSPolicy
 
     if kind not in ("ibvs", "pbvs"):
         raise ValueError(f"kind must be 'ibvs' or 'pbvs', got {kind!r}")

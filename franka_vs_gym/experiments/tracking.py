@@ -25,8 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from franka_vs_gym.model import params
 from franka_vs_gym.model.config import Friction, ModelConfig, RigidBody
+from franka_vs_gym.model.description import GRAVITY
 from franka_vs_gym.model.franka_model import FrankaModel
 
 Q0 = np.array([0.0, -math.pi / 4, 0.0, -3 * math.pi / 4, 0.0, math.pi / 2, math.pi / 4])
@@ -211,7 +211,7 @@ def to_measurement_log(result: TrackingResult):
     s = result.settings
     return MeasurementLog(
         time=result.time, q=result.q, dq=result.dq, tau_J=result.tau_J, tau_J_d=result.tau_cmd, q_d=result.q_d,
-        dq_d=result.dq_d, ddq_d=result.ddq_d, tool="franka_hand", gravity=params.as_array(params.GRAVITY),
+        dq_d=result.dq_d, ddq_d=result.ddq_d, tool="franka_hand", gravity=np.array(GRAVITY, dtype=np.float64),
         controller={"law": "computed_torque_eq2", "kp": s.get("kp"), "kd": s.get("kd"), "ki": s.get("ki"),
                     "mu": s.get("mu"), "model_error": s.get("model_error")},
         extra={"origin": "franka_vs_gym simulation (FrankaSim), experiment tracking",

@@ -14,9 +14,9 @@ import mujoco
 import numpy as np
 
 from franka_vs_gym.fci.codec import GripperCommand, GripperStatus
-from franka_vs_gym.model import params
+from franka_vs_gym.model.description import FRANKA_HAND
 
-MAX_WIDTH = 2 * params.HAND_FINGER_OPENING  # m
+MAX_WIDTH = 2 * FRANKA_HAND.finger_opening  # m
 MAX_SPEED = 0.1  # m/s
 HOMING_SPEED = 0.1  # m/s
 
@@ -30,7 +30,7 @@ class SimulatedHand:
 
     def __init__(self, sim) -> None:
         self.sim = sim
-        m = sim._m
+        m = sim.world.model
         p = sim.prefix
         self._m = m
         self.fingers = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"{p}{s}finger") for s in ("left", "right")]
@@ -93,7 +93,7 @@ class SimulatedHand:
         return self.action is not None
 
     def _touching(self) -> bool:
-        d = self.sim._d
+        d = self.sim.world.data
         fingers = self.fingers
         mb = self._m.geom_bodyid
         for i in range(d.ncon):

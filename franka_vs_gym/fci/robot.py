@@ -28,6 +28,8 @@ frame (``EE_T_K``).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from franka_vs_gym.control.impedance import CartesianImpedance, JointImpedance, pose_error
@@ -40,22 +42,20 @@ from franka_vs_gym.fci.codec import (
     RobotMode,
     RobotStateBuffer,
 )
-from franka_vs_gym.fci.errors import error_bit, error_flags
+from franka_vs_gym.fci.errors import error_flags
 from franka_vs_gym.model.description import RobotDescription, robot_description
 from franka_vs_gym.sim import FORCE_TORQUE, JOINT_STATE, FrankaSim, SimulationDiverged
+from franka_vs_gym.sim.reflexes import ControlException
 
-try:  # the simulator's reflexes (libfranka reason names); absent in simulators without them
-    from franka_vs_gym.sim.reflexes import ControlException
-except ImportError:  # pragma: no cover
-    ControlException = RuntimeError  # type: ignore[misc,assignment]
-
-# Defaults of the FER's controllers and collision behaviour (Franka Control Interface documentation).
+# Defaults of the internal controllers' stiffness (libfranka's examples, setDefaultBehavior) and of the collision
+# thresholds (values libfranka's examples have used; the robot's own defaults are set in Desk).
 DEFAULT_K_THETA = (3000.0, 3000.0, 3000.0, 2500.0, 2500.0, 2000.0, 2000.0)  # Nm/rad
 DEFAULT_K_X = (3000.0, 3000.0, 3000.0, 300.0, 300.0, 300.0)  # N/m, Nm/rad
 DEFAULT_TORQUE_THRESHOLDS = (20.0, 20.0, 18.0, 18.0, 16.0, 14.0, 12.0)  # Nm
 DEFAULT_FORCE_THRESHOLDS = (20.0, 20.0, 20.0, 25.0, 25.0, 25.0)  # N, Nm
 # Tolerances of the motion-generator checks (relative to the limits) and of communication in real-time mode.
 LIMIT_TOLERANCE = 0.05  # on finite-difference accelerations and jerks of the commands
+CARTESIAN_JOINT_TOLERANCE = 2.0  # on the joint accelerations and jerks of Cartesian commands (see below)
 PLANT_VELOCITY_MARGIN = 0.01  # the internal controllers may overshoot a command that sits at the velocity limit
 MAX_MISSED_COMMANDS = 20  # consecutive 1 ms cycles without a command before communication_constraints_violation
 
@@ -71,6 +71,14 @@ _CTRL_FROM_MOVE = {
     MoveControllerMode.CARTESIAN_IMPEDANCE: ControllerMode.CARTESIAN_IMPEDANCE,
     MoveControllerMode.EXTERNAL_CONTROLLER: ControllerMode.EXTERNAL_CONTROLLER,
 }
+
+
+_I3 = np.eye(3)
+_ROW3 = np.array([0.0, 0.0, 0.0, 1.0])
+
+
+def _norm3(v: np.ndarray) -> float:
+    return math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
 
 
 def _cm(M: np.ndarray) -> np.ndarray:
@@ -136,10 +144,14 @@ class FCIRobot:
         self.lower_torque_thresholds = self.torque_thresholds.copy()
         self.lower_force_thresholds = self.force_thresholds.copy()
         self.joint_ctrl = JointImpedance(self.model, k=self.K_theta, coriolis=True, friction=True)
-        self.cart_ctrl = CartesianImpedance(self.model, k_translation=self.K_x[:3], k_rotation=self.K_x[3:])
+        self._update_cartesian_controller()
         self.gravity = np.array(self.model.config.gravity, dtype=float)
         sim.set_robot_state(FORCE_TORQUE)
+        # the plant's joint velocity servos (views): the internal controllers' damping, integrated implicitly
+        self._servo_gain, self._servo_bias, self._servo_ctrl = sim.velocity_servo_views()
+        self._q_view, self._dq_view = sim.joint_views()
         self.state = RobotStateBuffer()
+        self._settings_changed = True
         self.robot_mode = RobotMode.IDLE
         self.mg_mode = MotionGeneratorMode.IDLE
         self.ctrl_mode = ControllerMode.JOINT_IMPEDANCE
@@ -148,6 +160,7 @@ class FCIRobot:
         self.reflex_detail = ""
         self.success_window = np.ones(100, dtype=bool)
         self._win_i = 0
+        self._success_sum = len(self.success_window)
         self.missed_in_row = 0
         self.tau_J_prev = sim.get_force_torque(JOINT_STATE)
         self._reset_desired()
@@ -155,31 +168,41 @@ class FCIRobot:
     # ------------------------------------------------------------------ helpers
     @property
     def q(self) -> np.ndarray:
-        return self.sim._qpos
+        return self._q_view
 
     @property
     def dq(self) -> np.ndarray:
-        return self.sim._qvel
+        return self._dq_view
 
     def O_T_EE_of(self, q: np.ndarray) -> np.ndarray:
         """Pose of EE in O (4x4) at joint position q."""
         return self.model.fMe(q) @ self.NE_T_EE
 
-    def _J_EE(self, q: np.ndarray) -> np.ndarray:
-        """Jacobian (6, 7) of the EE frame's origin, base-frame axes, [v; w]."""
+    def _J_EE(self, q: np.ndarray, NE_p: np.ndarray | None = None) -> np.ndarray:
+        """Jacobian (6, 7), base-frame axes, [v; w], of the EE frame's origin, or of the point ``NE_p`` (3,)
+        given in the nominal end-effector frame NE."""
         J = self.model.fJe(q)
-        r = self.model.fMe(q)[:3, :3] @ self.NE_T_EE[:3, 3]
+        r = self.model.fMe(q)[:3, :3] @ (self.NE_T_EE[:3, 3] if NE_p is None else NE_p)
         if r.any():
             J = J.copy()
             J[:3] -= _skew(r) @ J[3:]
         return J
+
+    def _update_cartesian_controller(self) -> None:
+        """The Cartesian impedance acts on the stiffness frame K: its controller's model has K as end effector."""
+        from franka_vs_gym.model import FrankaModel
+        from franka_vs_gym.model.config import Tool
+
+        cfg = self.model.config
+        flMK = self.F_T_NE @ self.NE_T_EE @ self.EE_T_K
+        model = FrankaModel(cfg.copy(tool=Tool(cfg.tool.name, flMK, cfg.tool.body)))
+        self.cart_ctrl = CartesianImpedance(model, k_translation=self.K_x[:3], k_rotation=self.K_x[3:])
 
     def _reset_desired(self) -> None:
         """Desired signals follow the measured state (start of a motion, idle, after a reflex)."""
         q = self.q.copy()
         self.q_d, self.dq_d, self.ddq_d = q, np.zeros(7), np.zeros(7)
         self.q_hold = q.copy()
-        self.q_c_prev = None
         self.O_T_EE_c = self.O_T_EE_of(q)
         self.O_dP_EE_c = np.zeros(6)
         self.O_ddP_EE_c = np.zeros(6)
@@ -197,6 +220,7 @@ class FCIRobot:
     def set_cartesian_impedance(self, K_x: np.ndarray) -> None:
         self.K_x = np.asarray(K_x, dtype=float).copy()
         self.cart_ctrl.k = self.K_x.copy()
+        self.cart_ctrl.d = None  # critical damping recomputed from the new stiffness
 
     def set_collision_behavior(self, lower_torque: np.ndarray, upper_torque: np.ndarray, lower_force: np.ndarray,
                                upper_force: np.ndarray) -> None:
@@ -211,6 +235,7 @@ class FCIRobot:
         from franka_vs_gym.model import FrankaModel
 
         self.m_load, self.F_x_Cload, self.I_load = float(mass), np.array(F_x_Cload, float), np.array(I_load, float)
+        self._settings_changed = True
         if self.m_load > 0:
             self._load_model = FrankaModel(self.model.config)
             self._load_model.set_payload(self.m_load, self.F_x_Cload, self.I_load)
@@ -242,7 +267,7 @@ class FCIRobot:
         self.mg_mode = MotionGeneratorMode.IDLE
         self.ctrl_mode = ControllerMode.OTHER
         self._reset_desired()
-        self.sim._qvel[:] = 0.0  # brakes engaged
+        self.sim.stop_joints()  # brakes engaged
 
     def automatic_error_recovery(self) -> None:
         self.errors[:] = False
@@ -266,7 +291,9 @@ class FCIRobot:
     # ------------------------------------------------------------------ motion generators
     def _check_joint_trajectory(self, q_d: np.ndarray, dq_d: np.ndarray, ddq_d: np.ndarray, dddq_d: np.ndarray,
                                 prefix: str) -> None:
-        tol = 1.0 + LIMIT_TOLERANCE
+        # Joint trajectories of Cartesian commands come from this robot's inverse kinematics, not the FER's: their
+        # accelerations and jerks are checked against twice the limits (a discontinuity, not a planning detail).
+        tol = 1.0 + LIMIT_TOLERANCE if prefix.startswith("joint") else CARTESIAN_JOINT_TOLERANCE
         if (q_d > self.q_max).any() or (q_d < self.q_min).any():
             j = int(np.argmax(np.maximum(q_d - self.q_max, self.q_min - q_d)))
             raise Reflex([f"{prefix}position_limits_violation"],
@@ -295,30 +322,34 @@ class FCIRobot:
         self._check_joint_trajectory(q_new, dq_new, ddq_new, dddq_new, prefix)
         self.q_d, self.dq_d, self.ddq_d = q_new, dq_new, ddq_new
 
-    def _ik(self, T: np.ndarray, elbow: float) -> np.ndarray:
-        """Joint position reaching EE pose T (4x4 in O) with joint 3 at ``elbow``, from the current q_d."""
+    def _ik(self, T: np.ndarray, elbow: float | None) -> np.ndarray:
+        """Joint position reaching EE pose T (4x4 in O) from the current q_d: with joint 3 at ``elbow`` when given
+        (a square 7x7 system), else the minimum-norm joint step (the elbow follows)."""
         q = self.q_d.copy()
         A = np.zeros((7, 7))
         A[6, 2] = 1.0
         b = np.zeros(7)
         for _ in range(4):
-            err = pose_error(self.O_T_EE_of(q), T)
-            b[:6] = err
-            b[6] = elbow - q[2]
+            b[:6] = pose_error(self.O_T_EE_of(q), T)
+            if elbow is not None:
+                b[6] = elbow - q[2]
             if np.abs(b).max() < 1e-12:
                 break
-            A[:6] = self._J_EE(q)
-            try:
-                step = np.linalg.solve(A, b)
-            except np.linalg.LinAlgError:
-                step = np.linalg.lstsq(A, b, rcond=1e-6)[0]
+            J = self._J_EE(q)
+            if elbow is None:
+                step = np.linalg.lstsq(J, b[:6], rcond=1e-6)[0]
+            else:
+                A[:6] = J
+                try:
+                    step = np.linalg.solve(A, b)
+                except np.linalg.LinAlgError:
+                    step = np.linalg.lstsq(A, b, rcond=1e-6)[0]
             q = q + step
         return q
 
     def _cartesian_checks(self, T_new: np.ndarray) -> None:
         dt, c, tol = self.dt, self.cart, 1.0 + LIMIT_TOLERANCE
-        v = np.concatenate([(T_new[:3, 3] - self.O_T_EE_c[:3, 3]) / dt,
-                            pose_error(self.O_T_EE_c, T_new)[3:] / dt])
+        v = pose_error(self.O_T_EE_c, T_new) / dt  # [translation; rotation vector in O] per step
         a = (v - self.O_dP_EE_c) / dt
         j = (a - self.O_ddP_EE_c) / dt
         checks = ((v, c.v_max, c.w_max, "velocity_limits_violation", "m/s"),
@@ -326,7 +357,7 @@ class FCIRobot:
                   (j, c.j_max, c.rot_j_max, "acceleration_discontinuity", "m/s^3"))
         if not self._first_command:
             for vec, lin, rot, name, unit in checks:
-                nl, nr = float(np.linalg.norm(vec[:3])), float(np.linalg.norm(vec[3:]))
+                nl, nr = _norm3(vec[:3]), _norm3(vec[3:])
                 if nl > lin * tol or nr > rot * tol:
                     raise Reflex([f"cartesian_motion_generator_{name}"],
                                  f"commanded end-effector {nl:.3g} {unit} (limit {lin}), "
@@ -343,7 +374,7 @@ class FCIRobot:
             if mg == MotionGeneratorMode.CARTESIAN_POSITION:
                 T = np.asarray(cmd.O_T_EE_c).reshape(4, 4, order="F").copy()
                 R = T[:3, :3]
-                if not (np.allclose(R @ R.T, np.eye(3), atol=1e-4) and np.allclose(T[3], (0, 0, 0, 1))):
+                if not (np.abs(R @ R.T - _I3).max() < 1e-4 and np.abs(T[3] - _ROW3).max() < 1e-9):
                     raise Reflex(["cartesian_position_motion_generator_invalid_frame_flag"],
                                  "O_T_EE_c is not a homogeneous transformation")
             else:
@@ -357,13 +388,13 @@ class FCIRobot:
                 if np.sign(cmd.elbow_c[1]) != np.sign(self.elbow_c[1]):
                     raise Reflex(["cartesian_motion_generator_elbow_sign_inconsistent"],
                                  f"elbow flip {cmd.elbow_c[1]} differs from the current {self.elbow_c[1]}")
-                new_elbow = np.array([elbow, self.elbow_c[1]])
+                q_new = self._ik(T, elbow)
             else:
-                new_elbow = np.array([self.q_d[2], self.elbow_c[1]])
+                q_new = self._ik(T, None)
+            new_elbow = np.array([q_new[2], self.elbow_c[1]])
             d1 = (new_elbow - self.elbow_c) / self.dt
             self.ddelbow_c = (d1 - self.delbow_c) / self.dt
             self.delbow_c, self.elbow_c = d1, new_elbow
-            q_new = self._ik(T, float(new_elbow[0]))
             self.O_T_EE_c = T
             self._advance_joint(q_new, "cartesian_motion_generator_joint_")
         self._first_command = False
@@ -373,7 +404,7 @@ class FCIRobot:
         """Gravity-free joint torque for this cycle (may raise :class:`Reflex`)."""
         q, dq = self.q, self.dq
         if self.robot_mode != RobotMode.MOVE:
-            return self.joint_ctrl(q, dq, self.q_hold)
+            return self._joint_impedance(q, dq, self.q_hold, np.zeros(7), None)
         if cmd is not None:
             if self.mg_mode != MotionGeneratorMode.NONE:
                 self._apply_motion(cmd)
@@ -391,18 +422,47 @@ class FCIRobot:
         elif self.ctrl_mode == ControllerMode.EXTERNAL_CONTROLLER:
             return self.tau_J_d  # the last torque is held
         if self.ctrl_mode == ControllerMode.CARTESIAN_IMPEDANCE:
-            T = self.O_T_EE_c @ np.linalg.inv(self.NE_T_EE)
-            tau = self.cart_ctrl(q, dq, T, self.O_dP_EE_c)
+            T = self.O_T_EE_c @ self.EE_T_K  # goal of the stiffness frame
+            v = self.O_dP_EE_c.copy()
+            v[:3] += np.cross(v[3:], self.O_T_EE_c[:3, :3] @ self.EE_T_K[:3, 3])
+            tau = self.cart_ctrl(q, dq, T, v)
         else:
-            tau = self.joint_ctrl(q, dq, self.q_d, self.dq_d, self.ddq_d)
+            tau = self._joint_impedance(q, dq, self.q_d, self.dq_d, self.ddq_d)
         self.tau_J_d = tau
         return tau
+
+    def _joint_impedance(self, q: np.ndarray, dq: np.ndarray, q_d: np.ndarray, dq_d: np.ndarray,
+                         ddq_d: np.ndarray | None) -> np.ndarray:
+        """The internal joint impedance controller, the law of :class:`~franka_vs_gym.control.JointImpedance`
+        (stiffness ``K_theta``, critical damping on the diagonal of B(q), inertial, Coriolis and friction
+        feed-forward) with one evaluation of B per cycle. Its damping ``D (dq_d - dq)`` runs in the plant's joint
+        velocity servos, which MuJoCo integrates implicitly; the rest is the returned motor torque. The FER's joint
+        controllers run faster than the 1 kHz interface; an explicit 1 ms damping term would be unstable on the
+        light coupled modes of the arm (e.g. joints 1 and 3 turning against each other when aligned)."""
+        m, ctrl = self.model, self.joint_ctrl
+        B = m.mass_matrix(q)
+        D = 2.0 * ctrl.zeta * np.sqrt(ctrl.k * B.diagonal())
+        self._set_servo(D, dq_d)
+        tau = ctrl.k * (q_d - q) + m.coriolis(q, dq) + m.friction(dq_d)
+        if ddq_d is not None:  # implicit damping acts on the end-of-step velocity: feed its share of ddq_d forward
+            tau += B @ ddq_d + self.dt * D * ddq_d
+        return tau
+
+    def _set_servo(self, D: np.ndarray | float, dq_d: np.ndarray | float) -> None:
+        """Gains (Nm s/rad) and set point (rad/s) of the plant's joint velocity servos."""
+        self._servo_gain[:] = D
+        self._servo_bias[:] = -np.asarray(D)
+        self._servo_ctrl[:] = dq_d
 
     def step(self, cmd: RobotCommand | None) -> tuple[str, ...]:
         """Apply ``cmd`` (or hold), step the plant 1 ms, check the reflexes. Returns the reflex reasons (empty if
         none fired); on a reflex the robot is already in REFLEX mode."""
         sim = self.sim
         try:
+            self._set_servo(0.0, 0.0)
+            if self.robot_mode == RobotMode.REFLEX and getattr(sim, "current_errors", ()):
+                sim.step()  # the simulator's brakes hold the arm until automatic_error_recovery
+                return ()
             tau = self.control_torque(cmd)
             if self._load_model is not None:
                 tau = tau + self._load_model.gravity(self.q) - self.model.gravity(self.q)
@@ -436,6 +496,7 @@ class FCIRobot:
 
     def count_command(self, received: bool) -> None:
         """Real-time bookkeeping: whether this cycle's command arrived in time."""
+        self._success_sum += int(received) - int(self.success_window[self._win_i])
         self.success_window[self._win_i] = received
         self._win_i = (self._win_i + 1) % len(self.success_window)
         self.missed_in_row = 0 if received else self.missed_in_row + 1
@@ -447,10 +508,38 @@ class FCIRobot:
     def external_torque(self) -> np.ndarray:
         """The external joint torque the robot feels (7,), Nm, in libfranka's sign convention (``tau_J`` minus
         what the motion needs): minus the generalized force of the plant's contacts on the arm."""
-        d = self.sim._d
+        d = self.sim.world.data
         if d.ncon == 0:
             return np.zeros(7)
-        return -np.array(d.qfrc_constraint[self.sim._vs])
+        return -np.array(d.qfrc_constraint[self.sim.dof_slice])
+
+    def _fill_settings(self) -> None:
+        """State fields that change only with the settings (frames, end effector and load, gravity)."""
+        f = self.state.f
+        f["F_T_EE"][:] = _cm(self.F_T_NE @ self.NE_T_EE)
+        f["EE_T_K"][:] = _cm(self.EE_T_K)
+        f["F_T_NE"][:] = _cm(self.F_T_NE)
+        f["NE_T_EE"][:] = _cm(self.NE_T_EE)
+        f["m_ee"][0] = self.m_ee
+        f["I_ee"][:] = _cm(self.I_ee)
+        f["F_x_Cee"][:] = self.F_x_Cee
+        f["m_load"][0] = self.m_load
+        f["I_load"][:] = _cm(self.I_load)
+        f["F_x_Cload"][:] = self.F_x_Cload
+        f["O_ddP_O"][:] = self.gravity
+        self._settings_changed = False
+
+    def set_EE_to_K(self, EE_T_K: np.ndarray) -> None:
+        """Stiffness frame K in the end-effector frame (4x4)."""
+        self.EE_T_K = np.array(EE_T_K, dtype=float)
+        self._settings_changed = True
+        self._update_cartesian_controller()
+
+    def set_NE_to_EE(self, NE_T_EE: np.ndarray) -> None:
+        """End-effector frame in the nominal end-effector frame (4x4)."""
+        self.NE_T_EE = np.array(NE_T_EE, dtype=float)
+        self._settings_changed = True
+        self._update_cartesian_controller()
 
     def fill_state(self) -> RobotStateBuffer:
         st, f = self.state, self.state.f
@@ -481,16 +570,8 @@ class FCIRobot:
             f["elbow_c"][:] = (q_d[2], -1.0 if q_d[3] < 0 else 1.0)
             f["delbow_c"][:] = (dq_d[2], 0.0)
             f["ddelbow_c"][:] = 0.0
-        f["F_T_EE"][:] = _cm(self.F_T_NE @ self.NE_T_EE)
-        f["EE_T_K"][:] = _cm(self.EE_T_K)
-        f["F_T_NE"][:] = _cm(self.F_T_NE)
-        f["NE_T_EE"][:] = _cm(self.NE_T_EE)
-        f["m_ee"][0] = self.m_ee
-        f["I_ee"][:] = _cm(self.I_ee)
-        f["F_x_Cee"][:] = self.F_x_Cee
-        f["m_load"][0] = self.m_load
-        f["I_load"][:] = _cm(self.I_load)
-        f["F_x_Cload"][:] = self.F_x_Cload
+        if self._settings_changed:
+            self._fill_settings()
         f["elbow"][:] = (q[2], -1.0 if q[3] < 0 else 1.0)
         f["elbow_d"][:] = (q_d[2], -1.0 if q_d[3] < 0 else 1.0)
         f["tau_J"][:] = tau_J
@@ -504,11 +585,10 @@ class FCIRobot:
         f["ddq_d"][:] = ddq_d
         f["theta"][:] = q
         f["dtheta"][:] = dq
-        f["O_ddP_O"][:] = self.gravity
         tau_ext = self.external_torque()
         f["tau_ext_hat_filtered"][:] = tau_ext
         if tau_ext.any():
-            J = self._J_EE(q)
+            J = self._J_EE(q, (self.NE_T_EE @ self.EE_T_K)[:3, 3])  # the wrench acts at K's origin
             F = np.linalg.lstsq(J.T, tau_ext, rcond=1e-6)[0]
             R = (O_T_EE @ self.EE_T_K)[:3, :3]
             f["O_F_ext_hat_K"][:] = F
@@ -526,7 +606,7 @@ class FCIRobot:
         st.robot_mode = self.robot_mode
         st.errors = self.errors
         st.reflex_reason = self.last_motion_errors
-        st.control_command_success_rate = float(self.success_window.mean())
+        st.control_command_success_rate = self._success_sum / len(self.success_window)
         return st
 
     def collision_reflex(self) -> tuple[str, ...]:
@@ -544,4 +624,4 @@ class FCIRobot:
         return tuple(reasons)
 
 
-__all__ = ["DEFAULT_K_THETA", "DEFAULT_K_X", "FCIRobot", "Reflex", "error_bit"]
+__all__ = ["DEFAULT_K_THETA", "DEFAULT_K_X", "MAX_MISSED_COMMANDS", "FCIRobot", "Reflex"]

@@ -54,6 +54,11 @@ from franka_vs_gym.fci.urdf import robot_urdf
 from franka_vs_gym.model.description import RobotDescription, robot_description
 
 _TICK = 0.001  # s of wall time between idle states (and the real-time control period)
+# Lock-step, between a Move and its first command: frozen states keep the client from waiting forever, but every
+# extra one the client drains changes the time step it sees, so they are rare.
+_START_PHASE_PERIOD = 0.05
+_MAX_LATE = 0.002  # s: real-time cycles later than this are dropped (plant time falls behind wall time)
+_HAND_STEPS_PER_TICK = 25  # lock-step physics steps per wall-time tick while only the hand moves
 
 
 class _Conn:
@@ -86,6 +91,7 @@ class FCIServer:
     tags : AprilTags in the scene (``[TagSpec()]`` for the default 8 cm tag on the table).
     camera : add the wrist camera (see :meth:`render_camera`).
     table : put the table in the scene.
+    extra_worldbody : raw MJCF added to the world (objects to grasp, obstacles).
     record : path of a workbench log (``.csv`` or ``.npz`` + ``.json`` sidecar) written at :meth:`stop` with one
         row per physics step of the session.
     port, gripper_port : 1337 and 1338 as libfranka fixes them (change only for tests of the server itself).
@@ -100,7 +106,8 @@ class FCIServer:
 
     def __init__(self, host: str = "127.0.0.1", *, lockstep: bool = False, model: Any = None,
                  robot: RobotDescription | str | None = None, q0: Any = None, tags: list | None = None,
-                 camera: bool = True, table: bool = True, record: str | Path | None = None,
+                 camera: bool = True, table: bool = True, extra_worldbody: str = "",
+                 record: str | Path | None = None,
                  port: int = codec.ROBOT_PORT,
                  gripper_port: int = codec.GRIPPER_PORT, verbose: bool = True) -> None:
         from franka_vs_gym.sim import FrankaSim
@@ -116,7 +123,7 @@ class FCIServer:
                 if p.exists():
                     raise FileExistsError(f"{p} exists; choose a new log name (nothing is overwritten)")
         self.record_path = record
-        kwargs: dict[str, Any] = {"camera": camera, "tags": tags, "table": table}
+        kwargs: dict[str, Any] = {"camera": camera, "tags": tags, "table": table, "extra_worldbody": extra_worldbody}
         if q0 is not None:
             kwargs["q0"] = q0
         if "robot" in inspect.signature(FrankaSim).parameters:
@@ -145,10 +152,12 @@ class FCIServer:
         self.robot_conn: _Conn | None = None
         self.gripper_conns: list[_Conn] = []
         self.commanded = False  # lockstep: a motion's first command has arrived
+        self._next_start_state = 0.0
         self.steps = 0
         self._rows: list[np.ndarray] = []
         self.deadlines_met = 0
         self.deadlines_total = 0
+        self.late_cycles = 0  # real-time cycles the server itself could not run in time (dropped)
         self._renderers: dict[tuple[int, int], Any] = {}
 
     # ------------------------------------------------------------------ lifecycle
@@ -274,8 +283,9 @@ class FCIServer:
                 now = time.perf_counter()
                 if now >= next_tick:
                     next_tick += _TICK
-                    if now - next_tick > 0.05:  # far behind (debugger, overloaded machine): do not catch up
-                        next_tick = now + _TICK
+                    if now - next_tick > _MAX_LATE:  # the server itself fell behind (machine overloaded): the
+                        self.late_cycles += int((now - next_tick) / _TICK)  # lost cycles are dropped, not
+                        next_tick = now + _TICK  # replayed back to back (that would count as client misses)
                     if self.lockstep:
                         self._lockstep_tick()
                     else:
@@ -310,8 +320,10 @@ class FCIServer:
 
     def _lockstep_command(self, cmd: RobotCommand) -> None:
         r = self.robot
-        if not r.moving or cmd.message_id != self.message_id:
-            return  # a late command for an older state, or after the motion ended
+        if not r.moving or cmd.message_id > self.message_id:
+            return
+        if self.commanded and cmd.message_id != self.message_id:
+            return  # a late command for an older state
         self.commanded = True
         reasons = self._physics_step(cmd)
         self._after_step(cmd, reasons)
@@ -337,10 +349,21 @@ class FCIServer:
         if r.moving and self.commanded:
             self._send_gripper_state()
             return  # states go out one per command
-        if self.hand.busy:  # the hand needs simulated time although no arm command advances it
-            reasons = self._physics_step(None)
+        if r.moving and not self.hand.busy:  # waiting for the motion's first command
+            now = time.perf_counter()
+            if now < self._next_start_state:
+                self._send_gripper_state()
+                return
+            self._next_start_state = now + _START_PHASE_PERIOD
+        if self.hand.busy:  # the hand needs simulated time although no arm command advances it: lock-step runs
+            reasons: tuple[str, ...] = ()  # it as fast as it can (several steps per tick, one state out)
+            for _ in range(_HAND_STEPS_PER_TICK):
+                reasons = self._physics_step(None)
+                if reasons or not self.hand.busy:
+                    break
+                self._record()
             self._after_step(None, reasons)
-        else:
+        elif self.robot_conn is not None:  # (nobody to send to: the frozen plant needs no work)
             self._send_state(r.fill_state())
         self._send_gripper_state()
 
@@ -500,6 +523,8 @@ class FCIServer:
                 self.move_id, self.move_conn, self.commanded = cid, conn, False
                 self._send_state(r.fill_state())  # the new modes are on the wire before "motion started"
                 conn.send(codec.status_response(cmd, cid, MoveStatus.MOTION_STARTED))
+                self._send_state(r.state)  # for a client that took "motion started" first
+                self._next_start_state = time.perf_counter() + _START_PHASE_PERIOD
             elif cmd == Command.STOP_MOVE:
                 if r.moving:
                     r.finish_motion()
@@ -511,9 +536,13 @@ class FCIServer:
                     conn.send(codec.status_response(cmd, cid, RecoveryStatus.COMMAND_NOT_POSSIBLE_REJECTED))
                     return
                 r.automatic_error_recovery()
+                self._send_state(r.fill_state())  # in the client's queue before the reply: it reads the recovery
                 conn.send(codec.status_response(cmd, cid, RecoveryStatus.SUCCESS))
             else:
-                conn.send(codec.status_response(cmd, cid, self._setter(cmd, payload)))
+                status = self._setter(cmd, payload)
+                if not r.moving:
+                    self._send_state(r.fill_state())  # ... and the new setting
+                conn.send(codec.status_response(cmd, cid, status))
 
     def _setter(self, cmd: Command, payload: bytes) -> SetterStatus:
         r = self.robot
@@ -544,9 +573,9 @@ class FCIServer:
             if not (np.allclose(R @ R.T, np.eye(3), atol=1e-6) and np.allclose(T[3], (0, 0, 0, 1))):
                 return SetterStatus.INVALID_ARGUMENT_REJECTED
             if cmd == Command.SET_EE_TO_K:
-                r.EE_T_K = T
+                r.set_EE_to_K(T)
             else:
-                r.NE_T_EE = T
+                r.set_NE_to_EE(T)
         elif cmd == Command.SET_LOAD:
             m, com, inertia = values[0], values[1:4], values[4:13].reshape(3, 3, order="F")
             if m < 0 or not np.allclose(inertia, inertia.T, atol=1e-9):
@@ -607,9 +636,9 @@ class FCIServer:
         key = (width, height)
         r = self._renderers.get(key)
         if r is None:
-            r = self._renderers[key] = mujoco.Renderer(self.sim._m, height, width)
+            r = self._renderers[key] = mujoco.Renderer(self.sim.world.model, height, width)
         with self.lock:
-            r.update_scene(self.sim._d, camera=self.sim.camera_name())
+            r.update_scene(self.sim.world.data, camera=self.sim.camera_name())
         return r.render()
 
     def state(self) -> dict[str, Any]:

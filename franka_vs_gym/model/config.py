@@ -1,6 +1,7 @@
-"""Model configuration: everything that turns the published FER parameters into one concrete robot.
+"""Model configuration: everything that turns a robot description into one concrete robot.
 
-A :class:`ModelConfig` holds the tool on the flange, an optional payload, the gravity vector in the base frame, the
+A :class:`ModelConfig` holds the robot (a :class:`~franka_vs_gym.model.description.RobotDescription`, default the
+FER), the tool on the flange, an optional payload, the gravity vector in the base frame, the
 friction law, rotor inertia (armature), a torque-sensor offset and a torque/motion delay. It is what the
 model-vs-measurement workbench calibrates and saves (a JSON "calibrated model file"), and what ``FrankaModel``,
 ``FrankaSim`` and ``gymnasium.make(..., model=...)`` load. Both the pinocchio model and the MuJoCo plant are built
@@ -21,10 +22,25 @@ from typing import Any
 
 import numpy as np
 
-from franka_vs_gym.model import checks, params
+from franka_vs_gym.model import checks
 from franka_vs_gym.model.checks import as_vector
+from franka_vs_gym.model.description import FER, FRANKA_HAND, GRAVITY, RobotDescription, robot_description
+from franka_vs_gym.model.friction import compile_friction, joint_friction
+from franka_vs_gym.model.geometry import combine_inertials, rotate_inertia
 
-FORMAT = "franka_vs_gym.model/1"
+FORMAT = "franka_vs_gym.model/2"
+# Older formats still read: version 1 files predate the robot field and describe the FER.
+_FORMATS = {"franka_vs_gym.model/1": 1, FORMAT: 2}
+
+
+class _RobotDefault:
+    """Marker of a ``ModelConfig`` field left to the robot description's default (tool, friction)."""
+
+    def __repr__(self) -> str:
+        return "ROBOT_DEFAULT"
+
+
+ROBOT_DEFAULT: Any = _RobotDefault()
 
 
 def _mat(x: Any, shape: tuple[int, int], name: str) -> np.ndarray:
@@ -74,7 +90,7 @@ class Tool:
     """The tool mounted on the flange: its end-effector frame ``flMe`` (4x4) and its rigid body."""
 
     name: str = "franka_hand"
-    flMe: np.ndarray = field(default_factory=params.hand_flMe)
+    flMe: np.ndarray = field(default_factory=FRANKA_HAND.flMe)
     body: RigidBody = field(default_factory=lambda: franka_hand_body())
 
     def __post_init__(self) -> None:
@@ -91,6 +107,11 @@ class Tool:
     def none(cls) -> Tool:
         """No tool: the end effector is the flange."""
         return cls("none", np.eye(4), RigidBody())
+
+    @classmethod
+    def named(cls, name: str | None) -> Tool:
+        """A tool by name: "franka_hand", or "none" / None for the bare flange."""
+        return cls.from_dict(name)
 
     def to_dict(self) -> dict[str, Any]:
         return {"name": self.name, "flMe": self.flMe.tolist(), **self.body.to_dict()}
@@ -115,9 +136,9 @@ class Tool:
 
 def franka_hand_body() -> RigidBody:
     """The Franka Hand's inertial parameters expressed in the flange frame."""
-    R = params.hand_placement()[:3, :3]
-    h = params.HAND
-    return RigidBody(h.mass, R @ np.array(h.com), R @ h.inertia_matrix() @ R.T)
+    R = FRANKA_HAND.placement()[:3, :3]
+    h = FRANKA_HAND.body
+    return RigidBody(h.mass, R @ np.array(h.com), rotate_inertia(R, h.inertia_matrix()))
 
 
 @dataclass
@@ -131,9 +152,9 @@ class Friction:
     velocity for the Coulomb term, small compared with the motion).
     """
 
-    phi1: np.ndarray = field(default_factory=lambda: params.as_array(params.FRICTION_PHI1))
-    phi2: np.ndarray = field(default_factory=lambda: params.as_array(params.FRICTION_PHI2))
-    phi3: np.ndarray = field(default_factory=lambda: params.as_array(params.FRICTION_PHI3))
+    phi1: np.ndarray = field(default_factory=lambda: np.array(FER.friction.phi1))  # type: ignore[union-attr]
+    phi2: np.ndarray = field(default_factory=lambda: np.array(FER.friction.phi2))  # type: ignore[union-attr]
+    phi3: np.ndarray = field(default_factory=lambda: np.array(FER.friction.phi3))  # type: ignore[union-attr]
     viscous: np.ndarray = field(default_factory=lambda: np.zeros(7))
     coulomb: np.ndarray = field(default_factory=lambda: np.zeros(7))
     coulomb_vel: float = 0.01
@@ -151,53 +172,48 @@ class Friction:
 
     @classmethod
     def none(cls) -> Friction:
+        """No friction (phi2 = 1 keeps the sigmoid well defined at zero height)."""
         z = np.zeros(7)
         return cls(z, np.ones(7), z, z, z)
+
+    @classmethod
+    def of(cls, robot: RobotDescription | str | None = None) -> Friction:
+        """The identified friction of a robot description, or no friction when it has none (calibrate it)."""
+        fr = robot_description(robot).friction
+        if fr is None:
+            return cls.none()
+        return cls(np.array(fr.phi1), np.array(fr.phi2), np.array(fr.phi3))
 
     def is_zero(self) -> bool:
         return not (self.phi1.any() or self.viscous.any() or self.coulomb.any())
 
     def compile(self):
-        """A fast closure dq -> tau_f (7,), specialised to the non-zero terms."""
-        phi1, phi2 = self.phi1.copy(), self.phi2.copy()
-        phi2phi3 = phi2 * self.phi3
-        off = phi1 / (1.0 + np.exp(-phi2phi3))
-        visc, coul, cv = self.viscous.copy(), self.coulomb.copy(), self.coulomb_vel
-        has_sig, has_visc, has_coul = bool(phi1.any()), bool(visc.any()), bool(coul.any())
-        exp, tanh = np.exp, np.tanh
+        """A fast closure dq -> tau_f (7,), Nm (:func:`franka_vs_gym.model.friction.compile_friction`)."""
+        return compile_friction(self.phi1, self.phi2, self.phi3, self.viscous, self.coulomb, self.coulomb_vel)
 
-        if has_sig and not has_visc and not has_coul:
-            def f(dq: np.ndarray) -> np.ndarray:
-                return phi1 / (1.0 + exp(-(phi2 * dq + phi2phi3))) - off
-            return f
-
-        def f(dq: np.ndarray) -> np.ndarray:
-            out = np.zeros(7)
-            if has_sig:
-                out += phi1 / (1.0 + exp(-(phi2 * dq + phi2phi3))) - off
-            if has_visc:
-                out += visc * dq
-            if has_coul:
-                out += coul * tanh(dq / cv)
-            return out
-        return f
+    def __call__(self, dq: np.ndarray) -> np.ndarray:
+        """tau_f(dq), Nm, for dq (7,) or (N, 7) rad/s (the law of :mod:`franka_vs_gym.model.friction`)."""
+        return joint_friction(dq, self.phi1, self.phi2, self.phi3, self.viscous, self.coulomb, self.coulomb_vel)
 
     def to_dict(self) -> dict[str, Any]:
         return {k: getattr(self, k).tolist() for k in ("phi1", "phi2", "phi3", "viscous", "coulomb")} | {
             "coulomb_vel": self.coulomb_vel}
 
-    def check_dissipative(self) -> None:
-        """Raise ValueError unless the law opposes motion at every velocity up to the FER limits."""
-        checks.check_dissipative(self.compile(), params.as_array(params.DQ_MAX))
+    def check_dissipative(self, dq_max: Any = None) -> None:
+        """Raise ValueError unless the law opposes motion at every velocity up to ``dq_max`` (7,) rad/s (default
+        the FER's limits)."""
+        dq_max = np.array(FER.limits.dq_max if dq_max is None else dq_max, dtype=np.float64)
+        checks.check_dissipative(self.compile(), dq_max)
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any] | None) -> Friction:
+    def from_dict(cls, d: dict[str, Any] | None, robot: RobotDescription | str | None = None) -> Friction:
+        """Read a friction law; sigmoid parameters missing from ``d`` are the robot's identified ones."""
         if d is None:
             return cls.none()
         if not isinstance(d, dict):
             raise ValueError(f"friction must be an object (phi1, phi2, phi3, viscous, coulomb) or null, got "
                              f"{type(d).__name__}")
-        base = cls()
+        base = cls.of(robot)
         kw = {k: d.get(k, getattr(base, k)) for k in ("phi1", "phi2", "phi3")}
         kw.update({k: d.get(k, np.zeros(7)) for k in ("viscous", "coulomb")})
         return cls(**kw, coulomb_vel=d.get("coulomb_vel", 0.01))
@@ -205,18 +221,24 @@ class Friction:
 
 @dataclass
 class ModelConfig:
-    """One concrete FER: published links plus tool, payload, gravity, friction, armature, offset and delay.
+    """One concrete robot: a description (links, limits) plus tool, payload, gravity, friction, armature, offset and
+    delay.
 
     Attributes
     ----------
-    tool : Tool
-        Tool on the flange (default the Franka Hand); its ``flMe`` defines the end-effector frame e.
+    robot : RobotDescription or its registered name
+        The arm (default :data:`~franka_vs_gym.model.description.FER`); ``"fr3"`` for the Franka Research 3. Stored
+        as the description itself; a model file stores its name.
+    tool : Tool or None
+        Tool on the flange (default the robot's ``default_tool``, the Franka Hand for the FER and the FR3; None: the
+        bare flange); its ``flMe`` defines the end-effector frame e.
     payload : RigidBody or None
         Extra load held by the tool (flange frame), as libfranka's ``setLoad``.
     gravity : (3,) array
         Gravity vector in the base frame f, m/s^2 (default (0, 0, -9.81): vertical mounting).
-    friction : Friction
-        Joint friction law (default: Gaz et al. 2019 sigmoid).
+    friction : Friction or None
+        Joint friction law (default: the robot's identified law, Gaz et al. 2019 for the FER; none for a robot
+        without one; None: no friction).
     armature : (7,) array
         Reflected rotor inertia added to the diagonal of the mass matrix, kg m^2.
     torque_offset : (7,) array
@@ -231,19 +253,29 @@ class ModelConfig:
         Multiplies the mass and inertia of each link (domain randomisation), 1 by default.
     """
 
-    tool: Tool = field(default_factory=Tool.franka_hand)
+    tool: Tool = ROBOT_DEFAULT
     payload: RigidBody | None = None
-    gravity: np.ndarray = field(default_factory=lambda: params.as_array(params.GRAVITY))
-    friction: Friction = field(default_factory=Friction)
+    gravity: np.ndarray = field(default_factory=lambda: np.array(GRAVITY, dtype=np.float64))
+    friction: Friction = ROBOT_DEFAULT
     armature: np.ndarray = field(default_factory=lambda: np.zeros(7))
     torque_offset: np.ndarray = field(default_factory=lambda: np.zeros(7))
     delay: float = 0.0
     delay_channel: str = "command"
     link_mass_scale: np.ndarray = field(default_factory=lambda: np.ones(7))
     notes: dict[str, Any] = field(default_factory=dict)
+    robot: RobotDescription = FER
     check_gravity: bool = True
 
     def __post_init__(self) -> None:
+        self.robot = robot_description(self.robot)
+        if self.tool is ROBOT_DEFAULT:
+            self.tool = Tool.named(self.robot.default_tool)
+        elif self.tool is None or isinstance(self.tool, str):
+            self.tool = Tool.named(self.tool)
+        if self.friction is ROBOT_DEFAULT:
+            self.friction = Friction.of(self.robot)
+        elif self.friction is None:
+            self.friction = Friction.none()
         self.gravity = as_vector(self.gravity, 3, "gravity")
         if self.check_gravity:
             checks.check_gravity(self.gravity)
@@ -291,38 +323,34 @@ class ModelConfig:
         if self.delay > 0.02:
             out.append(f"delay {self.delay * 1e3:.3g} ms is long for the FER (a few ms expected)")
         try:
-            self.friction.check_dissipative()
+            self.friction.check_dissipative(self.robot.limits.dq_max)
         except ValueError as e:
             out.append(str(e))
         return out
 
     def copy(self, **changes: Any) -> ModelConfig:
-        return ModelConfig.from_dict(replace(self, **changes).to_dict())
+        """A deep copy with some fields replaced (validated like a new configuration)."""
+        new = replace(self, **changes)
+        return ModelConfig.from_dict(new.to_dict(), robot=new.robot)
 
     def link_inertials(self) -> list[tuple[float, np.ndarray, np.ndarray]]:
         """(mass, com (3,), inertia (3,3) about com) of links 1..7 after scaling."""
         out = []
-        for s, link in zip(self.link_mass_scale, params.LINKS, strict=True):
+        for s, link in zip(self.link_mass_scale, self.robot.links, strict=True):
             out.append((link.mass * s, np.array(link.com), link.inertia_matrix() * s))
         return out
 
     def flange_body(self) -> RigidBody:
         """Tool and payload combined into one rigid body in the flange frame."""
         bodies = [self.tool.body] + ([self.payload] if self.payload is not None else [])
-        m = sum(b.mass for b in bodies)
-        if m == 0:
-            return RigidBody()
-        c = np.sum([b.mass * b.com for b in bodies], axis=0) / m
-        inertia = np.zeros((3, 3))
-        for b in bodies:
-            r = b.com - c
-            inertia += b.inertia + b.mass * (r @ r * np.eye(3) - np.outer(r, r))
-        return RigidBody(m, c, inertia)
+        m, c, inertia = combine_inertials((b.mass, b.com, b.inertia) for b in bodies)
+        return RigidBody() if m == 0 else RigidBody(m, c, inertia)
 
     # --- serialisation (the calibrated-model file)
     def to_dict(self) -> dict[str, Any]:
         return {
             "format": FORMAT,
+            "robot": self.robot.name,
             "tool": self.tool.to_dict(),
             "payload": None if self.payload is None else self.payload.to_dict(),
             "gravity": self.gravity.tolist(),
@@ -337,15 +365,16 @@ class ModelConfig:
         }
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> ModelConfig:
+    def from_dict(cls, d: dict[str, Any], robot: RobotDescription | str | None = None) -> ModelConfig:
+        """Read a model file's content. ``robot``: the robot the caller expects (a name or a description); a file
+        naming another robot is an error. Version-1 files (no robot field) describe the FER."""
         if not isinstance(d, dict):
             raise ValueError("a model file must hold a JSON object")
-        if "friction" in d and d["friction"] is not None:
-            Friction.from_dict(d["friction"]).check_dissipative()
         fmt = d.get("format", FORMAT)
-        if fmt != FORMAT:
+        if fmt not in _FORMATS:
             raise ValueError(f"unsupported model file format {fmt!r} (expected {FORMAT!r})")
-        known = {"format", "tool", "payload", "gravity", "friction", "armature", "torque_offset", "delay",
+        desc = _file_robot(d, robot)
+        known = {"format", "robot", "tool", "payload", "gravity", "friction", "armature", "torque_offset", "delay",
                  "delay_channel", "link_mass_scale", "notes", "check_gravity"}
         unknown = set(d) - known
         if unknown:
@@ -359,16 +388,19 @@ class ModelConfig:
         cfg = cls(
             tool=Tool.from_dict(d.get("tool", "franka_hand")),
             payload=None if d.get("payload") is None else RigidBody.from_dict(d["payload"]),
-            gravity=d.get("gravity", params.GRAVITY),
-            friction=Friction.from_dict(d["friction"]) if "friction" in d else Friction(),
+            gravity=d.get("gravity", GRAVITY),
+            friction=Friction.from_dict(d["friction"], desc) if "friction" in d else Friction.of(desc),
             armature=d.get("armature", np.zeros(7)),
             torque_offset=d.get("torque_offset", np.zeros(7)),
             delay=d.get("delay", 0.0),
             delay_channel=d.get("delay_channel", "command"),
             link_mass_scale=d.get("link_mass_scale", np.ones(7)),
             notes=dict(d.get("notes", {})),
+            robot=desc,
             check_gravity=d.get("check_gravity", True),
         )
+        if d.get("friction") is not None:  # a file's friction law must oppose motion
+            cfg.friction.check_dissipative(cfg.robot.limits.dq_max)
         return cfg
 
     def save(self, path: str | os.PathLike, overwrite: bool = False) -> Path:
@@ -379,8 +411,9 @@ class ModelConfig:
         return atomic_write(path, json.dumps(self.to_dict(), indent=2), force=overwrite, what="model file")
 
     @classmethod
-    def load(cls, path: str | os.PathLike) -> ModelConfig:
-        """Read a calibrated model file; ValueError naming the file and the problem if it is not one."""
+    def load(cls, path: str | os.PathLike, robot: RobotDescription | str | None = None) -> ModelConfig:
+        """Read a calibrated-model file; ``robot`` (optional) is the robot the caller expects. ValueError naming
+        the file and the problem if it is not one."""
         from franka_vs_gym.io import read_text
 
         p = Path(path)
@@ -390,20 +423,42 @@ class ModelConfig:
         except json.JSONDecodeError as e:
             raise ValueError(f"model file {p} is not valid JSON: {e}") from None
         try:
-            return cls.from_dict(d)
+            return cls.from_dict(d, robot)
         except ValueError as e:
             raise ValueError(f"model file {p}: {e}") from None
 
 
-def resolve_config(model: Any) -> ModelConfig:
-    """Accept a ModelConfig, a FrankaModel, a path to a model file, or None (defaults)."""
+def _file_robot(d: dict[str, Any], expected: RobotDescription | str | None) -> RobotDescription:
+    """The description a model file's content names (version 1: the FER), checked against ``expected``."""
+    name = d.get("robot", FER.name)
+    if not isinstance(name, str):
+        raise ValueError(f"the model file's robot must be a name such as 'fer' or 'fr3', got {name!r}")
+    if expected is not None:
+        want = robot_description(expected)
+        try:
+            named = robot_description(name).name
+        except ValueError:
+            named = name
+        if named != want.name:
+            raise ValueError(f"the model file describes the robot {name!r}, not {want.name!r} "
+                             f"(calibrate a model file for {want.name!r})")
+        return want
+    return robot_description(name)
+
+
+def resolve_config(model: Any, robot: RobotDescription | str | None = None) -> ModelConfig:
+    """Accept a ModelConfig, a FrankaModel, a path to a model file, or None (defaults for ``robot``).
+
+    ``robot`` (optional): the robot the caller asks for; a configuration or file for another robot is an error.
+    """
     if model is None:
-        return ModelConfig()
-    if isinstance(model, ModelConfig):
-        return model
+        return ModelConfig(robot=robot_description(robot))
     if isinstance(model, (str, os.PathLike)):
-        return ModelConfig.load(model)
-    cfg = getattr(model, "config", None)
-    if isinstance(cfg, ModelConfig):
-        return cfg
-    raise TypeError(f"cannot make a model configuration from {type(model).__name__}")
+        return ModelConfig.load(model, robot)
+    cfg = model if isinstance(model, ModelConfig) else getattr(model, "config", None)
+    if not isinstance(cfg, ModelConfig):
+        raise TypeError(f"cannot make a model configuration from {type(model).__name__}")
+    if robot is not None and robot_description(robot).name != cfg.robot.name:
+        raise ValueError(f"the model configuration describes the robot {cfg.robot.name!r}, "
+                         f"not {robot_description(robot).name!r}")
+    return cfg

@@ -129,12 +129,46 @@ class RobotDescription:
         return params.mdh(0.0, self.flange_d, 0.0, 0.0)
 
     def limit_arrays(self) -> dict[str, np.ndarray]:
+        """Fresh arrays of the joint limits (see :meth:`JointLimits.as_arrays`)."""
         return self.limits.as_arrays()
+
+    def neutral(self) -> np.ndarray:
+        """The neutral pose (7,) rad as a fresh array."""
+        return np.array(self.q_neutral, dtype=np.float64)
+
+    def has_friction(self) -> bool:
+        """Whether the description carries an identified friction law."""
+        return self.friction is not None
 
     def summary(self) -> dict[str, Any]:
         """A JSON-friendly identification (name, title, sources) for reports and model files."""
         return {"name": self.name, "title": self.title, "sources": dict(self.sources)}
 
+
+@dataclass(frozen=True)
+class HandDescription:
+    """The Franka Hand as a tool: its rigid body (mass kg, com m and inertia kg m^2 about the com, hand frame), the
+    hand frame's yaw about the flange z axis (rad), the TCP offset along the hand z (m), and the finger geometry (m)."""
+
+    body: LinkInertial
+    yaw: float
+    tcp_z: float
+    finger_z: float
+    finger_opening: float
+
+    def placement(self) -> np.ndarray:
+        """4x4 pose of the hand frame in the flange frame."""
+        return params.mdh(0.0, 0.0, 0.0, self.yaw)
+
+    def flMe(self) -> np.ndarray:
+        """4x4 pose of the TCP (the end effector) in the flange frame."""
+        return self.placement() @ params.mdh(0.0, self.tcp_z, 0.0, 0.0)
+
+
+FRANKA_HAND = HandDescription(params.HAND, params.HAND_YAW, params.HAND_TCP_Z, params.HAND_FINGER_Z,
+                              params.HAND_FINGER_OPENING)
+GRAVITY = params.GRAVITY  # standard vertical mounting, base frame, m/s^2
+TAG_SIZE = params.TAG_SIZE  # default AprilTag black-square side, m
 
 FER_LIMITS = JointLimits(params.Q_MIN, params.Q_MAX, params.DQ_MAX, params.DDQ_MAX, params.DDDQ_MAX,
                          params.TAU_MAX, params.DTAU_MAX)
@@ -159,8 +193,31 @@ FER = RobotDescription(
     },
 )
 
-ROBOTS: dict[str, RobotDescription] = {"fer": FER}
-_ALIASES = {"panda": "fer", "fer": "fer"}
+FR3 = RobotDescription(
+    name="fr3",
+    title="Franka Research 3 (published description; no identified friction)",
+    dh_a=params.DH_A, dh_d=params.DH_D, dh_alpha=params.DH_ALPHA, flange_d=params.FLANGE_D,
+    links=params.FR3_LINKS,
+    limits=JointLimits(params.FR3_Q_MIN, params.FR3_Q_MAX, params.FR3_DQ_MAX, params.FR3_DDQ_MAX,
+                       params.FR3_DDDQ_MAX, params.FR3_TAU_MAX, params.FR3_DTAU_MAX),
+    cartesian_limits=CartesianLimits(*params.FR3_CARTESIAN_LIMITS),
+    friction=None,
+    q_neutral=params.Q_NEUTRAL,
+    joint_names=tuple(f"fr3_joint{i + 1}" for i in range(7)),
+    aliases=("joint",),
+    default_tool="franka_hand",
+    sources={
+        "kinematics": "Franka Control Interface documentation (same modified DH table as the FER); "
+                      "franka_description robots/fr3/kinematics.yaml",
+        "limits": "franka_description robots/fr3/joint_limits.yaml (Apache-2.0); Franka Control Interface "
+                  "documentation, limits for Franka Research 3",
+        "inertials": "franka_description robots/fr3/inertials.yaml (Apache-2.0)",
+        "friction": "none published: identify it from your own logs with the workbench (franka-vs fit)",
+    },
+)
+
+ROBOTS: dict[str, RobotDescription] = {"fer": FER, "fr3": FR3}
+_ALIASES = {"panda": "fer", "fer": "fer", "fr3": "fr3", "franka_research_3": "fr3"}
 
 
 def register_robot(description: RobotDescription, *aliases: str) -> None:
@@ -184,5 +241,5 @@ def robot_description(robot: RobotDescription | str | None = None) -> RobotDescr
     raise TypeError(f"robot must be a RobotDescription or a name, got {type(robot).__name__}")
 
 
-__all__ = ["FER", "ROBOTS", "CartesianLimits", "JointLimits", "RobotDescription", "SigmoidFriction",
-           "register_robot", "robot_description"]
+__all__ = ["FER", "FR3", "FRANKA_HAND", "GRAVITY", "ROBOTS", "TAG_SIZE", "CartesianLimits", "HandDescription",
+           "JointLimits", "LinkInertial", "RobotDescription", "SigmoidFriction", "register_robot", "robot_description"]

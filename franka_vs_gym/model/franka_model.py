@@ -1,7 +1,8 @@
-"""Pinocchio-backed Lagrangian model of the FER: B(q), C(q, dq), g(q), friction, kinematics and Jacobians.
+"""Pinocchio-backed Lagrangian model of a Franka arm (FER, FR3): B(q), C(q, dq), g(q), friction, kinematics and
+Jacobians.
 
 The dynamic model is ``tau_J = B(q) ddq + C(q, dq) dq + g(q) + tau_f(dq) + tau_offset``, with tau_J the link-side
-joint torque measured by the FER's torque sensors (gravity included), as in Gaz et al. 2019.
+joint torque measured by the robot's torque sensors (gravity included), as in Gaz et al. 2019.
 """
 
 from __future__ import annotations
@@ -11,32 +12,33 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from franka_vs_gym.model import params
 from franka_vs_gym.model.checks import as_vector
-from franka_vs_gym.model.config import ModelConfig, RigidBody, Tool, resolve_config
+from franka_vs_gym.model.config import ROBOT_DEFAULT, ModelConfig, RigidBody, Tool, resolve_config
+from franka_vs_gym.model.description import FER, RobotDescription
 
 _LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 _LOCAL = pin.ReferenceFrame.LOCAL
 
 
 def build_pinocchio_model(config: ModelConfig) -> tuple[pin.Model, int, int]:
-    """Build the pinocchio model from the published parameters and a configuration.
+    """Build the pinocchio model from a configuration (its robot description, tool, payload, gravity, armature).
 
     Returns (model, flange frame id, end-effector frame id).
     """
+    robot, lim = config.robot, config.robot.limits
     model = pin.Model()
-    model.name = "fer"
+    model.name = robot.name
     parent = 0
     for i, (mass, com, inertia) in enumerate(config.link_inertials()):
-        M = params.dh_placement(i)
+        M = robot.dh_placement(i)
         placement = pin.SE3(M[:3, :3], M[:3, 3])
         jid = model.addJoint(parent, pin.JointModelRZ(), placement, f"joint{i + 1}",
-                             np.array([params.TAU_MAX[i]]), np.array([params.DQ_MAX[i]]),
-                             np.array([params.Q_MIN[i]]), np.array([params.Q_MAX[i]]))
+                             np.array([lim.tau_max[i]]), np.array([lim.dq_max[i]]),
+                             np.array([lim.q_min[i]]), np.array([lim.q_max[i]]))
         model.appendBodyToJoint(jid, pin.Inertia(mass, com, inertia), pin.SE3.Identity())
         model.addFrame(pin.Frame(f"link{i + 1}", jid, pin.SE3.Identity(), pin.FrameType.BODY))
         parent = jid
-    Mfl = params.flange_placement()
+    Mfl = robot.flange_placement()
     flange = pin.SE3(Mfl[:3, :3], Mfl[:3, 3])
     body = config.flange_body()
     if body.mass > 0:
@@ -50,10 +52,24 @@ def build_pinocchio_model(config: ModelConfig) -> tuple[pin.Model, int, int]:
     return model, fl_id, e_id
 
 
+class _LimitsAccessor:
+    """``FrankaModel.limits()`` gives the FER's limits; ``model.limits()`` those of the instance's robot."""
+
+    def __get__(self, obj: FrankaModel | None, owner: type) -> Any:
+        robot = FER if obj is None else obj.robot
+
+        def limits() -> dict[str, np.ndarray]:
+            """Joint limits (fresh arrays (7,)): q_min, q_max (rad), dq_max (rad/s), ddq_max (rad/s^2), dddq_max
+            (rad/s^3), tau_max (Nm), dtau_max (Nm/s)."""
+            return robot.limits.as_arrays()
+        return limits
+
+
 class FrankaModel:
-    """Dynamic and kinematic model of the FER (+ tool), backed by pinocchio.
+    """Dynamic and kinematic model of a Franka arm (+ tool), backed by pinocchio.
 
     Default: FER + Franka Hand, vertical mounting, Gaz et al. 2019 parameters and sigmoid friction.
+    ``FrankaModel(robot="fr3")`` is the Franka Research 3 (with the Franka Hand; ``tool=None`` for the bare arm).
 
     All joint vectors are float64 arrays of shape (7,) in SI units (rad, rad/s, rad/s^2, Nm). Frames follow ViSP:
     f is the robot base, fl the flange, e the end effector (tool frame ``flMe``).
@@ -61,15 +77,24 @@ class FrankaModel:
     Parameters
     ----------
     model : ModelConfig, path to a calibrated model file, or None
-        The configuration; ``None`` gives the default robot.
+        The configuration; ``None`` gives the default configuration of ``robot``.
+    robot : RobotDescription, a registered name ("fer", "fr3"), or None
+        The arm. With ``model`` given, it must describe the same robot (a clear error otherwise).
+    tool : Tool, "franka_hand", None (the bare flange), or left out (the configuration's tool)
 
     Notes
     -----
     Each instance owns its pinocchio ``Data`` workspace: use one instance per thread.
     """
 
-    def __init__(self, model: ModelConfig | str | None = None) -> None:
-        self._config = resolve_config(model)
+    limits = _LimitsAccessor()
+
+    def __init__(self, model: ModelConfig | str | None = None, *, robot: RobotDescription | str | None = None,
+                 tool: Tool | str | None = ROBOT_DEFAULT) -> None:
+        cfg = resolve_config(model, robot)
+        if tool is not ROBOT_DEFAULT:
+            cfg = cfg.copy(tool=tool if isinstance(tool, Tool) else Tool.named(tool))
+        self._config = cfg
         self._rebuild()
 
     # ------------------------------------------------------------------ configuration
@@ -77,6 +102,11 @@ class FrankaModel:
     def config(self) -> ModelConfig:
         """The configuration this model was built from (a copy is made on every change)."""
         return self._config
+
+    @property
+    def robot(self) -> RobotDescription:
+        """The robot description (kinematics, inertials, limits) of this model."""
+        return self._config.robot
 
     def _rebuild(self) -> None:
         self.model, self._fl_id, self._e_id = build_pinocchio_model(self._config)
@@ -189,9 +219,10 @@ class FrankaModel:
         if T.shape != (4, 4) or not np.isfinite(T).all():
             raise ValueError("fMe_target must be a finite 4x4 homogeneous matrix")
         target = pin.SE3(T[:3, :3], T[:3, 3])
-        lo, hi = params.as_array(params.Q_MIN), params.as_array(params.Q_MAX)
+        lim = self.robot.limits
+        lo, hi = np.array(lim.q_min), np.array(lim.q_max)
         rng = np.random.default_rng(seed)
-        starts = [params.as_array(params.Q_NEUTRAL) if q0 is None else as_vector(q0, 7, "q0")]
+        starts = [self.robot.neutral() if q0 is None else as_vector(q0, 7, "q0")]
         starts += [rng.uniform(lo, hi) for _ in range(restarts)]
         best_err = np.inf
         for q in starts:
@@ -218,13 +249,3 @@ class FrankaModel:
 
     def potential_energy(self, q: np.ndarray) -> float:
         return float(pin.computePotentialEnergy(self.model, self.data, q))
-
-    # ------------------------------------------------------------------ limits
-    @staticmethod
-    def limits() -> dict[str, np.ndarray]:
-        """Joint limits of the FER: q_min, q_max (rad), dq_max (rad/s), ddq_max (rad/s^2), tau_max (Nm)."""
-        return {
-            "q_min": params.as_array(params.Q_MIN), "q_max": params.as_array(params.Q_MAX),
-            "dq_max": params.as_array(params.DQ_MAX), "ddq_max": params.as_array(params.DDQ_MAX),
-            "tau_max": params.as_array(params.TAU_MAX),
-        }

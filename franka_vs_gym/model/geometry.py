@@ -5,6 +5,8 @@ Poses are 4x4 homogeneous matrices ``aMb`` (frame b expressed in a); twists are 
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pinocchio as pin
 
@@ -49,3 +51,55 @@ def pose_from_vector(p: np.ndarray) -> np.ndarray:
     M[:3, :3] = pin.exp3(np.asarray(p[3:], dtype=np.float64))
     M[:3, 3] = p[:3]
     return M
+
+
+def parallel_axis(mass: float, r: np.ndarray) -> np.ndarray:
+    """Parallel-axis (Steiner) term (3, 3), kg m^2: ``mass (|r|^2 I - r r^T)``, the inertia of a point mass at r.
+
+    The inertia of a body about a point p is its inertia about its centre of mass c plus ``parallel_axis(m, c - p)``.
+    """
+    r = np.asarray(r, dtype=np.float64)
+    return mass * ((r @ r) * np.eye(3) - np.outer(r, r))
+
+
+def rotate_inertia(R: np.ndarray, inertia: np.ndarray) -> np.ndarray:
+    """An inertia tensor (3, 3) expressed in frame b, re-expressed in frame a: ``R I R^T`` with R = aRb."""
+    return R @ inertia @ R.T
+
+
+def combine_inertials(bodies) -> tuple[float, np.ndarray, np.ndarray]:
+    """Lump rigid bodies ``(mass kg, com (3,) m, inertia (3, 3) about the com, kg m^2)`` given in one frame into one:
+    (total mass, combined com (3,), inertia (3, 3) about the combined com). An empty or massless set gives zeros."""
+    bodies = [(float(m), np.asarray(c, dtype=np.float64), np.asarray(i, dtype=np.float64)) for m, c, i in bodies]
+    total = sum(m for m, _, _ in bodies)
+    if total == 0:
+        return 0.0, np.zeros(3), np.zeros((3, 3))
+    com = np.sum([m * c for m, c, _ in bodies], axis=0) / total
+    inertia = np.zeros((3, 3))
+    for m, c, i in bodies:
+        inertia += i + parallel_axis(m, c - com)
+    return total, com, inertia
+
+
+def rot_x(a: float) -> np.ndarray:
+    """Rotation (3, 3) by ``a`` rad about x."""
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[1.0, 0, 0], [0, c, -s], [0, s, c]])
+
+
+def rot_y(a: float) -> np.ndarray:
+    """Rotation (3, 3) by ``a`` rad about y."""
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, 0, s], [0, 1.0, 0], [-s, 0, c]])
+
+
+def rot_z(a: float) -> np.ndarray:
+    """Rotation (3, 3) by ``a`` rad about z."""
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
+
+
+def desired_tag_pose(distance: float) -> np.ndarray:
+    """The visual-servoing goal cdMo (4, 4): the tag centred, ``distance`` m in front of the camera, facing it (tag z
+    towards the camera, tag x along the camera x), as in ViSP's Franka visual-servoing examples."""
+    return homogeneous(rot_x(math.pi), (0.0, 0.0, distance))

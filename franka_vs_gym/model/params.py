@@ -1,4 +1,4 @@
-"""Published parameters of the Franka Emika Robot (FER) and the Franka Hand.
+"""Published parameters of the Franka Emika Robot (FER), the Franka Research 3 (FR3) and the Franka Hand.
 
 This module is the single source of the numbers the project takes from publications and datasheets. The MuJoCo
 plant (``franka_vs_gym.sim.plant``) and the pinocchio model (``franka_vs_gym.model.FrankaModel``) are both built
@@ -17,6 +17,21 @@ Sources
   ``tau_f = phi1 / (1 + exp(-phi2 (dq + phi3))) - phi1 / (1 + exp(-phi2 phi3))``.
 - Franka Hand: 0.73 kg, CoM (-0.01, 0, 0.03) m and inertia diag(0.001, 0.0025, 0.0017) kg m^2 in the hand frame;
   the hand frame is the flange frame rotated by -45 deg about z; the end-effector (TCP) is 0.1034 m along its z.
+
+FR3 (the ``FR3_*`` names below; typed by hand from the published description, nothing is read at run time):
+
+- Kinematics: the FR3's modified DH table is the FER's (Franka Control Interface documentation, "Denavit-Hartenberg
+  parameters"; franka_description ``robots/fr3/kinematics.yaml`` gives the same joint origins: z 0.333, y -0.316,
+  x 0.0825, x -0.0825 / y 0.384, x 0.088, flange z 0.107).
+- Joint limits: franka_description ``robots/fr3/joint_limits.yaml`` (position, velocity, effort; Franka Robotics,
+  Apache-2.0) and the Franka Control Interface documentation, "Limits for Franka Research 3" (acceleration 10
+  rad/s^2, jerk 5000 rad/s^3 and torque rate 1000 Nm/s on every joint; Cartesian translation 3.0 m/s, 9.0 m/s^2,
+  4500 m/s^3, rotation 2.5 rad/s, 17 rad/s^2, 8500 rad/s^3, elbow 2.62 rad/s, 10 rad/s^2, 5000 rad/s^3). The
+  velocity limits are the documentation's "rectangular" ones (the robot lowers them near the position limits).
+- Inertials: franka_description ``robots/fr3/inertials.yaml`` (links 1..7; mass kg, centre of mass m in the link
+  frame, inertia kg m^2 about the centre of mass with link-frame axes; the link frames are the modified-DH frames).
+- Friction: none is published for the FR3. Its users identify it from their own logs with the workbench
+  (``franka-vs fit``).
 
 Conventions: SI units; joint index 0..6 in code; link ``i`` (1..7 in prose) is ``LINKS[i-1]``.
 """
@@ -92,6 +107,39 @@ LINKS = (
 FRICTION_PHI1 = (0.54615, 0.87224, 0.64068, 1.2794, 0.83904, 0.30301, 0.56489)
 FRICTION_PHI2 = (5.1181, 9.0657, 10.136, 5.5903, 8.3469, 17.133, 10.336)
 FRICTION_PHI3 = (0.039533, 0.025882, -0.04607, 0.036194, 0.026226, -0.021047, 0.0035526)
+
+# --- Franka Research 3 (see the module docstring for the sources). Kinematics: the DH_* rows above.
+FR3_Q_MIN = (-2.7437, -1.7837, -2.9007, -3.0421, -2.8065, 0.5445, -3.0159)
+FR3_Q_MAX = (2.7437, 1.7837, 2.9007, -0.1518, 2.8065, 4.5169, 3.0159)
+FR3_DQ_MAX = (2.62, 2.62, 2.62, 2.62, 5.26, 4.18, 5.26)
+FR3_DDQ_MAX = (10.0,) * 7
+FR3_DDDQ_MAX = (5000.0,) * 7
+FR3_TAU_MAX = (87.0, 87.0, 87.0, 87.0, 12.0, 12.0, 12.0)
+FR3_DTAU_MAX = (1000.0,) * 7
+FR3_CARTESIAN_LIMITS = (3.0, 9.0, 4500.0, 2.5, 17.0, 8500.0, 2.62, 10.0, 5000.0)
+FR3_LINKS = (
+    LinkInertial(2.9274653454, (0.0000004128, -0.0181251324, -0.0386035970),
+                 (0.023927316485107913, 1.3317903455714081e-05, -0.00011404774918616684, 0.0224821613275756,
+                  -0.0019950320628240115, 0.006350098258530016)),
+    LinkInertial(2.9355370338, (0.0031828864, -0.0743221644, 0.0088146084),
+                 (0.041938946257609425, 0.00020257331521090626, 0.004077784227179924, 0.02514514885014724,
+                  -0.0042252158006570156, 0.06170214472888839)),
+    LinkInertial(2.2449013699, (0.0407015686, -0.0048200565, -0.0289730823),
+                 (0.02410142547240885, 0.002404694559042109, -0.002856269270114313, 0.01974053266708178,
+                  -0.002104212683891874, 0.019044494482244823)),
+    LinkInertial(2.6155955791, (-0.0459100965, 0.0630492960, -0.0085187868),
+                 (0.03452998321913202, 0.01322552265982813, 0.01015142998484113, 0.028881621933049058,
+                  -0.0009762833870704552, 0.04125471171146641)),
+    LinkInertial(2.3271207594, (-0.0016039605, 0.0292536262, -0.0972965990),
+                 (0.051610278463662895, -0.005715173387783472, -0.0035673167625872135, 0.04787729713371481,
+                  0.010673985108535986, 0.016423625579357254)),
+    LinkInertial(1.8170376524, (0.0597131221, -0.0410294666, -0.0101692726),
+                 (0.005412333594383447, 0.006193456360285834, 0.0014219289306117652, 0.014058329545509979,
+                  -0.0013140753741120031, 0.016080817924212554)),
+    LinkInertial(0.6271432862, (0.0045225817, 0.0086261921, -0.0161633251),
+                 (0.00021092389150104718, -2.433299114461931e-05, 4.564480393778983e-05, 0.00017718568002411474,
+                  8.744070223226438e-05, 5.993190599659971e-05)),
+)
 
 # --- Franka Hand.
 HAND = LinkInertial(0.73, (-0.01, 0.0, 0.03), (0.001, 0.0, 0.0, 0.0025, 0.0, 0.0017))

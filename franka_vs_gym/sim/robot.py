@@ -16,12 +16,12 @@ import mujoco
 import numpy as np
 
 from franka_vs_gym.assets.mjcf import RobotSpec, SceneSpec, TagSpec, mat2quat
-from franka_vs_gym.model import params
 from franka_vs_gym.model.checks import as_pose, as_vector
 from franka_vs_gym.model.config import ModelConfig, RigidBody, Tool, resolve_config
-from franka_vs_gym.model.description import FER
+from franka_vs_gym.model.description import RobotDescription
 from franka_vs_gym.model.franka_model import FrankaModel
-from franka_vs_gym.model.geometry import pose_vector, twist_transform
+from franka_vs_gym.model.friction import make_plant_friction
+from franka_vs_gym.model.geometry import combine_inertials, pose_vector, twist_transform
 from franka_vs_gym.sim.reflexes import ControlException, Reflexes, position_profile_time
 from franka_vs_gym.sim.world import SimulationDiverged, SimWorld
 
@@ -89,6 +89,8 @@ class FrankaSim:
     ----------
     model : ModelConfig, FrankaModel, path to a calibrated model file, or None
         The robot (tool, payload, gravity, friction...). Both the plant and ``self.model`` are built from it.
+    robot : RobotDescription, a registered name ("fer", "fr3"), or None
+        The arm when ``model`` is None (``FrankaSim(robot="fr3")``); with a ``model`` it must name the same robot.
     friction : bool
         Apply the configured joint friction in the plant (default True). The model's friction is unaffected.
     camera : bool
@@ -111,14 +113,14 @@ class FrankaSim:
         discontinuity reflexes, as a raw libfranka loop does).
     """
 
-    def __init__(self, model: Any = None, *, friction: bool = True, camera: bool = True,
-                 tags: list[TagSpec] | None = None, table: bool = True, timestep: float = 0.001,
+    def __init__(self, model: Any = None, *, robot: RobotDescription | str | None = None, friction: bool = True,
+                 camera: bool = True, tags: list[TagSpec] | None = None, table: bool = True, timestep: float = 0.001,
                  world: SimWorld | None = None, prefix: str = "r0_", q0: Any = None, ft_sensor: bool = False,
                  undeclared_payload: RigidBody | None = None, torque_noise: float = 0.0, seed: int | None = None,
                  extra_worldbody: str = "", extra_assets: str = "", reflexes: bool = True,
                  command_rates: str = "pass") -> None:
         if world is None:
-            cfg = resolve_config(model)
+            cfg = resolve_config(model, robot)
             spec = RobotSpec(prefix=prefix, config=cfg, camera=camera, ft_sensor=ft_sensor,
                              undeclared_payload=undeclared_payload)
             if not (timestep > 0 and math.isfinite(timestep)):
@@ -167,19 +169,14 @@ class FrankaSim:
             fs = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SENSOR, f"{prefix}ft_force")
             ts = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SENSOR, f"{prefix}ft_torque")
             self._ft = (int(m.sensor_adr[fs]), int(m.sensor_adr[ts]))
-        lim = FrankaModel.limits()
+        lim = self.model.limits()
         self.q_min, self.q_max, self.dq_max, self.tau_max = lim["q_min"], lim["q_max"], lim["dq_max"], lim["tau_max"]
-        # Friction in the plant: tau_f = a tanh(b dq + c) + e0 (the Gaz sigmoid written with tanh), plus viscous and
-        # Coulomb terms, written into qfrc_applied as -tau_f with preallocated buffers (this runs at 1 kHz).
+        # Friction in the plant: -tau_f(dq) of the configured law (franka_vs_gym.model.friction) written into
+        # qfrc_applied in place before every physics step (this runs at 1 kHz).
         fr = cfg.friction
-        self._fa = fr.phi1 / 2
-        self._fb = fr.phi2 / 2
-        self._fc = fr.phi2 * fr.phi3 / 2
-        self._fe = fr.phi1 / 2 - fr.phi1 / (1 + np.exp(-fr.phi2 * fr.phi3))
-        self._fvisc, self._fcoul, self._fcv = fr.viscous, fr.coulomb, fr.coulomb_vel
-        self._fbuf = np.zeros(7)
         self._friction_enabled = bool(friction) and not fr.is_zero()
-        self._simple_friction = not (fr.viscous.any() or fr.coulomb.any())
+        self._friction_scale = 1.0
+        self._friction_step = self._make_friction_step()
         n_delay = int(round(cfg.delay / self.dt))
         self._delay_steps = n_delay if cfg.delay_channel == "command" else 0
         self._meas_fifo: deque[np.ndarray] | None = None
@@ -196,12 +193,12 @@ class FrankaSim:
         self._positioning_velocity = 20.0
         self._hook = self._make_pre_step()
         world.add_pre_step(self._hook)
-        robot = getattr(cfg, "robot", None) or FER  # the limits come from the robot description
-        self._reflexes = Reflexes(self, robot.limits, enabled=reflexes, command_rates=command_rates)
+        # the reflexes' limits come from the robot description (config.robot)
+        self._reflexes = Reflexes(self, cfg.robot.limits, enabled=reflexes, command_rates=command_rates)
         world.add_pre_step(self._reflexes.make_hook())
         if self._cam >= 0:
             self.set_eMc(self._eMc)
-        self.reset(params.as_array(params.Q_NEUTRAL) if q0 is None else q0)
+        self.reset(cfg.robot.neutral() if q0 is None else q0)
 
     # ------------------------------------------------------------------ stepping
     @property
@@ -212,44 +209,45 @@ class FrankaSim:
     @friction_enabled.setter
     def friction_enabled(self, on: bool) -> None:
         self._friction_enabled = bool(on) and not self.spec.config.friction.is_zero()
+        self._refresh_hook()
+
+    @property
+    def friction_scale(self) -> float:
+        """Factor on the whole plant friction law (1 by default; domain randomisation), dimensionless."""
+        return self._friction_scale
+
+    def set_friction_scale(self, scale: float) -> None:
+        """Scale the plant's friction law (every term) by ``scale`` >= 0; the model's friction is unaffected."""
+        scale = float(scale)
+        if not (scale >= 0 and math.isfinite(scale)):
+            raise ValueError(f"friction scale must be a finite number >= 0, got {scale}")
+        self._friction_scale = scale
+        self._friction_step = self._make_friction_step()
+        self._refresh_hook()
+
+    def _refresh_hook(self) -> None:
         if not self._friction_enabled:
             self._qfrc_applied[:] = 0.0
         hook = self._make_pre_step()
         self.world.replace_pre_step(self._hook, hook)
         self._hook = hook
 
+    def _make_friction_step(self):
+        fr = self.spec.config.friction
+        return make_plant_friction(self._qvel, self._qfrc_applied, fr.phi1, fr.phi2, fr.phi3, fr.viscous,
+                                   fr.coulomb, fr.coulomb_vel, self._friction_scale)
+
     def _make_pre_step(self):
-        """The per-physics-step hook (runs at 1 kHz before every mj_step). The common case, Gaz friction without
-        command delay, is a closure over preallocated buffers: qfrc_applied = -(a tanh(b dq + c) + e)."""
-        if self._delay_steps or (self._friction_enabled and not self._simple_friction):
+        """The per-physics-step hook (runs at 1 kHz before every mj_step). Without command delay it is the friction
+        step itself (allocation-free, :func:`franka_vs_gym.model.friction.make_plant_friction`)."""
+        if self._delay_steps:
             return self._pre_step
-        if not self._friction_enabled:
-            return _no_op
-        qvel, qfrc, buf = self._qvel, self._qfrc_applied, self._fbuf
-        b, c, neg_a, neg_e = self._fb, self._fc, -self._fa, -self._fe
-        mul, add, tanh = np.multiply, np.add, np.tanh
-
-        def gaz_friction() -> None:
-            mul(b, qvel, out=buf)
-            add(buf, c, out=buf)
-            tanh(buf, out=buf)
-            mul(buf, neg_a, out=qfrc)
-            add(qfrc, neg_e, out=qfrc)
-
-        return gaz_friction
+        return self._friction_step if self._friction_enabled else _no_op
 
     def _pre_step(self) -> None:
-        """General hook: any friction law, and the command delay FIFO."""
+        """General hook: friction, and the command delay FIFO."""
         if self._friction_enabled:
-            buf = self._fbuf
-            np.multiply(self._fb, self._qvel, out=buf)
-            buf += self._fc
-            np.tanh(buf, out=buf)
-            buf *= self._fa
-            buf += self._fe
-            if not self._simple_friction:
-                buf += self._fvisc * self._qvel + self._fcoul * np.tanh(self._qvel / self._fcv)
-            np.negative(buf, out=self._qfrc_applied)
+            self._friction_step()
         if self._delay_steps and self._state == RobotState.STATE_FORCE_TORQUE_CONTROL:
             self._tau_fifo.append(self._tau_cmd.copy())
             self._ctrl_tau[:] = self._tau_fifo.popleft() if len(self._tau_fifo) > self._delay_steps else 0.0
@@ -469,6 +467,16 @@ class FrankaSim:
         self.check_reflexes()
 
     # ------------------------------------------------------------------ measurements
+    @property
+    def q(self) -> np.ndarray:
+        """Joint position (7,), rad (a copy; the cheapest read for a control loop)."""
+        return self._qpos.copy()
+
+    @property
+    def dq(self) -> np.ndarray:
+        """Joint velocity (7,), rad/s (a copy)."""
+        return self._qvel.copy()
+
     def get_position(self, frame: ControlFrame | int = ControlFrame.JOINT_STATE) -> np.ndarray:
         """JOINT_STATE: q (7,) rad. END_EFFECTOR_FRAME/REFERENCE_FRAME: pose vector of e in f (6,)
         (t, theta-u). CAMERA_FRAME: pose vector of c in f."""
@@ -600,10 +608,137 @@ class FrankaSim:
         M[:3, 3] = d.xpos[self._base_body]
         return M
 
-    def set_tool(self, flMe: Any, mass: float = 0.0, flMcom: Any = (0, 0, 0), inertia: Any = None) -> None:
+    def set_tool(self, flMe: Any, mass: float = 0.0, flMcom: Any = (0, 0, 0), inertia: Any = None, *,
+                 plant: bool = False) -> None:
         """Declare the tool to the robot's model (as the real robot's end-effector settings): updates the model
-        used by the getters and Cartesian commands. The plant's physical tool is fixed at construction."""
-        self.model.set_tool(as_pose(flMe, "flMe"), mass, flMcom, inertia)
+        used by the getters and Cartesian commands.
+
+        flMe (4, 4): end-effector pose in the flange frame; mass (kg), flMcom (3,) m in the flange frame and inertia
+        (3, 3) or (3,) kg m^2 about the centre of mass. With ``plant=True`` the simulated tool changes too (its
+        inertia, the end-effector site and the wrist camera mount follow; the tool's meshes stay as built).
+        """
+        flMe = as_pose(flMe, "flMe")
+        self.model.set_tool(flMe, mass, flMcom, inertia)
+        if plant:
+            tool = self.model.config.tool
+            self._plant_nominal()["tool"] = tool
+            self._apply_hand_body()
+            self._m.site_pos[self._ee_site] = flMe[:3, 3]
+            self._m.site_quat[self._ee_site] = mat2quat(flMe[:3, :3])
+            if self._cam >= 0:
+                self.set_eMc(self._eMc)
+            mujoco.mj_setConst(self._m, self._d)
+            mujoco.mj_forward(self._m, self._d)
+
+    # ------------------------------------------------------------------ plant dynamics (randomisation, injection)
+    def set_dynamics(self, *, link_mass_scale: Any = None, friction_scale: float | None = None,
+                     payload: RigidBody | None | bool = False, undeclared_payload: RigidBody | None = None,
+                     delay: float | None = None) -> None:
+        """Change the simulated plant's dynamics in place (domain randomisation, effect injection); the robot's
+        model (``self.model``, used by controllers) is not told, as a real robot's would not be.
+
+        Parameters (each left out keeps its current value)
+        ----------
+        link_mass_scale : (7,) factors on the mass and inertia of links 1..7 relative to the built plant (1 = as
+            built). The robot's internal gravity compensation follows the true masses.
+        friction_scale : factor >= 0 on the plant's whole friction law (:meth:`set_friction_scale`).
+        payload : a load held by the tool and declared to the robot's internal gravity compensation (as after
+            libfranka's ``setLoad``): a RigidBody in the flange frame, merged into the hand body; None removes it.
+        undeclared_payload : new mass, centre of mass and inertia of the undeclared payload body (only for a robot
+            built with ``undeclared_payload``); a mass of 0 is stored as 1e-9 kg.
+        delay : command delay, s (torque commands reach the joints this late; rounded to physics steps).
+        """
+        nom = self._plant_nominal()
+        m = self._m
+        changed = False
+        if link_mass_scale is not None:
+            k = as_vector(link_mass_scale, 7, "link_mass_scale")
+            if (k <= 0).any():
+                raise ValueError(f"link_mass_scale must be > 0, got {k}")
+            m.body_mass[nom["links"]] = nom["mass"] * k
+            m.body_inertia[nom["links"]] = nom["inertia"] * k[:, None]
+            changed = True
+        if friction_scale is not None:
+            self.set_friction_scale(friction_scale)
+        if payload is not False:
+            nom["payload"] = payload
+            self._apply_hand_body()
+            changed = True
+        if undeclared_payload is not None:
+            b = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"{self.prefix}undeclared_payload")
+            if b < 0:
+                raise ValueError("this robot has no undeclared payload body (construct with undeclared_payload=...)")
+            self._set_body_inertial(b, RigidBody(max(undeclared_payload.mass, 1e-9), undeclared_payload.com,
+                                                 undeclared_payload.inertia))
+            changed = True
+        if delay is not None:
+            delay = float(delay)
+            if not (delay >= 0 and math.isfinite(delay)):
+                raise ValueError(f"delay must be a finite number >= 0 s, got {delay}")
+            self._delay_steps = int(round(delay / self.dt))
+            self._tau_fifo.clear()
+            self._refresh_hook()
+        if changed:
+            mujoco.mj_setConst(m, self._d)
+
+    def _plant_nominal(self) -> dict[str, Any]:
+        """The plant's dynamics as built (captured on first use)."""
+        nom = getattr(self, "_nominal", None)
+        if nom is None:
+            m, p = self._m, self.prefix
+            links = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"{p}link{i + 1}") for i in range(7)]
+            h = self._hand_body
+            nom = self._nominal = {"links": links, "mass": m.body_mass[links].copy(),
+                                   "inertia": m.body_inertia[links].copy(), "tool": self.spec.config.tool,
+                                   "payload": None, "hand": (float(m.body_mass[h]), m.body_ipos[h].copy(),
+                                                             m.body_inertia[h].copy(), m.body_iquat[h].copy())}
+        return nom
+
+    def _apply_hand_body(self) -> None:
+        """The hand body's inertial = tool + configured payload + declared extra payload (flange frame)."""
+        nom = self._plant_nominal()
+        cfg = self.spec.config
+        extra = [nom["payload"]] if nom["payload"] is not None and nom["payload"].mass > 0 else []
+        if not extra and nom["tool"] is cfg.tool:  # as built: restore MuJoCo's own compiled values exactly
+            m, h = self._m, self._hand_body
+            m.body_mass[h], m.body_ipos[h], m.body_inertia[h], m.body_iquat[h] = nom["hand"]
+            return
+        body = cfg.copy(tool=nom["tool"]).flange_body()
+        if extra:
+            body = RigidBody(*combine_inertials([(body.mass, body.com, body.inertia)]
+                                                + [(b.mass, b.com, b.inertia) for b in extra]))
+        self._set_body_inertial(self._hand_body, body if body.mass > 0 else RigidBody(1e-9, np.zeros(3),
+                                                                                      np.eye(3) * 1e-12))
+
+    def _set_body_inertial(self, b: int, body: RigidBody) -> None:
+        w, V = np.linalg.eigh(body.inertia)
+        if np.linalg.det(V) < 0:
+            V[:, 0] = -V[:, 0]
+        m = self._m
+        m.body_mass[b], m.body_ipos[b] = body.mass, body.com
+        m.body_inertia[b], m.body_iquat[b] = w, mat2quat(V)
+
+    # ------------------------------------------------------------------ views for in-process servers
+    @property
+    def dof_slice(self) -> slice:
+        """Indices of this robot's 7 joints in the world's qvel/qacc/qfrc arrays (``world.data``)."""
+        return self._vs
+
+    def joint_views(self) -> tuple[np.ndarray, np.ndarray]:
+        """Live views (q (7,) rad, dq (7,) rad/s) into the simulator state, for 1 kHz loops that must not copy.
+        Read them; writing moves the robot without physics."""
+        return self._qpos, self._qvel
+
+    def velocity_servo_views(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Live views (gain Kv (7,) Nm s/rad, bias (7,) = -Kv, set-point (7,) rad/s) of the plant's joint velocity
+        servos, integrated implicitly by MuJoCo: a controller may write them to add joint damping
+        ``Kv (dq_set - dq)`` (e.g. an in-process FCI server's internal impedance controller)."""
+        m = self._m
+        return m.actuator_gainprm[self._vel, 0], m.actuator_biasprm[self._vel, 2], self._ctrl_vel
+
+    def stop_joints(self) -> None:
+        """Zero the joint velocities at once (the brakes engaging after a reflex)."""
+        self._qvel[:] = 0.0
 
     def camera_name(self) -> str:
         if self._cam < 0:

@@ -32,12 +32,14 @@ from typing import Any
 
 import numpy as np
 
-from franka_vs_gym.model import params as P
 from franka_vs_gym.model.config import Friction, ModelConfig, RigidBody
+from franka_vs_gym.model.description import FER
+from franka_vs_gym.model.friction import gaz_sigmoid
+from franka_vs_gym.model.geometry import combine_inertials, parallel_axis
 from franka_vs_gym.validation.evaluate import FLANGE_OFFSET, ModelEvaluation, evaluate, shift, sigmoid_friction
 from franka_vs_gym.validation.signals import ProcessedLog
 
-TAU_MAX = P.as_array(P.TAU_MAX)
+TAU_MAX = FER.limit_arrays()["tau_max"]
 SIG_PHI2 = np.geomspace(2.0, 100.0, 12)  # s/rad
 SIG_PHI3 = np.array([-0.08, -0.04, 0.0, 0.04, 0.08])  # rad/s
 COULOMB_VC = (0.005, 0.01, 0.02, 0.05, 0.1)  # rad/s, Coulomb smoothing velocities tried
@@ -92,7 +94,7 @@ class Context:
             out = []
             for p2 in SIG_PHI2:
                 for p3 in SIG_PHI3:
-                    out.append(1.0 / (1.0 + np.exp(-p2 * (dq + p3))) - 1.0 / (1.0 + math.exp(-p2 * p3)))
+                    out.append(gaz_sigmoid(dq, 1.0, p2, p3))
             self._sig_basis = np.array(out)
         return self._sig_basis
 
@@ -346,7 +348,7 @@ class SigmoidFriction(Effect):
             def res(p, dq=dq, tgt=tgt):
                 p1, lp2, p3 = p
                 p2 = math.exp(lp2)
-                return p1 / (1 + np.exp(-p2 * (dq + p3))) - p1 / (1 + math.exp(-p2 * p3)) - tgt
+                return gaz_sigmoid(dq, p1, p2, p3) - tgt
 
             x0 = [th["phi1"][j], math.log(th["phi2"][j]), th["phi3"][j]]
             try:
@@ -453,7 +455,7 @@ def _payload_body(th: np.ndarray) -> tuple[RigidBody, list[str]]:
     c7 = th[1:4] / m
     Ixx, Ixy, Iyy, Ixz, Iyz, Izz = th[4:10]
     Io = np.array([[Ixx, Ixy, Ixz], [Ixy, Iyy, Iyz], [Ixz, Iyz, Izz]])
-    Ic = Io - m * (c7 @ c7 * np.eye(3) - np.outer(c7, c7))
+    Ic = Io - parallel_axis(m, c7)
     # project onto a physically consistent inertia: principal moments >= 1e-6 kg m^2 satisfying the triangle
     # inequality (the simulator rejects anything else)
     w, V = np.linalg.eigh(0.5 * (Ic + Ic.T))
@@ -499,13 +501,7 @@ class Payload(_SharedLinearEffect):
 
 
 def _combine(a: RigidBody, b: RigidBody) -> RigidBody:
-    m = a.mass + b.mass
-    c = (a.mass * a.com + b.mass * b.com) / m
-    inertia = np.zeros((3, 3))
-    for x in (a, b):
-        r = x.com - c
-        inertia += x.inertia + x.mass * (r @ r * np.eye(3) - np.outer(r, r))
-    return RigidBody(m, c, inertia)
+    return RigidBody(*combine_inertials([(a.mass, a.com, a.inertia), (b.mass, b.com, b.inertia)]))
 
 
 class Delay(_SharedLinearEffect):

@@ -14,28 +14,23 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from franka_vs_gym.model import params
 from franka_vs_gym.model.config import Friction, ModelConfig
+from franka_vs_gym.model.description import FER
 from franka_vs_gym.model.franka_model import build_pinocchio_model
+from franka_vs_gym.model.friction import gaz_sigmoid, joint_friction
 from franka_vs_gym.validation.signals import ProcessedLog
 
-FLANGE_OFFSET = np.array([0.0, 0.0, params.FLANGE_D])  # flange origin in the joint-7 frame (same axes), m
+FLANGE_OFFSET = np.array([0.0, 0.0, FER.flange_d])  # flange origin in the joint-7 frame (same axes), m
 
 
 def sigmoid_friction(fr: Friction, dq: np.ndarray) -> np.ndarray:
     """Gaz sigmoid part of the friction, (N, 7) Nm, for dq (N, 7) rad/s."""
-    off = fr.phi1 / (1.0 + np.exp(-fr.phi2 * fr.phi3))
-    return fr.phi1 / (1.0 + np.exp(-fr.phi2 * (dq + fr.phi3))) - off
+    return gaz_sigmoid(dq, fr.phi1, fr.phi2, fr.phi3)
 
 
 def friction_torque(fr: Friction, dq: np.ndarray) -> np.ndarray:
     """Full friction law of ``Friction`` (sigmoid + viscous + Coulomb), vectorised: (N, 7) Nm."""
-    out = sigmoid_friction(fr, dq) if fr.phi1.any() else np.zeros_like(dq)
-    if fr.viscous.any():
-        out = out + fr.viscous * dq
-    if fr.coulomb.any():
-        out = out + fr.coulomb * np.tanh(dq / fr.coulomb_vel)
-    return out
+    return joint_friction(dq, fr.phi1, fr.phi2, fr.phi3, fr.viscous, fr.coulomb, fr.coulomb_vel)
 
 
 def delay_channel(config: ModelConfig) -> str:

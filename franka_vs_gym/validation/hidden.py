@@ -34,8 +34,8 @@ from typing import Any
 
 import numpy as np
 
-from franka_vs_gym.model import params
 from franka_vs_gym.model.config import Friction, ModelConfig, RigidBody
+from franka_vs_gym.model.description import FER, GRAVITY
 from franka_vs_gym.validation.logs import MeasurementLog
 
 EFFECTS = ("viscous_friction", "coulomb_friction", "sigmoid_friction", "torque_offset", "armature", "payload",
@@ -58,8 +58,9 @@ def fourier_trajectory(rng: np.random.Generator, duration: float, f0: float = 0.
                        v_peak: float = 0.9):
     """A random exciting trajectory: per joint ``q = q_c + sum_l a_l sin(2 pi f0 l t) + b_l cos(...)`` within the
     joint limits (0.15 rad margin) with peak speed about v_peak rad/s. Returns a function t -> (q, dq, ddq) (7,)."""
-    q_min, q_max = params.as_array(params.Q_MIN) + 0.15, params.as_array(params.Q_MAX) - 0.15
-    qn = params.as_array(params.Q_NEUTRAL)
+    lim = FER.limit_arrays()
+    q_min, q_max = lim["q_min"] + 0.15, lim["q_max"] - 0.15
+    qn = FER.neutral()
     qc = np.clip(qn + rng.uniform(-0.3, 0.3, 7), q_min + 0.3, q_max - 0.3)
     w = 2 * math.pi * f0 * np.arange(1, harmonics + 1)  # (L,)
     a = rng.normal(0, 1, (7, harmonics)) / np.arange(1, harmonics + 1)
@@ -123,7 +124,7 @@ def _draw(effect: str, magnitude: float, rng: np.random.Generator) -> tuple[Mode
         ang = math.radians(4.0 * magnitude * float(u[0]))
         az = rng.uniform(0, 2 * math.pi)
         axis = np.array([math.cos(az), math.sin(az), 0.0])
-        g0 = params.as_array(params.GRAVITY)
+        g0 = np.array(GRAVITY, dtype=np.float64)
         # Rodrigues rotation of g0 about axis
         g = g0 * math.cos(ang) + np.cross(axis, g0) * math.sin(ang) + axis * (axis @ g0) * (1 - math.cos(ang))
         cfg = cfg.copy(gravity=g)

@@ -49,7 +49,7 @@ from typing import Any
 import numpy as np
 
 from franka_vs_gym import io
-from franka_vs_gym.model import params
+from franka_vs_gym.model.description import FER, GRAVITY
 
 REQUIRED = ("q", "dq", "tau_J")
 OPTIONAL = ("tau_J_d", "q_d", "dq_d", "ddq_d", "tau_ext_hat_filtered")
@@ -86,7 +86,7 @@ class MeasurementLog:
     ddq_d: np.ndarray | None = None
     tau_ext_hat_filtered: np.ndarray | None = None
     tool: Any = _TOOL_DEFAULT
-    gravity: np.ndarray = field(default_factory=lambda: params.as_array(params.GRAVITY))
+    gravity: np.ndarray = field(default_factory=lambda: np.array(GRAVITY, dtype=np.float64))
     controller: dict[str, Any] | None = None
     extra: dict[str, Any] = field(default_factory=dict)
     source: str = ""
@@ -171,15 +171,16 @@ def validate(log: MeasurementLog) -> None:
         if a is not None and np.abs(a).max() > 2 * math.pi:
             j = int(np.argmax(np.abs(a).max(axis=0)))
             raise ValueError(f"{name}[{j}] reaches {np.abs(a[:, j]).max():.4g}: joint positions must be in rad "
-                             f"(the FER joint range is within [{params.Q_MIN[j]}, {params.Q_MAX[j]}] rad); degrees?")
-    dq_max = params.as_array(params.DQ_MAX)
+                             f"(the FER joint range is within [{FER.limits.q_min[j]}, {FER.limits.q_max[j]}] rad); "
+                             "degrees?")
+    dq_max = FER.limit_arrays()["dq_max"]
     for name in ("dq", "dq_d"):
         a = getattr(log, name)
         if a is not None and (np.abs(a) > 3 * dq_max).any():
             j = int(np.argmax((np.abs(a) / dq_max).max(axis=0)))
             raise ValueError(f"{name}[{j}] reaches {np.abs(a[:, j]).max():.4g}: joint velocities must be in rad/s "
                              f"(FER limit {dq_max[j]} rad/s); degrees/s?")
-    tau_max = params.as_array(params.TAU_MAX)
+    tau_max = FER.limit_arrays()["tau_max"]
     for name in ("tau_J", "tau_J_d"):
         a = getattr(log, name)
         if a is not None and (np.abs(a) > 5 * tau_max).any():

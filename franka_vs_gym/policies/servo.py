@@ -59,7 +59,7 @@ class _ServoPolicy:
         self.gain = gain if isinstance(gain, AdaptiveGain) else AdaptiveGain.constant(float(gain))
         self.eMc = np.array(DEFAULT_eMc if eMc is None else eMc, dtype=np.float64)
         self.model = model if isinstance(model, FrankaModel) else FrankaModel(resolve_config(model))
-        self.dq_max = FrankaModel.limits()["dq_max"]
+        self.dq_max = self.model.limits()["dq_max"]
 
     def reset(self) -> None:
         """Nothing to forget between episodes (the laws are static)."""

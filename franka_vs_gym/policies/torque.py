@@ -2,7 +2,7 @@
 
 They consume the observation contract of docs/ARCHITECTURE.md (dict, float32): ``q``, ``dq``, ``q_desired``,
 ``dq_desired``, ``ddq_desired`` (7,) and ``time`` (1,) in s since the episode start, and return the ``torque``
-action: (7,) float32, Nm, gravity-free (the robot adds g(q)), clipped to the FER torque limits. Their
+action: (7,) float32, Nm, gravity-free (the robot adds g(q)), clipped to the robot's torque limits. Their
 ``predict`` has the stable-baselines3 signature, so classical control and RL agents are evaluated the same way::
 
     policy = ComputedTorquePolicy(env.unwrapped.robot.model)
@@ -56,10 +56,15 @@ class _TorquePolicy:
     """Shared episode handling: the controller is reset at an episode start (``episode_start`` true, or the
     observation's time going backwards)."""
 
+    controller: Any
+
     def __init__(self, clip: bool) -> None:
         self.clip = bool(clip)
-        self.tau_max = FrankaModel.limits()["tau_max"]
         self._last_time: float | None = None
+
+    def _set_limits(self) -> None:
+        """Torque limits (7,) Nm of the controller's robot (the env's action bounds)."""
+        self.tau_max = self.controller.model.limits()["tau_max"]
 
     def _controller_reset(self) -> None:  # pragma: no cover - overridden
         raise NotImplementedError
@@ -97,13 +102,14 @@ class ComputedTorquePolicy(_TorquePolicy):
     kp, kd, ki, mu, friction :
         As :class:`franka_vs_gym.control.ComputedTorque` (Kp 400, 900 on joint 7; Kd critical; mu 4 1/s).
     clip : bool
-        Clip the action to the FER torque limits (the env's action bounds).
+        Clip the action to the robot's torque limits (the env's action bounds).
     """
 
     def __init__(self, model: Any = None, kp: Any = None, kd: Any = None, ki: Any = 0.0, mu: float = 4.0,
                  friction: bool = True, clip: bool = True) -> None:
         super().__init__(clip)
         self.controller = ComputedTorque(_as_model(model), kp=kp, kd=kd, ki=ki, mu=mu, friction=friction)
+        self._set_limits()
 
     def _controller_reset(self) -> None:
         self.controller.reset()
@@ -130,7 +136,7 @@ class JointImpedancePolicy(_TorquePolicy):
     feedforward : bool
         Add ``B(q) ddq_desired`` (default True).
     clip : bool
-        Clip the action to the FER torque limits.
+        Clip the action to the robot's torque limits.
     """
 
     def __init__(self, model: Any = None, k: Any = None, d: Any = None, zeta: float = 1.0,
@@ -143,6 +149,7 @@ class JointImpedancePolicy(_TorquePolicy):
                                          zeta=zeta, friction=friction,
                                          natural_frequency=None if k is not None else natural_frequency)
         self.feedforward = bool(feedforward)
+        self._set_limits()
 
     def _controller_reset(self) -> None:
         self.controller.reset()

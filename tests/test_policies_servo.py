@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from baselines import IBVSPolicy, PBVSPolicy
 from franka_vs_gym.experiments.servo import PX_TOL, R_TOL_DEG, T_TOL, run_servo
+from franka_vs_gym.policies import IBVSPolicy, PBVSPolicy
 
 
 def _obs(**over):

@@ -1,0 +1,124 @@
+"""The joint friction law, written once: the model, the plant, the workbench effects and the generators call it.
+
+The law, per joint (Gaz et al., IEEE RA-L 2019, eq. (6), plus a viscous and a smoothed Coulomb term)::
+
+    tau_f(dq) = phi1 / (1 + exp(-phi2 (dq + phi3))) - phi1 / (1 + exp(-phi2 phi3))     (sigmoid, 0 at rest)
+              + viscous * dq
+              + coulomb * tanh(dq / coulomb_vel)
+
+Units: dq in rad/s; phi1, coulomb in Nm; phi2 in s/rad; phi3 in rad/s; viscous in Nm s/rad; coulomb_vel in rad/s.
+Every function broadcasts: ``dq`` may be one joint vector (7,), a batch of samples (N, 7), or scalars, with the
+parameters as per-joint arrays (7,) or scalars. ``tau_f`` is the torque the joint needs on top of the rigid-body
+torque; the plant applies ``-tau_f``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+ArrayLike = np.ndarray | float
+
+
+def gaz_sigmoid(dq: ArrayLike, phi1: ArrayLike, phi2: ArrayLike, phi3: ArrayLike) -> np.ndarray:
+    """Gaz sigmoid friction, Nm: ``phi1 / (1 + exp(-phi2 (dq + phi3))) - phi1 / (1 + exp(-phi2 phi3))``."""
+    return phi1 / (1.0 + np.exp(-phi2 * (dq + phi3))) - phi1 / (1.0 + np.exp(-phi2 * phi3))
+
+
+def viscous_friction(dq: ArrayLike, viscous: ArrayLike) -> np.ndarray:
+    """Viscous friction, Nm: ``viscous * dq``."""
+    return np.multiply(viscous, dq)
+
+
+def coulomb_friction(dq: ArrayLike, coulomb: ArrayLike, coulomb_vel: ArrayLike) -> np.ndarray:
+    """Smoothed Coulomb friction, Nm: ``coulomb * tanh(dq / coulomb_vel)``."""
+    return coulomb * np.tanh(np.divide(dq, coulomb_vel))
+
+
+def joint_friction(dq: ArrayLike, phi1: ArrayLike, phi2: ArrayLike, phi3: ArrayLike, viscous: ArrayLike = 0.0,
+                   coulomb: ArrayLike = 0.0, coulomb_vel: ArrayLike = 0.01) -> np.ndarray:
+    """The whole law (sigmoid + viscous + Coulomb), Nm, the reference every faster form must match."""
+    return (gaz_sigmoid(dq, phi1, phi2, phi3) + viscous_friction(dq, viscous)
+            + coulomb_friction(dq, coulomb, coulomb_vel))
+
+
+def sigmoid_tanh_coefficients(phi1: np.ndarray, phi2: np.ndarray,
+                              phi3: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(a, b, c, e) with ``gaz_sigmoid(dq) = a tanh(b dq + c) + e`` (the same law, as one tanh: cheaper in place).
+
+    Uses ``1 / (1 + exp(-x)) = (1 + tanh(x / 2)) / 2``.
+    """
+    phi1, phi2, phi3 = (np.asarray(x, dtype=np.float64) for x in (phi1, phi2, phi3))
+    a = phi1 / 2
+    return a, phi2 / 2, phi2 * phi3 / 2, a - phi1 / (1.0 + np.exp(-phi2 * phi3))
+
+
+def compile_friction(phi1: np.ndarray, phi2: np.ndarray, phi3: np.ndarray, viscous: np.ndarray | None = None,
+                     coulomb: np.ndarray | None = None, coulomb_vel: float = 0.01) -> Callable[[np.ndarray],
+                                                                                                np.ndarray]:
+    """A fast closure ``dq -> tau_f`` equal to :func:`joint_friction`, specialised to the terms that are non-zero
+    (the parameters are copied: later changes to the arrays do not affect it)."""
+    p1, p2, p3 = (np.array(x, dtype=np.float64) for x in (phi1, phi2, phi3))
+    visc = None if viscous is None or not np.any(viscous) else np.array(viscous, dtype=np.float64)
+    coul = None if coulomb is None or not np.any(coulomb) else np.array(coulomb, dtype=np.float64)
+    cv = float(coulomb_vel)
+    off = p1 / (1.0 + np.exp(-p2 * p3))
+    has_sig = bool(p1.any())
+    exp = np.exp
+
+    if has_sig and visc is None and coul is None:
+        def sigmoid_only(dq: np.ndarray) -> np.ndarray:
+            return p1 / (1.0 + exp(-p2 * (dq + p3))) - off
+        return sigmoid_only
+
+    def general(dq: np.ndarray) -> np.ndarray:
+        out = p1 / (1.0 + exp(-p2 * (dq + p3))) - off if has_sig else np.zeros(np.shape(dq))
+        if visc is not None:
+            out = out + visc * dq
+        if coul is not None:
+            out = out + coul * np.tanh(dq / cv)
+        return out
+    return general
+
+
+def make_plant_friction(qvel: np.ndarray, qfrc: np.ndarray, phi1: np.ndarray, phi2: np.ndarray, phi3: np.ndarray,
+                        viscous: np.ndarray, coulomb: np.ndarray, coulomb_vel: float,
+                        scale: float = 1.0) -> Callable[[], None]:
+    """An allocation-free hook writing ``qfrc[:] = -scale * tau_f(qvel)`` (the plant's per-step friction).
+
+    ``qvel`` and ``qfrc`` are views into the simulator's state (7,); the hook reads the first and writes the second
+    in place every physics step. ``scale`` multiplies the whole law (domain randomisation).
+    """
+    a, b, c, e = sigmoid_tanh_coefficients(phi1, phi2, phi3)
+    neg_a, neg_e = -scale * a, -scale * e
+    visc = scale * np.asarray(viscous, dtype=np.float64)
+    coul = scale * np.asarray(coulomb, dtype=np.float64)
+    cv = float(coulomb_vel)
+    buf, buf2 = np.zeros(7), np.zeros(7)
+    mul, add, tanh = np.multiply, np.add, np.tanh
+
+    def sigmoid_friction_step() -> None:
+        mul(b, qvel, out=buf)
+        add(buf, c, out=buf)
+        tanh(buf, out=buf)
+        mul(buf, neg_a, out=qfrc)
+        add(qfrc, neg_e, out=qfrc)
+
+    if not (visc.any() or coul.any()):
+        return sigmoid_friction_step
+
+    def full_friction_step() -> None:
+        sigmoid_friction_step()
+        mul(visc, qvel, out=buf)
+        np.subtract(qfrc, buf, out=qfrc)
+        np.divide(qvel, cv, out=buf2)
+        tanh(buf2, out=buf2)
+        mul(coul, buf2, out=buf2)
+        np.subtract(qfrc, buf2, out=qfrc)
+
+    return full_friction_step
+
+
+__all__ = ["compile_friction", "coulomb_friction", "gaz_sigmoid", "joint_friction", "make_plant_friction",
+           "sigmoid_tanh_coefficients", "viscous_friction"]

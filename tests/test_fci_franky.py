@@ -1,0 +1,98 @@
+"""franka-vs serve with franky (franky-control) as the client, lock-step mode: joint and Cartesian motions through
+the robot's internal controller, and the Franka Hand (homing, move, grasp with and without an object)."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+# the clients run in their own processes (pylibfranka and franky cannot share one): only check it is installed
+if importlib.util.find_spec("franky") is None:
+    pytest.skip("franky is not installed (pip install -e '.[fci]')", allow_module_level=True)
+
+from franka_vs_gym.fci import FCIServer  # noqa: E402
+
+CLIENTS = Path(__file__).parent / "fci_clients"
+# a 3 cm block between the open fingers of the FER in its neutral pose
+BLOCK = '<body name="block" pos="0.3069 0 0.49"><geom type="box" size="0.01 0.015 0.01" rgba="0.8 0.2 0.2 1"/></body>'
+
+
+def _host(net: int = 23) -> str:
+    """A loopback address of its own for this test process (the FCI ports are fixed): 127.<net>.x.y from the pid,
+    so parallel workers and parallel test runs on one machine do not collide."""
+    pid = os.getpid()
+    return f"127.{net}.{(pid // 250) % 250 + 1}.{pid % 250 + 1}"
+
+
+def run_client(script: str, *args: str) -> dict:
+    r = subprocess.run([sys.executable, str(CLIENTS / script), *args], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr[-3000:]
+    return json.loads(r.stdout.strip().splitlines()[-1])
+
+
+def _rot(quat_xyzw) -> np.ndarray:
+    x, y, z, w = quat_xyzw
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+def test_franky_joint_and_cartesian_motions():
+    with FCIServer(_host(), lockstep=True, camera=False, verbose=False) as srv:
+        out = run_client("franky_motions.py", srv.host)
+        q_sim = srv.sim.get_position()
+    # the joint motion ends on its target (the internal controller tracks within ~1e-5 rad)
+    assert np.abs(np.array(out["q_after_joint"]) - out["q_target"]).max() < 1e-4
+    # relative Cartesian motion: the offset is expressed in the end-effector frame
+    p0, p1, p2 = (np.array(out[k]) for k in ("p0", "p1", "p2"))
+    expected = p0 + _rot(out["quat0"]) @ np.array([0.05, -0.03, -0.04])
+    assert np.abs(p1 - expected).max() < 1e-4
+    assert np.abs(p2 - p0).max() < 1e-4  # and back to the absolute start pose
+    assert abs(abs(np.dot(out["quat2"], out["quat0"])) - 1) < 1e-6  # orientation kept
+    assert np.abs(np.array(out["state_q"]) - q_sim).max() < 1e-6
+
+
+@pytest.mark.parametrize("block", [True, False])
+def test_franky_gripper_move_and_grasp(block):
+    with FCIServer(_host(), lockstep=True, camera=False, verbose=False,
+                   extra_worldbody=BLOCK if block else "") as srv:
+        out = run_client("franky_gripper.py", srv.host, "0.03")
+    assert out["homing"] and out["move"] and out["open"]
+    assert out["max_width"] == pytest.approx(0.08)
+    assert out["width_after_move"] == pytest.approx(0.05, abs=1e-6)
+    assert out["width_after_open"] == pytest.approx(0.08, abs=1e-6)
+    if block:  # the fingers stop on the 3 cm block: grasped within the +-5 mm tolerance
+        assert out["grasp"] and out["is_grasped"]
+        assert out["width_after_grasp"] == pytest.approx(0.03, abs=2e-3)
+    else:  # nothing between the fingers: they close fully and the grasp fails
+        assert not out["grasp"] and not out["is_grasped"]
+        assert out["width_after_grasp"] < 1e-3
+
+
+def test_franky_ibvs_example_with_the_in_process_camera():
+    """examples/fci_franky_ibvs.py: franky joint velocities, tag detection on the simulated wrist camera read from
+    the in-process server; the corner error shrinks (lock-step; converging fully takes ~5 s of rendering)."""
+    script = Path(__file__).resolve().parents[1] / "examples" / "fci_franky_ibvs.py"
+    r = subprocess.run([sys.executable, str(script), "--lockstep", "--json", "--max-time", "3",
+                        "--host", _host(24)], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr[-3000:]
+    out = json.loads(r.stdout.strip().splitlines()[-1])
+    errors = [e for _, _, e in out["history"]]
+    assert errors[0] > 20.0
+    assert out["final_error_px"] < 0.3 * errors[0]
+
+
+def test_franky_gripper_stop():
+    with FCIServer(_host(), lockstep=True, camera=False, verbose=False) as srv:
+        out = run_client("gripper_stop.py", srv.host)
+    assert out["width_start"] == pytest.approx(0.08, abs=1e-6) and out["stop"]
+    assert "aborted" in str(out["move_result"])  # the interrupted move is answered "aborted"
+    assert 0.0 < out["width_after_stop"] < 0.08
+    assert out["width_later"] == out["width_after_stop"]  # the fingers stay where they stopped
