@@ -77,8 +77,8 @@ def run_torque_demo(args: argparse.Namespace) -> int:
     seg = duration / (len(waypoints) - 1)
     # the FER's reflexes stop a faster motion: refuse a duration whose quintic segments need more than 90 % of
     # the joint velocity, acceleration or jerk limits
-    lim = sim._reflexes
-    seg_min = max(position_profile_time(b - a, 0.9 * lim.dq_max, 0.9 * lim.ddq_max, 0.9 * lim.dddq_max)
+    lim = sim.model.robot.limit_arrays()
+    seg_min = max(position_profile_time(b - a, 0.9 * lim["dq_max"], 0.9 * lim["ddq_max"], 0.9 * lim["dddq_max"])
                   for a, b in zip(waypoints[:-1], waypoints[1:], strict=True))
     if seg < seg_min:
         raise UserError(f"--duration {duration:g} s is too fast for the FER: the demo trajectory would exceed its "

@@ -85,6 +85,8 @@ def check_inertia(inertia: np.ndarray, mass: float, name: str) -> None:
     if ev[0] + ev[1] < ev[2] * (1 - 1e-6) - 1e-15:
         raise ValueError(f"{name} inertia violates the triangle inequality: principal moments {ev.tolist()} kg m^2 "
                          f"({ev[0]:.3g} + {ev[1]:.3g} < {ev[2]:.3g}); no rigid body has them")
+    if mass == 0 and ev[2] > 0:
+        raise ValueError(f"{name} has an inertia but no mass")
     if ev[2] > 1e3:
         raise ValueError(f"{name}: principal moment {ev[2]:.3g} kg m^2 is not plausible for a robot's load; units?")
 

@@ -286,7 +286,7 @@ class ModelConfig:
         self.link_mass_scale = as_vector(self.link_mass_scale, 7, "link_mass_scale")
         if (self.link_mass_scale <= 0).any():
             raise ValueError("link_mass_scale must be > 0")
-        self.delay = float(self.delay)
+        self.delay = checks.as_scalar(self.delay, "delay", unit="s")
         if not math.isfinite(self.delay) or self.delay < 0:
             raise ValueError(f"delay must be a finite number >= 0 s, got {self.delay}")
         if self.delay_channel not in ("command", "measurement"):

@@ -286,6 +286,7 @@ def _columns_to_fields(header: list[str], data: np.ndarray, where: str) -> dict[
 
 
 _LOADTXT_ROW = re.compile(r"at row (\d+)")
+_LOADTXT_COLS = re.compile(r"number of columns changed from (\d+) to (\d+) at row (\d+)")
 _LOADTXT_BAD = re.compile(r"could not convert string '(.*)' to float64 at row (\d+), column (\d+)")
 
 
@@ -308,10 +309,11 @@ def _load_csv(path: Path) -> dict[str, np.ndarray]:
             if m:  # numpy counts data rows from 0; the file's line numbers start at 1 with the header
                 msg = (f"line {int(m.group(2)) + 2}: {m.group(1)!r} is not a number (column "
                        f"{header[int(m.group(3))].strip() if int(m.group(3)) < len(header) else m.group(3)})")
-            else:
-                m = _LOADTXT_ROW.search(msg)
-                if m:
-                    msg = _LOADTXT_ROW.sub(f"at line {int(m.group(1)) + 2}", msg)
+            elif (m := _LOADTXT_COLS.search(msg)) is not None:  # here numpy counts data rows from 1
+                msg = (f"line {int(m.group(3)) + 1} has {m.group(2)} values, the header has {len(header)} "
+                       "columns")
+            elif (m := _LOADTXT_ROW.search(msg)) is not None:
+                msg = _LOADTXT_ROW.sub(f"at line {int(m.group(1)) + 2}", msg)
             raise ValueError(f"{path}: {msg}") from None
     if data.size == 0:
         raise ValueError(f"{path}: no data rows")
@@ -365,32 +367,40 @@ def _load_npz(path: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     return out, meta
 
 
-def _roughness(x: np.ndarray) -> float:
-    """Median over joints of the mean absolute step relative to the spread: small for a sampled trajectory."""
-    d = np.abs(np.diff(x, axis=0)).mean(axis=0)
-    s = x.std(axis=0) + 1e-12
-    return float(np.median(d / s))
+def _layout_score(x: np.ndarray) -> float:
+    """How much (n, 7) samples look like 7 joints sampled in time: the typical difference between neighbouring
+    columns (different joints) over the typical step in time (one sample). A misread layout puts consecutive
+    samples of one joint side by side (ratio near 1) or interleaves joints along time (large steps)."""
+    step = float(np.median(np.abs(np.diff(x, axis=0))))
+    across = float(np.median(np.abs(np.diff(x, axis=1))))
+    scale = float(np.abs(x).max()) + 1e-300
+    return (across + 1e-12 * scale) / (step + 1e-12 * scale)
 
 
-def _gaz_layout(values: np.ndarray, lines: list[int], n: int, where: str) -> np.ndarray:
-    """(n, 7) samples from the values of one Gaz text file, sample-major (7 values per sample, in time order) or
-    joint-major (all n samples of joint 0, then joint 1...). The line structure decides when it can (n lines of 7
-    values, or 7 lines of n values); otherwise the layout whose columns are smooth in time wins, and a file where
-    neither is clearly smoother is refused."""
-    if len(lines) == n and all(k == 7 for k in lines):
-        return values.reshape(n, 7)
-    if len(lines) == 7 and all(k == n for k in lines) and n != 7:
-        return values.reshape(7, n).T.copy()
-    sample_major, joint_major = values.reshape(n, 7), values.reshape(7, n).T
+def _gaz_layout(files: dict[str, np.ndarray], lines: dict[str, list[int]], n: int, folder: Path) -> str:
+    """"sample" (7 values per sample, in time order) or "joint" (all n samples of joint 0, then joint 1...) for
+    the joint files of a Gaz folder. The line structure decides when it can (n lines of 7 values, or 7 lines of n
+    values); otherwise the layout in which the columns look like 7 joints sampled in time wins, judged on the
+    positions first (then velocities, torques); a folder where neither layout is clearly better is refused."""
+    for f in ("q", "dq", "tau_J"):
+        counts = lines[f]
+        if len(counts) == n and all(k == 7 for k in counts):
+            return "sample"
+        if len(counts) == 7 and all(k == n for k in counts) and n != 7:
+            return "joint"
     if n < 3:
-        return sample_major
-    rs, rj = _roughness(sample_major), _roughness(joint_major)
-    if rs <= rj / 3:
-        return sample_major
-    if rj <= rs / 3:
-        return joint_major.copy()
-    raise ValueError(f"{where}: cannot tell whether the values are sample-major (7 per sample) or joint-major (all "
-                     f"samples of joint 0 first): neither layout gives a smooth trajectory")
+        return "sample"
+    for f in ("q", "dq", "tau_J"):
+        v = files[f]
+        if not np.isfinite(v).all() or np.ptp(v) == 0:
+            continue
+        s, j = _layout_score(v.reshape(n, 7)), _layout_score(v.reshape(7, n).T)
+        if s >= 3 * j:
+            return "sample"
+        if j >= 3 * s:
+            return "joint"
+    raise ValueError(f"{folder}: cannot tell whether the values are sample-major (7 per sample) or joint-major (all "
+                     "samples of joint 0 first): neither layout looks like 7 joints sampled in time")
 
 
 def _read_gaz_file(p: Path) -> tuple[np.ndarray, list[int]]:
@@ -424,8 +434,9 @@ def _load_gaz(folder: Path) -> dict[str, np.ndarray]:
         if out[f].size != 7 * n:
             raise ValueError(f"{folder / GAZ_FILES[f]}: {out[f].size} values for {n} timestamps; expected 7 per "
                              f"sample ({7 * n})")
+    layout = _gaz_layout(out, lines, n, folder)
     for f in ("q", "dq", "tau_J"):
-        out[f] = _gaz_layout(out[f], lines[f], n, str(folder / GAZ_FILES[f]))
+        out[f] = out[f].reshape(n, 7) if layout == "sample" else out[f].reshape(7, n).T.copy()
     return out
 
 
