@@ -110,6 +110,8 @@ def test_joint_impedance_example_reaches_target_bit_identically(server):
     ("torque_jump", "controller_torque_discontinuity"),
     ("position_limit", "joint_position_limits_violation"),
     ("velocity", "joint_motion_generator_velocity_limits_violation"),
+    ("acceleration", "joint_motion_generator_velocity_discontinuity"),
+    ("cartesian_speed", "cartesian_motion_generator_velocity_limits_violation"),
 ])
 def test_reflex_reason_and_recovery(server, kind, reason):
     out = run_client(CLIENTS / "reflex.py", server.host, kind)

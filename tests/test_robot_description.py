@@ -322,3 +322,19 @@ def test_no_module_outside_sim_touches_franka_sim_private_attributes():
                 continue
             bad += [f"{rel}: {m.group(0)}" for m in pat.finditer(p.read_text())]
     assert not bad, bad
+
+
+@pytest.mark.parametrize("name", sorted(ROBOTS))
+def test_scripted_policies_servo_and_track_on_every_robot(name):
+    import franka_vs_gym
+    from franka_vs_gym.policies import ComputedTorquePolicy, IBVSPolicy
+
+    lim = robot_description(name).limit_arrays()
+    ibvs = IBVSPolicy(robot=name)
+    np.testing.assert_array_equal(ibvs.dq_max, lim["dq_max"])
+    r = franka_vs_gym.evaluate(ibvs, "FrankaIBVS-v0", 2, seed=0, env_kwargs={"robot": name})
+    assert r["success_rate"] == 1.0, r["failures"]
+    ct = ComputedTorquePolicy(robot=name)
+    np.testing.assert_array_equal(ct.tau_max, lim["tau_max"])
+    r = franka_vs_gym.evaluate(ct, "FrankaTorqueTracking-v0", 1, seed=0, env_kwargs={"robot": name, "time_limit": 2.0})
+    assert r["success_rate"] == 1.0, r["failures"]

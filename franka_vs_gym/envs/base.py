@@ -107,7 +107,8 @@ class ObservationPacker:
 
 
 class FrankaEnv(gym.Env):
-    """Base class: a FER (FrankaSim) driven through one of three action types.
+    """Base class: a Franka arm (FrankaSim; the FER unless ``robot`` says otherwise) driven through one of three
+    action types.
 
     Parameters (shared by every task; all are ``gymnasium.make`` keyword arguments)
     ----------

@@ -45,12 +45,13 @@ def _scripted(name: str, env_kwargs: dict[str, Any]) -> tuple[Any, str, dict[str
         if kw["action_type"] not in ("joint_velocity", "cartesian_velocity"):
             raise ValueError(f"the {name.upper()} policy commands joint_velocity or cartesian_velocity actions, "
                              f"not {kw['action_type']!r}")
-        pkw: dict[str, Any] = {"action_type": kw["action_type"], "model": kw.get("model")}
+        pkw: dict[str, Any] = {"action_type": kw["action_type"], "model": kw.get("model"), "robot": kw.get("robot")}
         if name == "ibvs" and "tag_size" in kw:
             pkw["tag_size"] = kw["tag_size"]
         return cls(**pkw), "FrankaIBVS-v0" if name == "ibvs" else "FrankaPBVS-v0", kw
     cls = policies.ComputedTorquePolicy if name == "computed-torque" else policies.JointImpedancePolicy
-    return cls(env_kwargs.get("model")), "FrankaTorqueTracking-v0", {"action_type": "torque"} | env_kwargs
+    policy = cls(env_kwargs.get("model"), robot=env_kwargs.get("robot"))
+    return policy, "FrankaTorqueTracking-v0", {"action_type": "torque"} | env_kwargs
 
 
 def _zero_policy(env_id: str, env_kwargs: dict[str, Any]):

@@ -35,7 +35,7 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import mujoco
 import numpy as np
@@ -43,6 +43,9 @@ import numpy as np
 from franka_vs_gym.model.config import ModelConfig, RigidBody
 from franka_vs_gym.model.franka_model import FrankaModel
 from franka_vs_gym.model.geometry import desired_tag_pose, homogeneous
+
+if TYPE_CHECKING:
+    from franka_vs_gym.sim.world import SimWorld
 
 LEFT_BASE = np.array([0.0, 0.4, 0.0])
 RIGHT_BASE = np.array([0.0, -0.4, 0.0])
@@ -299,6 +302,197 @@ def initial_configurations() -> tuple[np.ndarray, np.ndarray]:
     return q_l, q_r
 
 
+def _check_dual_arm_settings(duration: float, camera_rate: float, pbvs_gain: float, log_rate: float, vision: str,
+                             **nonneg: float) -> None:
+    for name, v in (("duration", duration), ("camera_rate", camera_rate), ("pbvs_gain", pbvs_gain),
+                    ("log_rate", log_rate)):
+        if not (v > 0 and math.isfinite(v)):
+            raise ValueError(f"{name} must be a finite number > 0, got {v}")
+    for name, v in nonneg.items():
+        if not (v >= 0 and math.isfinite(v)):
+            raise ValueError(f"{name} must be a finite number >= 0, got {v}")
+    if vision not in ("ideal", "detect"):
+        raise ValueError(f"vision must be 'ideal' or 'detect', got {vision!r}")
+
+
+class _LeftArm:
+    """The left arm's 1 kHz torque loop: gravity compensation (phase 0), a minimum-jerk reach to the circle's start
+    (phase 1), then the circle (phase 2), with Cartesian computed torque on the controller's model."""
+
+    def __init__(self, left, ctrl_model: FrankaModel, dt: float, gc_time: float, reach_time: float,
+                 circle_ramp: float) -> None:
+        from franka_vs_gym.control.cartesian import CartesianComputedTorque
+        from franka_vs_gym.control.impedance import GravityCompensation
+
+        self.robot, self.dt = left, dt
+        self.gc_time, self.reach_time, self.circle_ramp = gc_time, reach_time, circle_ramp
+        self.gc = GravityCompensation(ctrl_model, internal=left.model, kd=2.0)
+        self.cct = CartesianComputedTorque(ctrl_model, kp=[400.0, 400.0, 400.0, 300.0, 300.0, 300.0],
+                                           internal=left.model)
+        self.wMf = left.get_wMf()
+        self.fMe_start = np.linalg.inv(self.wMf) @ circle_start_pose()
+        self.circle_start_t = gc_time + reach_time
+        self.u_axis = np.array([0.0, 0.0, 1.0])  # the circle starts at its top: centre = start - r u
+        self.v_axis = np.array([1.0, 0.0, 0.0])
+        self.fMe_reach0 = left.get_fMe()
+        self.wMe0 = self.wMf @ self.fMe_reach0
+        self.gc_drift = 0.0
+
+    def command(self, k: int, t: float) -> tuple[int, np.ndarray]:
+        """Send this tick's torque; returns (phase, reference position of the end effector in the world (3,))."""
+        from franka_vs_gym.control.cartesian import circle_reference
+        from franka_vs_gym.sim.robot import JOINT_STATE
+
+        left = self.robot
+        ql, dql = left.get_position(), left.get_velocity()
+        if t < self.gc_time:
+            phase = 0
+            tau = self.gc(ql, dql)
+            ref_w = self.wMe0[:3, 3]
+            self.gc_drift = max(self.gc_drift, float(np.linalg.norm(left.get_fMe()[:3, 3] - self.fMe_reach0[:3, 3])))
+        elif t < self.circle_start_t:
+            phase = 1
+            if k == int(round(self.gc_time / self.dt)):
+                self.fMe_reach0 = left.get_fMe()
+            fMe_reach0, fMe_start = self.fMe_reach0, self.fMe_start
+            s, ds, dds = minimum_jerk(t - self.gc_time, self.reach_time)
+            dp = fMe_start[:3, 3] - fMe_reach0[:3, 3]
+            rot = _rotvec(fMe_start[:3, :3] @ fMe_reach0[:3, :3].T)
+            Md = homogeneous(_exp(s * rot) @ fMe_reach0[:3, :3], fMe_reach0[:3, 3] + s * dp)
+            vd = np.concatenate([ds * dp, ds * rot])
+            ad = np.concatenate([dds * dp, dds * rot])
+            tau = self.cct(t, ql, dql, Md, vd, ad)
+            ref_w = (self.wMf @ Md)[:3, 3]
+        else:
+            phase = 2
+            p, dp_, ddp = circle_reference(t - self.circle_start_t, self.fMe_start[:3, 3], CIRCLE_RADIUS,
+                                           CIRCLE_FREQUENCY, axis_u=self.u_axis, axis_v=self.v_axis,
+                                           ramp=self.circle_ramp)
+            Md = homogeneous(self.fMe_start[:3, :3], p)
+            tau = self.cct(t, ql, dql, Md, np.r_[dp_, 0.0, 0.0, 0.0], np.r_[ddp, 0.0, 0.0, 0.0])
+            ref_w = (self.wMf @ Md)[:3, 3]
+        left.set_force_torque(JOINT_STATE, tau)
+        return phase, ref_w
+
+
+class _RightArm:
+    """The right arm's loop: PBVS on the tag at the camera rate (with the tag's estimated own velocity as
+    feed-forward), smoothed at 1 kHz, plus the visual admittance ``admittance * F/T force``."""
+
+    def __init__(self, right, meas: _TagMeasurement, dt: float, cam_every: int, pbvs_gain: float,
+                 admittance: float, force_filter: float, command_filter: float, feedforward: bool) -> None:
+        self.robot, self.meas, self.cam_every = right, meas, cam_every
+        self.pbvs_gain, self.admittance, self.feedforward = pbvs_gain, admittance, feedforward
+        self.eRc = right.get_eMc()[:3, :3]
+        self.v_pbvs = np.zeros(6)
+        self.target_vel_f = np.zeros(3)  # estimated velocity of the tag in the right base frame, m/s
+        self.last_f_to: np.ndarray | None = None
+        self.last_cam_t = 0.0
+        self.visible = False
+        self.wrist_img: np.ndarray | None = None
+        self.wf = np.zeros(3)  # F/T force in c, low-pass filtered with time constant force_filter
+        self.alpha = 1.0 if force_filter == 0 else 1.0 - math.exp(-dt / force_filter)
+        self.beta = 1.0 if command_filter == 0 else 1.0 - math.exp(-dt / command_filter)
+        self.v_smooth = np.zeros(6)  # the PBVS twist, low-pass filtered at 1 kHz (no steps at each camera frame)
+        self.f_e = np.zeros(3)
+
+    def _camera_frame(self, t: float) -> None:
+        cMo, img = self.meas.measure()
+        if img is not None:
+            self.wrist_img = img
+        self.visible = cMo is not None
+        if cMo is None:
+            self.v_pbvs = np.zeros(6)
+            self.target_vel_f = np.zeros(3)
+            self.last_f_to = None
+            return
+        fMc = self.robot.get_fMc()
+        f_to = fMc[:3, :3] @ cMo[:3, 3] + fMc[:3, 3]  # the tag's origin in the right base frame
+        if self.feedforward and self.last_f_to is not None and t > self.last_cam_t:
+            # the tag's own velocity, from two poses in the (fixed) base frame: robust to how the camera moved in
+            # between (contact bounces included)
+            self.target_vel_f = 0.5 * self.target_vel_f + 0.5 * (f_to - self.last_f_to) / (t - self.last_cam_t)
+        target_motion = fMc[:3, :3].T @ self.target_vel_f
+        self.last_f_to = f_to
+        self.last_cam_t = t
+        self.v_pbvs = pbvs_twist(cMo, cdMo, self.pbvs_gain, target_motion)
+
+    def command(self, k: int, t: float) -> None:
+        """Send this tick's camera twist (PBVS + admittance, translation capped at 0.5 m/s)."""
+        from franka_vs_gym.sim.robot import CAMERA_FRAME
+
+        if k % self.cam_every == 0:
+            self._camera_frame(t)
+        self.f_e = self.robot.get_ft_wrench()[:3]
+        self.wf += self.alpha * (self.eRc.T @ self.f_e - self.wf)
+        self.v_smooth += self.beta * (self.v_pbvs - self.v_smooth)
+        v_cmd = self.v_smooth.copy()
+        v_cmd[:3] += self.admittance * self.wf
+        nv = np.linalg.norm(v_cmd[:3])
+        if nv > 0.5:
+            v_cmd[:3] *= 0.5 / nv
+        self.robot.set_velocity(CAMERA_FRAME, v_cmd)
+
+
+class _DualArmLog:
+    """The logged time series and the obstacle contacts (which bodies touched it, the right arm's contact force)."""
+
+    KEYS = ("time", "phase", "left_ee", "left_ref", "right_ee", "tag", "pbvs_error", "contact_force", "ft_force",
+            "visible")
+
+    def __init__(self, world: SimWorld, obstacle: bool) -> None:
+        self.world = world
+        m = world.model
+        self.obstacle_geom = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "obstacle") if obstacle else -1
+        self.body_names = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, b) or "" for b in range(m.nbody)]
+        self.right_bodies = {b for b, name in enumerate(self.body_names) if name.startswith("right_")}
+        self.touched: set[str] = set()  # bodies that touched the obstacle
+        self.rows: dict[str, list] = {k: [] for k in self.KEYS}
+        self._cfr = np.zeros(6)
+
+    def _contact_force(self) -> float:
+        m, d, og = self.world.model, self.world.data, self.obstacle_geom
+        force = 0.0
+        if og >= 0:
+            for i in range(d.ncon):
+                c = d.contact[i]
+                if og in (c.geom1, c.geom2):
+                    other = c.geom2 if c.geom1 == og else c.geom1
+                    self.touched.add(self.body_names[int(m.geom_bodyid[other])])
+                    if int(m.geom_bodyid[other]) in self.right_bodies:
+                        mujoco.mj_contactForce(m, d, i, self._cfr)
+                        force += float(np.linalg.norm(self._cfr[:3]))
+        return force
+
+    def record(self, t: float, phase: int, left: _LeftArm, ref_w: np.ndarray, right: _RightArm) -> None:
+        rows = self.rows
+        force = self._contact_force()
+        r = right.robot
+        wMe_r = r.get_wMf() @ r.get_fMe()
+        rows["time"].append(t)
+        rows["phase"].append(phase)
+        rows["left_ee"].append((left.wMf @ left.robot.get_fMe())[:3, 3])
+        rows["left_ref"].append(ref_w)
+        rows["right_ee"].append(wMe_r[:3, 3])
+        rows["tag"].append(self.world.data.xpos[right.meas.tag_body].copy())
+        true = right.meas.true_cMo()
+        rows["pbvs_error"].append(np.concatenate([true[:3, 3] - cdMo[:3, 3], _rotvec(cdMo[:3, :3] @ true[:3, :3].T)]))
+        rows["contact_force"].append(force)
+        rows["ft_force"].append(right.f_e.copy())
+        rows["visible"].append(right.visible)
+
+
+def _video_writer(video: str | Path | None, fps: int):
+    if not video:
+        return None
+    import imageio.v2 as imageio
+
+    vp = Path(video)
+    if vp.exists():
+        raise FileExistsError(f"{vp} exists; not overwriting it")
+    return imageio.get_writer(str(vp), fps=fps, codec="libx264", quality=7, macro_block_size=8)
+
+
 def run_dual_arm(duration: float = 20.0, *, camera_rate: float = 30.0, vision: str = "ideal", obstacle: bool = True,
                  gc_time: float = 2.0, reach_time: float = 2.0, circle_ramp: float = 1.0, pbvs_gain: float = 6.0,
                  admittance: float = 0.004, force_filter: float = 0.02, command_filter: float = 0.015,
@@ -314,192 +508,65 @@ def run_dual_arm(duration: float = 20.0, *, camera_rate: float = 30.0, vision: s
     from them), drawn from a generator seeded by ``seed``; video an .mp4 path (overview + wrist view) or None;
     log_rate (Hz) of the returned time series (the control runs at 1 kHz).
     """
-    from franka_vs_gym.control.cartesian import CartesianComputedTorque, circle_reference
-    from franka_vs_gym.control.impedance import GravityCompensation
-    from franka_vs_gym.sim.robot import CAMERA_FRAME, FORCE_TORQUE, JOINT_STATE, VELOCITY
+    from tqdm import tqdm
 
-    for name, v in (("duration", duration), ("camera_rate", camera_rate), ("pbvs_gain", pbvs_gain),
-                    ("log_rate", log_rate)):
-        if not (v > 0 and math.isfinite(v)):
-            raise ValueError(f"{name} must be a finite number > 0, got {v}")
-    for name, v in (("gc_time", gc_time), ("reach_time", reach_time), ("circle_ramp", circle_ramp),
-                    ("admittance", admittance), ("force_filter", force_filter),
-                    ("command_filter", command_filter)):
-        if not (v >= 0 and math.isfinite(v)):
-            raise ValueError(f"{name} must be a finite number >= 0, got {v}")
-    if vision not in ("ideal", "detect"):
-        raise ValueError(f"vision must be 'ideal' or 'detect', got {vision!r}")
-    world, left, right, ctrl_model = build_world(obstacle)
+    from franka_vs_gym.sim.robot import FORCE_TORQUE, VELOCITY
+
+    _check_dual_arm_settings(duration, camera_rate, pbvs_gain, log_rate, vision, gc_time=gc_time,
+                             reach_time=reach_time, circle_ramp=circle_ramp, admittance=admittance,
+                             force_filter=force_filter, command_filter=command_filter)
+    world, left_sim, right_sim, ctrl_model = build_world(obstacle)
     dt = world.dt
     n = int(round(duration / dt))
-    cam_every = max(1, int(round(1.0 / (camera_rate * dt))))
     log_every = max(1, int(round(1.0 / (log_rate * dt))))
     frame_every = max(1, int(round(1.0 / (video_fps * dt))))
-    meas = _TagMeasurement(world, right, vision, period=1.0 / camera_rate, noise_px=pixel_noise, seed=seed)
-
-    gc = GravityCompensation(ctrl_model, internal=left.model, kd=2.0)
-    cct = CartesianComputedTorque(ctrl_model, kp=[400.0, 400.0, 400.0, 300.0, 300.0, 300.0], internal=left.model)
-    left.set_robot_state(FORCE_TORQUE)
-    right.set_robot_state(VELOCITY)
-    wMf_l = left.get_wMf()
-    fMw_l = np.linalg.inv(wMf_l)
-    wMe_start = circle_start_pose()
-    fMe_start = fMw_l @ wMe_start
-    circle_start_t = gc_time + reach_time
-    u_axis = np.array([0.0, 0.0, 1.0])  # the circle starts at its top: centre = start - r u
-    v_axis = np.array([1.0, 0.0, 0.0])
-
-    obstacle_geom = mujoco.mj_name2id(world.model, mujoco.mjtObj.mjOBJ_GEOM, "obstacle") if obstacle else -1
-    body_names = [mujoco.mj_id2name(world.model, mujoco.mjtObj.mjOBJ_BODY, b) or "" for b in range(world.model.nbody)]
-    right_bodies = {b for b, name in enumerate(body_names) if name.startswith("right_")}
-    touched: set[str] = set()  # bodies that touched the obstacle
+    meas = _TagMeasurement(world, right_sim, vision, period=1.0 / camera_rate, noise_px=pixel_noise, seed=seed)
+    left = _LeftArm(left_sim, ctrl_model, dt, gc_time, reach_time, circle_ramp)
+    right = _RightArm(right_sim, meas, dt, max(1, int(round(1.0 / (camera_rate * dt)))), pbvs_gain, admittance,
+                      force_filter, command_filter, feedforward)
+    left_sim.set_robot_state(FORCE_TORQUE)
+    right_sim.set_robot_state(VELOCITY)
+    log = _DualArmLog(world, obstacle)
     ctrl_time = 0.0  # wall-clock seconds in the two controllers and the tag measurement
-    eRc = right.get_eMc()[:3, :3]
-
-    rows: dict[str, list] = {k: [] for k in ("time", "phase", "left_ee", "left_ref", "right_ee", "tag", "pbvs_error",
-                                             "contact_force", "ft_force", "visible")}
-    writer = None
-    if video:
-        import imageio.v2 as imageio
-
-        vp = Path(video)
-        if vp.exists():
-            raise FileExistsError(f"{vp} exists; not overwriting it")
-        writer = imageio.get_writer(str(vp), fps=video_fps, codec="libx264", quality=7, macro_block_size=8)
     frames = 0
-    v_pbvs = np.zeros(6)
-    target_vel_f = np.zeros(3)  # estimated velocity of the tag in the right base frame, m/s
-    last_f_to: np.ndarray | None = None
-    last_cam_t = 0.0
-    visible = False
-    fMe_reach0 = left.get_fMe()
-    wMe_left0 = wMf_l @ fMe_reach0
-    gc_drift = 0.0
-    wf = np.zeros(3)  # F/T force in c, low-pass filtered with time constant force_filter
-    alpha = 1.0 if force_filter == 0 else 1.0 - math.exp(-dt / force_filter)
-    beta = 1.0 if command_filter == 0 else 1.0 - math.exp(-dt / command_filter)
-    v_smooth = np.zeros(6)  # the PBVS twist, low-pass filtered at 1 kHz (no steps at each camera frame)
-    cfr = np.zeros(6)
-    wrist_img = None
+    writer = _video_writer(video, video_fps)
     try:
-        from tqdm import tqdm
-
         for k in tqdm(range(n), desc="dual-arm", unit="tick", file=sys.stderr, disable=not progress,
                       mininterval=0.5, unit_scale=True):
             t = k * dt
-            # ---------------- left arm: gravity compensation, reach, circle (1 kHz)
             c0 = time.perf_counter()
-            ql, dql = left.get_position(), left.get_velocity()
-            if t < gc_time:
-                phase = 0
-                tau = gc(ql, dql)
-                ref_w = wMe_left0[:3, 3]
-                gc_drift = max(gc_drift, float(np.linalg.norm(left.get_fMe()[:3, 3] - fMe_reach0[:3, 3])))
-            elif t < circle_start_t:
-                phase = 1
-                if k == int(round(gc_time / dt)):
-                    fMe_reach0 = left.get_fMe()
-                s, ds, dds = minimum_jerk(t - gc_time, reach_time)
-                dp = fMe_start[:3, 3] - fMe_reach0[:3, 3]
-                rot = _rotvec(fMe_start[:3, :3] @ fMe_reach0[:3, :3].T)
-                Md = homogeneous(_exp(s * rot) @ fMe_reach0[:3, :3], fMe_reach0[:3, 3] + s * dp)
-                vd = np.concatenate([ds * dp, ds * rot])
-                ad = np.concatenate([dds * dp, dds * rot])
-                tau = cct(t, ql, dql, Md, vd, ad)
-                ref_w = (wMf_l @ Md)[:3, 3]
-            else:
-                phase = 2
-                p, dp_, ddp = circle_reference(t - circle_start_t, fMe_start[:3, 3], CIRCLE_RADIUS, CIRCLE_FREQUENCY,
-                                               axis_u=u_axis, axis_v=v_axis, ramp=circle_ramp)
-                Md = homogeneous(fMe_start[:3, :3], p)
-                tau = cct(t, ql, dql, Md, np.r_[dp_, 0.0, 0.0, 0.0], np.r_[ddp, 0.0, 0.0, 0.0])
-                ref_w = (wMf_l @ Md)[:3, 3]
-            left.set_force_torque(JOINT_STATE, tau)
-
-            # ---------------- right arm: PBVS at the camera rate, visual admittance at 1 kHz
-            if k % cam_every == 0:
-                cMo, img = meas.measure()
-                if img is not None:
-                    wrist_img = img
-                visible = cMo is not None
-                if cMo is not None:
-                    fMc = right.get_fMc()
-                    f_to = fMc[:3, :3] @ cMo[:3, 3] + fMc[:3, 3]  # the tag's origin in the right base frame
-                    if feedforward and last_f_to is not None and t > last_cam_t:
-                        # the tag's own velocity, from two poses in the (fixed) base frame: robust to how the
-                        # camera moved in between (contact bounces included)
-                        target_vel_f = 0.5 * target_vel_f + 0.5 * (f_to - last_f_to) / (t - last_cam_t)
-                    target_motion = fMc[:3, :3].T @ target_vel_f
-                    last_f_to = f_to
-                    last_cam_t = t
-                    v_pbvs = pbvs_twist(cMo, cdMo, pbvs_gain, target_motion)
-                else:
-                    v_pbvs = np.zeros(6)
-                    target_vel_f = np.zeros(3)
-                    last_f_to = None
-            f_e = right.get_ft_wrench()[:3]
-            wf += alpha * (eRc.T @ f_e - wf)
-            v_smooth += beta * (v_pbvs - v_smooth)
-            v_cmd = v_smooth.copy()
-            v_cmd[:3] += admittance * wf
-            nv = np.linalg.norm(v_cmd[:3])
-            if nv > 0.5:
-                v_cmd[:3] *= 0.5 / nv
-            right.set_velocity(CAMERA_FRAME, v_cmd)
+            phase, ref_w = left.command(k, t)
+            right.command(k, t)
             ctrl_time += time.perf_counter() - c0
-
-            # ---------------- video, log
             if writer is not None and k % frame_every == 0:
                 over = world.render("franko_view", *video_size)
-                if vision != "detect" or wrist_img is None:
-                    wrist_img = world.render(right.camera_name(), *video_size)
-                w_img = wrist_img if wrist_img.shape[:2] == over.shape[:2] else _resize(wrist_img, over.shape)
+                if vision != "detect" or right.wrist_img is None:
+                    right.wrist_img = world.render(right_sim.camera_name(), *video_size)
+                w_img = right.wrist_img
+                w_img = w_img if w_img.shape[:2] == over.shape[:2] else _resize(w_img, over.shape)
                 writer.append_data(np.concatenate([over, w_img], axis=1))
                 frames += 1
             world.step()
             if k % log_every == 0:
-                d = world.data
-                force = 0.0
-                if obstacle_geom >= 0:
-                    for i in range(d.ncon):
-                        c = d.contact[i]
-                        if obstacle_geom in (c.geom1, c.geom2):
-                            other = c.geom2 if c.geom1 == obstacle_geom else c.geom1
-                            touched.add(body_names[int(world.model.geom_bodyid[other])])
-                            if int(world.model.geom_bodyid[other]) in right_bodies:
-                                mujoco.mj_contactForce(world.model, d, i, cfr)
-                                force += float(np.linalg.norm(cfr[:3]))
-                wMe_r = right.get_wMf() @ right.get_fMe()
-                rows["time"].append(t + dt)
-                rows["phase"].append(phase)
-                rows["left_ee"].append((wMf_l @ left.get_fMe())[:3, 3])
-                rows["left_ref"].append(ref_w)
-                rows["right_ee"].append(wMe_r[:3, 3])
-                rows["tag"].append(d.xpos[meas.tag_body].copy())
-                true = meas.true_cMo()
-                rows["pbvs_error"].append(np.concatenate([true[:3, 3] - cdMo[:3, 3],
-                                                          _rotvec(cdMo[:3, :3] @ true[:3, :3].T)]))
-                rows["contact_force"].append(force)
-                rows["ft_force"].append(f_e.copy())
-                rows["visible"].append(visible)
+                log.record(t + dt, phase, left, ref_w, right)
     finally:
         if writer is not None:
             writer.close()
         world.close()
-    arr = {k: np.asarray(v) for k, v in rows.items()}
+    arr = {k: np.asarray(v) for k, v in log.rows.items()}
     settings = {"camera_rate_hz": camera_rate, "vision": vision, "obstacle": obstacle, "gc_time_s": gc_time,
-                "reach_time_s": reach_time, "circle_start_s": circle_start_t, "circle_ramp_s": circle_ramp,
+                "reach_time_s": reach_time, "circle_start_s": left.circle_start_t, "circle_ramp_s": circle_ramp,
                 "circle_radius_m": CIRCLE_RADIUS, "circle_frequency_hz": CIRCLE_FREQUENCY, "pbvs_gain": pbvs_gain,
                 "pbvs_depth_m": PBVS_DEPTH, "admittance_m_per_s_per_n": admittance,
                 "controllers_wall_time_us_per_tick": 1e6 * ctrl_time / n,
-                "bodies_touching_obstacle": sorted(touched), "force_filter_s": force_filter,
+                "bodies_touching_obstacle": sorted(log.touched), "force_filter_s": force_filter,
                 "command_filter_s": command_filter, "seed": seed,
                 "pixel_noise_px": pixel_noise,
                 "tag_holder_kg": TAG_HOLDER.mass, "control_rate_hz": 1.0 / dt, "log_rate_hz": log_rate,
                 "obstacle_top_z_m": float(OBSTACLE_POS[2] + OBSTACLE_HALF[2]) if obstacle else None}
     return DualArmResult(arr["time"], arr["phase"].astype(int), arr["left_ee"], arr["left_ref"], arr["right_ee"],
                          arr["tag"], arr["pbvs_error"], arr["contact_force"], arr["ft_force"],
-                         arr["visible"].astype(bool), settings, gc_drift, frames)
+                         arr["visible"].astype(bool), settings, left.gc_drift, frames)
 
 
 def _resize(img: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:

@@ -352,13 +352,13 @@ class FCIRobot:
         v = pose_error(self.O_T_EE_c, T_new) / dt  # [translation; rotation vector in O] per step
         a = (v - self.O_dP_EE_c) / dt
         j = (a - self.O_ddP_EE_c) / dt
-        checks = ((v, c.v_max, c.w_max, "velocity_limits_violation", "m/s"),
-                  (a, c.a_max, c.alpha_max, "velocity_discontinuity", "m/s^2"),
-                  (j, c.j_max, c.rot_j_max, "acceleration_discontinuity", "m/s^3"))
+        checks = ((v, c.v_max, c.w_max, "velocity_limits_violation", "m/s", 1.0 + 1e-9),
+                  (a, c.a_max, c.alpha_max, "velocity_discontinuity", "m/s^2", tol),
+                  (j, c.j_max, c.rot_j_max, "acceleration_discontinuity", "m/s^3", tol))
         if not self._first_command:
-            for vec, lin, rot, name, unit in checks:
+            for vec, lin, rot, name, unit, k in checks:
                 nl, nr = _norm3(vec[:3]), _norm3(vec[3:])
-                if nl > lin * tol or nr > rot * tol:
+                if nl > lin * k or nr > rot * k:
                     raise Reflex([f"cartesian_motion_generator_{name}"],
                                  f"commanded end-effector {nl:.3g} {unit} (limit {lin}), "
                                  f"rotation {nr:.3g} (limit {rot})")

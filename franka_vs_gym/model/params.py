@@ -1,8 +1,9 @@
 """Published parameters of the Franka Emika Robot (FER), the Franka Research 3 (FR3) and the Franka Hand.
 
-This module is the single source of the numbers the project takes from publications and datasheets. The MuJoCo
-plant (``franka_vs_gym.sim.plant``) and the pinocchio model (``franka_vs_gym.model.FrankaModel``) are both built
-from it; no number below is typed anywhere else.
+This module is the single source of the numbers the project takes from publications and datasheets. They are
+assembled into robot descriptions by :mod:`franka_vs_gym.model.description` (``FER``, ``FR3``), from which the MuJoCo
+plant (:mod:`franka_vs_gym.assets.mjcf`) and the pinocchio model (``franka_vs_gym.model.FrankaModel``) are both
+built; no number below is typed anywhere else, and no other module reads this one.
 
 Sources
 -------

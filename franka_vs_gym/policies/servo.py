@@ -52,13 +52,13 @@ def _read(observation: Any) -> dict[str, np.ndarray]:
 
 
 class _ServoPolicy:
-    def __init__(self, action_type: str, gain: AdaptiveGain | float, eMc: Any, model: Any) -> None:
+    def __init__(self, action_type: str, gain: AdaptiveGain | float, eMc: Any, model: Any, robot: Any = None) -> None:
         if action_type not in ACTION_TYPES:
             raise ValueError(f"action_type must be one of {ACTION_TYPES}, got {action_type!r}")
         self.action_type = action_type
         self.gain = gain if isinstance(gain, AdaptiveGain) else AdaptiveGain.constant(float(gain))
         self.eMc = np.array(DEFAULT_eMc if eMc is None else eMc, dtype=np.float64)
-        self.model = model if isinstance(model, FrankaModel) else FrankaModel(resolve_config(model))
+        self.model = model if isinstance(model, FrankaModel) else FrankaModel(resolve_config(model, robot))
         self.dq_max = self.model.limits()["dq_max"]
 
     def reset(self) -> None:
@@ -94,12 +94,14 @@ class IBVSPolicy(_ServoPolicy):
     tag_size : side of the tag (m), for the desired corner depths
     eMc : camera mount (4x4); must be the environment's (default the simulator's default mount)
     model : the FrankaModel (or config/path) giving eJe
+    robot : the arm ("fer", "fr3" or a RobotDescription) when ``model`` is not given; its joint velocity limits
+        bound the action
     """
 
     def __init__(self, action_type: str = "joint_velocity", interaction: str = "MEAN",
                  gain: AdaptiveGain | float | None = None, tag_size: float = 0.08, eMc: Any = None,
-                 model: Any = None) -> None:
-        super().__init__(action_type, AdaptiveGain() if gain is None else gain, eMc, model)
+                 model: Any = None, robot: Any = None) -> None:
+        super().__init__(action_type, AdaptiveGain() if gain is None else gain, eMc, model, robot)
         self.interaction = InteractionMatrixType(interaction)
         self.tag_size = float(tag_size)
         self._corners = tag_corners(self.tag_size)
@@ -126,8 +128,8 @@ class PBVSPolicy(_ServoPolicy):
     Parameters as :class:`IBVSPolicy` (no interaction choice: the PBVS interaction matrix is exact)."""
 
     def __init__(self, action_type: str = "joint_velocity", gain: AdaptiveGain | float | None = None,
-                 eMc: Any = None, model: Any = None) -> None:
-        super().__init__(action_type, AdaptiveGain() if gain is None else gain, eMc, model)
+                 eMc: Any = None, model: Any = None, robot: Any = None) -> None:
+        super().__init__(action_type, AdaptiveGain() if gain is None else gain, eMc, model, robot)
 
     def _camera_twist(self, o: dict[str, np.ndarray]) -> np.ndarray:
         v, _ = pbvs_velocity(pose_from_vector(o["tag_pose"]), pose_from_vector(o["tag_pose_desired"]), self.gain)

@@ -23,12 +23,13 @@ from franka_vs_gym.model.franka_model import FrankaModel
 OBSERVATION_KEYS = ("q", "dq", "q_desired", "dq_desired", "ddq_desired", "time")
 
 
-def _as_model(model: Any) -> FrankaModel:
-    """FrankaModel from a FrankaModel, ModelConfig, model-file path or None (the default FER + hand)."""
+def _as_model(model: Any, robot: Any = None) -> FrankaModel:
+    """FrankaModel from a FrankaModel, ModelConfig, model-file path or None (the default configuration of
+    ``robot``, the FER + hand when None)."""
     if isinstance(model, FrankaModel):
         return model
     try:
-        return FrankaModel(resolve_config(model))
+        return FrankaModel(resolve_config(model, robot))
     except TypeError as e:
         raise ValueError(f"model: {e}") from None
 
@@ -98,7 +99,8 @@ class ComputedTorquePolicy(_TorquePolicy):
     Parameters
     ----------
     model : FrankaModel, ModelConfig, model-file path or None
-        The controller's model (None: the default FER + Franka Hand).
+        The controller's model (None: the default FER + Franka Hand, or the default ``robot``).
+    robot : the arm ("fer", "fr3" or a RobotDescription) when ``model`` is not given
     kp, kd, ki, mu, friction :
         As :class:`franka_vs_gym.control.ComputedTorque` (Kp 400, 900 on joint 7; Kd critical; mu 4 1/s).
     clip : bool
@@ -106,9 +108,9 @@ class ComputedTorquePolicy(_TorquePolicy):
     """
 
     def __init__(self, model: Any = None, kp: Any = None, kd: Any = None, ki: Any = 0.0, mu: float = 4.0,
-                 friction: bool = True, clip: bool = True) -> None:
+                 friction: bool = True, clip: bool = True, robot: Any = None) -> None:
         super().__init__(clip)
-        self.controller = ComputedTorque(_as_model(model), kp=kp, kd=kd, ki=ki, mu=mu, friction=friction)
+        self.controller = ComputedTorque(_as_model(model, robot), kp=kp, kd=kd, ki=ki, mu=mu, friction=friction)
         self._set_limits()
 
     def _controller_reset(self) -> None:
@@ -131,6 +133,7 @@ class JointImpedancePolicy(_TorquePolicy):
     Parameters
     ----------
     model : FrankaModel, ModelConfig, model-file path or None
+    robot : the arm ("fer", "fr3" or a RobotDescription) when ``model`` is not given
     k, d, zeta, friction, natural_frequency :
         As :class:`franka_vs_gym.control.JointImpedance` (stiffness Nm/rad, damping Nm s/rad, omega rad/s).
     feedforward : bool
@@ -141,11 +144,11 @@ class JointImpedancePolicy(_TorquePolicy):
 
     def __init__(self, model: Any = None, k: Any = None, d: Any = None, zeta: float = 1.0,
                  feedforward: bool = True, friction: bool = True, natural_frequency: float | None = 10.0,
-                 clip: bool = True) -> None:
+                 clip: bool = True, robot: Any = None) -> None:
         super().__init__(clip)
         if k is None and natural_frequency is None:
             raise ValueError("give a stiffness k or a natural_frequency")
-        self.controller = JointImpedance(_as_model(model), k=JointImpedance.DEFAULT_K if k is None else k, d=d,
+        self.controller = JointImpedance(_as_model(model, robot), k=JointImpedance.DEFAULT_K if k is None else k, d=d,
                                          zeta=zeta, friction=friction,
                                          natural_frequency=None if k is not None else natural_frequency)
         self.feedforward = bool(feedforward)

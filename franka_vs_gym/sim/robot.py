@@ -70,7 +70,8 @@ def _no_op() -> None:
 
 
 class FrankaSim:
-    """A simulated Franka Emika Robot (FER) with the API of ViSP's vpRobotFranka.
+    """A simulated Franka arm (the FER by default, or any registered robot: ``robot="fr3"``) with the API of ViSP's
+    vpRobotFranka.
 
     Control states (``set_robot_state``): STOP, POSITION (``set_position`` moves there), VELOCITY (``set_velocity``
     in JOINT_STATE, END_EFFECTOR_FRAME, CAMERA_FRAME or REFERENCE_FRAME) and FORCE_TORQUE (``set_force_torque``

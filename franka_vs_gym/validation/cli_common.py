@@ -3,21 +3,35 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
-from franka_vs_gym.validation.signals import CleanSettings
+from franka_vs_gym.validation.signals import GAP_FACTOR, CleanSettings
 
 
 def add_common(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("log", help="measurement log: CSV or NPZ (with optional <log>.json sidecar), or a Gaz et al. "
-                                    "2019 text folder")
+    parser.add_argument("log", help="measurement log: CSV or NPZ (with optional <log>.json sidecar), a ROS 2 bag "
+                                    "folder (sqlite3 or MCAP) or .mcap file of sensor_msgs/JointState, a libfranka "
+                                    "logToCSV file, or a Gaz et al. 2019 text folder")
     parser.add_argument("--model", metavar="FILE", default=None,
                         help="calibrated model file (JSON) to compare; default: the FER with the log's declared tool")
     parser.add_argument("--rigid-body", action="store_true",
                         help="start from the model without any joint friction (rigid-body model)")
-    parser.add_argument("--cutoff", type=float, default=CleanSettings.cutoff,
-                        help=f"zero-phase low-pass cutoff for q and dq, Hz (default {CleanSettings.cutoff})")
-    parser.add_argument("--rate", type=float, default=CleanSettings.rate,
-                        help=f"resampling rate, Hz (default {CleanSettings.rate:.0f})")
+    parser.add_argument("--robot", default=None,
+                        help="the robot the log comes from: a registered name (fer, fr3, ...; default fer)")
+    parser.add_argument("--tool", choices=("franka_hand", "none", "unknown"), default=None,
+                        help="the tool on the flange (default: what the log declares, else the Franka Hand); "
+                             "'unknown' fits the tool's mass, centre of mass and inertia")
+    parser.add_argument("--topic", default=None,
+                        help="ROS bag: the sensor_msgs/JointState topic to read (default: the only one, or "
+                             "/joint_states)")
+    parser.add_argument("--cutoff", type=float, default=None,
+                        help="zero-phase low-pass cutoff for q and dq, Hz (default 10, or a quarter of the rate for "
+                             "logs slower than 40 Hz)")
+    parser.add_argument("--rate", type=float, default=None,
+                        help="resampling rate, Hz (default: the log's own median rate, at most 1000)")
+    parser.add_argument("--max-gap", type=float, default=None, metavar="SECONDS",
+                        help=f"longest gap bridged by interpolation, s (default {GAP_FACTOR:g} median sample periods "
+                             "of the log, at least 0.05)")
     parser.add_argument("--report", metavar="DIR", default=None,
                         help="write a Markdown report with figures into DIR")
     parser.add_argument("--force", action="store_true", help="overwrite existing output files")
@@ -25,4 +39,25 @@ def add_common(parser: argparse.ArgumentParser) -> None:
 
 
 def settings_from(args: argparse.Namespace) -> CleanSettings:
-    return CleanSettings(rate=args.rate, cutoff=args.cutoff)
+    return CleanSettings(rate=args.rate, cutoff=args.cutoff, max_gap=args.max_gap)
+
+
+def load_from(args: argparse.Namespace):
+    """The log named on the command line, read with the --topic option (a path stays a path when not needed)."""
+    from franka_vs_gym.validation.logs import load_log
+
+    return load_log(args.log, topic=args.topic)
+
+
+def input_paths(args: argparse.Namespace) -> list[Path]:
+    """Every file the command reads (the log, its sidecars, the files of a log folder, --model): no output may be
+    one of them, whatever --force says."""
+    from franka_vs_gym.validation.logs import sidecar_path
+
+    log = Path(args.log)
+    paths = [log, sidecar_path(log), log.with_suffix(".json")]
+    if log.is_dir():
+        paths += [p for p in log.rglob("*") if p.is_file()]
+    if getattr(args, "model", None):
+        paths.append(Path(args.model))
+    return paths

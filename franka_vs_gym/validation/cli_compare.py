@@ -6,7 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
-from franka_vs_gym.validation.cli_common import add_common, settings_from
+from franka_vs_gym.validation.cli_common import add_common, input_paths, load_from, settings_from
 from franka_vs_gym.validation.compare import compare, format_compare, progress
 
 
@@ -21,15 +21,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from franka_vs_gym.io import OutputSet
-    from franka_vs_gym.validation.logs import sidecar_path
 
     verbose = not args.quiet
-    inputs = [p for p in (args.log, sidecar_path(args.log), args.model) if p]
     # the report folder is refused (exists without --force, is an input...) before the comparison runs, and
     # appears complete or not at all
-    with OutputSet(force=args.force, inputs=inputs) as outputs:
+    with OutputSet(force=args.force, inputs=input_paths(args)) as outputs:
         report_tmp = outputs.folder(args.report, what="report folder") if args.report else None
-        res = compare(args.log, args.model, rigid_body=args.rigid_body, settings=settings_from(args),
+        res = compare(load_from(args), args.model, tool=args.tool, robot=args.robot, rigid_body=args.rigid_body,
+                      settings=settings_from(args),
                       do_replay=not args.no_replay, replay_mode=args.replay_mode, verbose=verbose)
         if report_tmp is not None:
             from franka_vs_gym.validation.report import markdown_report

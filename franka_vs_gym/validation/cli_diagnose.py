@@ -1,9 +1,13 @@
-"""``franka-vs diagnose LOG [--json] [--model FILE]``: which physical effect does the model lack?
+"""``franka-vs diagnose LOG [--json] [--model FILE] [--effects E1,E2|my_effects.py]``: which physical effects does
+the model lack, and is anything left that the library cannot name?
 
-``--json`` prints one JSON object: ``rmse_tau`` (7, Nm), ``rmse_tau_total``, ``noise_floor`` (7), ``ranking`` (best
-first: ``effect``, ``joints``, ``params``, ``rmse_tau_after``, ``score``, plus ``significant``, ``plausible``,
-``removed_rms``), ``verdict`` (the top effect or ``"none"``) and ``selected`` (effects to add together, stopping at
-the noise floor). Progress goes to stderr.
+``--json`` prints one JSON object: ``rmse_tau`` (7, Nm), ``rmse_tau_total``, ``noise_floor`` (7), ``ranking`` (each
+effect alone, best first: ``effect``, ``joints``, ``params``, ``rmse_tau_after``, ``score``, ``significant``,
+``plausible``, ``removed_rms``, ``problems``), ``verdict`` (the strongest selected effect or ``"none"``),
+``selected`` (the set fitted together: ``effect``, ``joints``, ``params``, ``contribution`` (Nm removed per joint in
+context), ``score``), ``rmse_tau_selected``, ``explained`` and ``unexplained`` (what the residual still follows),
+``assumptions`` (tool, gravity, rate, cleaning, warnings) and ``notes`` (why effects were rejected). Progress goes to
+stderr.
 """
 
 from __future__ import annotations
@@ -13,29 +17,29 @@ import json
 
 import numpy as np
 
-from franka_vs_gym.validation.cli_common import add_common, settings_from
+from franka_vs_gym.validation.cli_common import add_common, input_paths, load_from, settings_from
 from franka_vs_gym.validation.compare import progress
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_common(parser)
     parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
-    parser.add_argument("--effects", default=None, metavar="E1,E2",
-                        help="candidate effects (default: the whole library)")
+    parser.add_argument("--effects", default=None, metavar="E1,E2|FILE.py",
+                        help="candidate effects (default: the whole library); a .py file is a plug-in whose Effect "
+                             "classes are ranked with the library's")
 
 
 def main(args: argparse.Namespace) -> int:
-    from franka_vs_gym.io import OutputSet
     from franka_vs_gym.validation.diagnose import diagnose
-    from franka_vs_gym.validation.logs import sidecar_path
 
     verbose = not args.quiet
     effects = None if args.effects is None else [e for e in args.effects.split(",") if e.strip()]
-    inputs = [p for p in (args.log, sidecar_path(args.log), args.model) if p]
-    with OutputSet(force=args.force, inputs=inputs) as outputs:
+    from franka_vs_gym.io import OutputSet
+
+    with OutputSet(force=args.force, inputs=input_paths(args)) as outputs:
         report_tmp = outputs.folder(args.report, what="report folder") if args.report else None
-        d = diagnose(args.log, args.model, rigid_body=args.rigid_body, effects=effects, settings=settings_from(args),
-                     verbose=verbose)
+        d = diagnose(load_from(args), args.model, rigid_body=args.rigid_body, effects=effects,
+                     settings=settings_from(args), verbose=verbose, tool=args.tool, robot=args.robot)
         if report_tmp is not None:
             from franka_vs_gym.validation.compare import compare
             from franka_vs_gym.validation.report import markdown_report
@@ -48,14 +52,29 @@ def main(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(d.to_dict()))
         return 0
+    a = d.assumptions
+    print(f"assumptions: tool {a['tool']} ({a['tool_source']}), gravity {a['gravity_m_per_s2']} m/s^2, log rate "
+          f"{a['log_rate_hz']} Hz, processed at {a['resampled_to_hz']:g} Hz, low-pass {a['cleaning']['lowpass_hz']:g} "
+          f"Hz, {a['cleaning']['stale_rows_dropped']} stale rows dropped")
+    for w in a["warnings"]:
+        print(f"warning: {w}")
     print(f"baseline RMSE (Nm): {np.round(d.rmse_tau, 3).tolist()}  total {d.rmse_tau_total:.3f}")
     print(f"noise floor   (Nm): {np.round(d.noise_floor, 3).tolist()}")
+    print("each effect alone:")
     print("rank  effect                               score  sig  plaus  joints                 RMSE after (Nm)")
     for i, c in enumerate(d.ranking):
         print(f"{i + 1:4d}  {c.effect:34s} {c.score:8.1f}  {'yes' if c.significant else 'no ':3s}  "
               f"{'yes' if c.plausible else 'no ':5s}  {str(c.joints):22s} {np.round(c.rmse_tau_after, 3).tolist()}")
     print(f"verdict: {d.verdict}")
+    for s in d.selection:
+        print(f"selected: {s.effect:26s} joints {s.joints}  removes (Nm) {np.round(s.contribution, 3).tolist()}")
+    if d.rmse_tau_selected is not None and d.selection:
+        print(f"held-out RMSE with the selected set (Nm): {np.round(d.rmse_tau_selected, 3).tolist()}")
+    for n in d.notes:
+        print(f"note: {n}")
+    if d.unexplained is not None:
+        print(f"explained: {'yes' if d.unexplained.explained else 'NO'} - {' '.join(d.unexplained.text)}")
     if d.selected:
-        print(f"add together (down to the noise floor): {','.join(d.selected)}  ->  "
-              f"franka-vs fit {args.log} --add {','.join(d.selected)} -o calibrated.json")
+        names = [s.effect for s in d.selection]
+        print(f"add together: franka-vs fit {args.log} --add {','.join(names)} -o calibrated.json")
     return 0

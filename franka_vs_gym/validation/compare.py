@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from franka_vs_gym.model.config import Friction, ModelConfig, Tool, resolve_config
+from franka_vs_gym.model.description import robot_description
 from franka_vs_gym.validation.evaluate import ModelEvaluation, delay_channel, evaluate, shift
 from franka_vs_gym.validation.logs import MeasurementLog, load_log
 from franka_vs_gym.validation.signals import CleanSettings, ProcessedLog, clean
@@ -50,13 +51,24 @@ def tool_from_log(log: MeasurementLog) -> Tool:
     return Tool.from_dict({"name": "custom", **t})
 
 
-def baseline_config(log: MeasurementLog, model: Any = None, rigid_body: bool = False) -> ModelConfig:
+TOOLS = ("franka_hand", "none", "unknown")
+
+
+def baseline_config(log: MeasurementLog, model: Any = None, rigid_body: bool = False,
+                    tool: str | None = None, robot: Any = None) -> ModelConfig:
     """The model to start from: ``model`` (a ModelConfig or a calibrated-model file) if given, else the library's
-    default FER with the log's declared tool and gravity. ``rigid_body`` removes all friction."""
+    default FER with the log's declared tool and gravity. ``rigid_body`` removes all friction. ``tool`` overrides
+    the tool: "franka_hand", "none", or "unknown" (no tool in the model; ``diagnose`` and ``fit`` then fit the
+    tool's mass, centre of mass and inertia as a payload). ``robot`` (a registered name such as "fer" or "fr3", or a
+    RobotDescription) chooses the robot (default the FER; a model file for another robot is an error)."""
+    if tool is not None and tool not in TOOLS:
+        raise ValueError(f"unknown --tool {tool!r}: choose from {', '.join(TOOLS)}")
     if model is not None:
-        cfg = resolve_config(model)
+        cfg = resolve_config(model, robot)
     else:
-        cfg = ModelConfig(tool=tool_from_log(log), gravity=log.gravity)
+        cfg = ModelConfig(robot=robot_description(robot), tool=tool_from_log(log), gravity=log.gravity)
+    if tool is not None:
+        cfg = cfg.copy(tool=Tool.franka_hand() if tool == "franka_hand" else Tool.none())
     if rigid_body:
         cfg = cfg.copy(friction=Friction.none())
     return cfg
@@ -127,7 +139,14 @@ class CompareResult:
             "duration_s": round(float(self.data.time[-1] - self.data.time[0]), 4),
             "cleaning": self.data.report.to_dict(), "concentration": self.concentration,
             "replay": None if self.replay is None else self.replay.to_dict(),
+            "assumptions": self.assumptions(),
         }
+
+    def assumptions(self) -> dict[str, Any]:
+        """Tool, gravity, rate and cleaning this comparison assumed (see ``structure.assumptions_of``)."""
+        from franka_vs_gym.validation.structure import assumptions_of
+
+        return assumptions_of(self.data, self.config)
 
 
 def concentration_table(data: ProcessedLog, residual: np.ndarray, n_windows: int = 10) -> list[dict[str, Any]]:
@@ -216,7 +235,7 @@ def replay(data: ProcessedLog, config: ModelConfig, mode: str | None = None) -> 
     if mode == "controller":
         ctrl_cfg = ctrl_meta.get("model")
         cmodel = FrankaModel(ModelConfig.from_dict(ctrl_cfg) if isinstance(ctrl_cfg, dict) else
-                             baseline_config(log))
+                             baseline_config(log, robot=config.robot))
         # the gains and model of the logged eq. (2); the smooth start is over, so its term is left out
         ki = ctrl_meta.get("ki")
         ref = ComputedTorque(cmodel, kp=ctrl_meta.get("kp"), kd=ctrl_meta.get("kd"), ki=0.0 if ki is None else ki)
@@ -258,11 +277,11 @@ def replay(data: ProcessedLog, config: ModelConfig, mode: str | None = None) -> 
 
 def compare(log: MeasurementLog | ProcessedLog | str, model: Any = None, *, rigid_body: bool = False,
             settings: CleanSettings | None = None, do_replay: bool = True, replay_mode: str | None = None,
-            verbose: bool = False) -> CompareResult:
+            verbose: bool = False, tool: str | None = None, robot: Any = None) -> CompareResult:
     """Compare ``model`` (default: the baseline for the log, see :func:`baseline_config`) with a log."""
     progress("cleaning the log", verbose)
     data = as_processed(log, settings)
-    cfg = baseline_config(data.log, model, rigid_body)
+    cfg = baseline_config(data.log, model, rigid_body, tool=tool, robot=robot)
     progress(f"inverse dynamics on {data.n} samples", verbose)
     ev = evaluate(cfg, data)
     r = data.tau - ev.predicted
@@ -284,6 +303,11 @@ def format_compare(res: CompareResult) -> str:
                      f"{w['t0']:6.1f}-{w['t1']:6.1f} ({w['rmse']:.3f})   {reg['error_share'] * 100:4.0f}% in "
                      f"{reg['regime']}")
     lines.append(f"total  {res.rmse_tau_total:8.3f}  (Nm)")
+    a = res.assumptions()
+    lines.append(f"assumptions: tool {a['tool']} ({a['tool_source']}), gravity {a['gravity_m_per_s2']} m/s^2, log "
+                 f"rate {a['log_rate_hz']} Hz, processed at {a['resampled_to_hz']:g} Hz, low-pass "
+                 f"{a['cleaning']['lowpass_hz']:g} Hz, {a['cleaning']['stale_rows_dropped']} stale rows dropped")
+    lines += [f"warning: {w}" for w in a["warnings"]]
     if res.replay is not None:
         rp = res.replay
         lines.append(f"replay ({rp.mode}): RMSE_q = {np.round(rp.rmse_q, 4).tolist()} rad")

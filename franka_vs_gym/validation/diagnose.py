@@ -18,18 +18,22 @@ Method (all on the inverse-dynamics residual ``r = tau_J - tau_model`` of the ba
 4. **Plausibility.** Fitted parameters are checked for sign and magnitude (negative friction, a 5 kg payload, a 40
    degree tilt, a negative delay are rejected); implausible joints are dropped, an implausible effect is ranked
    after the plausible ones and cannot be the verdict.
-5. **Collinear groups.** Two significant effects whose fitted contributions are strongly correlated
-   (|cos| > ``COLLINEAR``) are also fitted together (alternating least squares); the group enters the ranking when it
-   beats its best member by ``SCORE_MIN`` and removes an extra error of at least ``GROUP_PRACTICAL`` times the
-   noise floor on some joint.
-6. **Selection.** Starting from the baseline, significant effects are added greedily while each one is significant
-   with respect to the model that already has the previous ones, and stopping when the held-out RMSE of every joint
-   is within ``FLOOR_STOP`` of the noise floor.
+5. **Selection in context.** Starting from the baseline, every candidate is fitted *jointly* with the effects
+   already selected (its joints and parameters re-chosen in that context; :mod:`~franka_vs_gym.validation.selection`
+   does this from cached Gram matrices), the best significant plausible one is added, and a **backward pass**
+   re-tests each earlier selection with the new one in (dropped when its score in context falls below
+   ``SCORE_MIN``). Rounds stop when nothing significant is left or every joint is within ``FLOOR_STOP`` of the
+   noise floor.
+6. **Collinear groups.** Promising candidates whose contributions are strongly correlated (abs(cos) >
+   ``COLLINEAR``) are also fitted together; the group is taken when it beats its best member by ``SCORE_MIN`` and
+   removes an extra error of at least ``GROUP_PRACTICAL`` times the noise floor on some joint.
+7. **What remains.** The residual of the selected set is tested for structure (see
+   :mod:`~franka_vs_gym.validation.structure`): ``explained`` is false when something above the noise follows the
+   motion, the pose, the load or time, and the report says what.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -37,9 +41,20 @@ import numpy as np
 
 from franka_vs_gym.model.config import ModelConfig
 from franka_vs_gym.validation.compare import as_processed, baseline_config, progress, rmse
-from franka_vs_gym.validation.effects import COMMAND_DELAY, LIBRARY, Context, Effect, Fit, get_effect
+from franka_vs_gym.validation.effects import (
+    COMMAND_DELAY,
+    REGISTRY,
+    Context,
+    Effect,
+    EffectRegistry,
+    Fit,
+    NotApplicable,
+    get_effect,
+    load_plugin,
+)
 from franka_vs_gym.validation.evaluate import evaluate
 from franka_vs_gym.validation.logs import MeasurementLog
+from franka_vs_gym.validation.selection import Engine, SetFit, Term, n_eff
 from franka_vs_gym.validation.signals import CleanSettings, ProcessedLog
 
 SCORE_MIN = 10.0
@@ -49,38 +64,13 @@ GROUP_PRACTICAL = 0.25
 COLLINEAR = 0.8
 FLOOR_STOP = 1.05
 FOLDS = 5
-
-
-def n_eff(r: np.ndarray, max_lag: int = 2000) -> np.ndarray | float:
-    """Effective number of independent samples of a series r (N,) or of each column of r (N, k):
-    N / tau_int with tau_int = 1 + 2 * (sum of the autocorrelations up to the first non-positive one)."""
-    x = np.asarray(r, dtype=np.float64)
-    one = x.ndim == 1
-    if one:
-        x = x[:, None]
-    n = x.shape[0]
-    x = x - x.mean(axis=0)
-    var = np.einsum("nk,nk->k", x, x)
-    lag = min(max_lag, n - 1)
-    m = 1 << int(np.ceil(np.log2(n + lag + 1)))
-    f = np.fft.rfft(x, m, axis=0)
-    ac = np.fft.irfft(f.real ** 2 + f.imag ** 2, m, axis=0)[: lag + 1] / np.maximum(var, 1e-300)
-    out = np.empty(x.shape[1])
-    for c in range(x.shape[1]):
-        if var[c] <= 0:
-            out[c] = n
-            continue
-        neg = np.nonzero(ac[1:, c] <= 0)[0]
-        k = int(neg[0]) if len(neg) else lag
-        tau = 1.0 + 2.0 * float(ac[1:k + 1, c].sum())
-        out[c] = n / max(tau, 1.0)
-    return float(out[0]) if one else out
+HOLDOUT = 0.25
 
 
 @dataclass
 class Candidate:
     """One ranking entry: an effect (or a group "a+b") with its joints, parameters, held-out RMSE per joint (Nm),
-    score, and flags."""
+    score, and flags. ``problems`` says why an effect is not plausible (sign, magnitude, physical range)."""
 
     effect: str
     members: list[str]
@@ -94,6 +84,12 @@ class Candidate:
     removed_rms: np.ndarray = field(default_factory=lambda: np.zeros(7))
     joint_scores: np.ndarray = field(default_factory=lambda: np.zeros(7))
     fits: list[Fit] = field(default_factory=list)
+    terms: list[Term] = field(default_factory=list)
+    mse_cv: np.ndarray | None = None
+
+    @property
+    def ok(self) -> bool:
+        return self.significant and self.plausible
 
     def to_dict(self) -> dict[str, Any]:
         d = {"effect": self.effect, "joints": list(map(int, self.joints)), "params": self.params,
@@ -108,24 +104,66 @@ class Candidate:
 
 
 @dataclass
+class Selected:
+    """One effect of the selected set: its joints, parameters (fitted jointly with the rest of the set), the error it
+    removes per joint in the context of the others (``contribution``, Nm: sqrt(MSE without it - MSE with it), held
+    out) and its score in that context."""
+
+    effect: str
+    joints: list[int]
+    params: dict[str, Any]
+    contribution: np.ndarray
+    score: float
+    channel: str = "inverse_dynamics"
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"effect": self.effect, "joints": list(map(int, self.joints)), "params": self.params,
+                "contribution": np.round(self.contribution, 4).tolist(), "score": round(float(self.score), 2),
+                "channel": self.channel}
+
+
+@dataclass
 class Diagnosis:
-    """Result of :func:`diagnose`: baseline RMSE (7,), total, noise floor (7,), ranking (best first), verdict,
-    selected effects (greedy, stopping at the noise floor) and the baseline configuration."""
+    """Result of :func:`diagnose`: baseline RMSE (7,) Nm, total, noise floor (7,), ranking (each effect alone, best
+    first), verdict (the strongest selected effect or "none"), the selected set (``selection``; ``selected`` its
+    names), the held-out RMSE of the selected set (7,), the structure test of what remains (``unexplained``), the
+    stated assumptions, notes (rejections and warnings), the baseline configuration and the context."""
 
     rmse_tau: np.ndarray
     rmse_tau_total: float
     noise_floor: np.ndarray
     ranking: list[Candidate]
     verdict: str
-    selected: list[str]
+    selection: list[Selected]
     config: ModelConfig
     context: Context
+    rmse_tau_selected: np.ndarray | None = None
+    unexplained: Any = None
+    assumptions: dict[str, Any] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+    residual: np.ndarray | None = None
+
+    @property
+    def selected(self) -> list[str]:
+        return [s.effect for s in self.selection]
+
+    @property
+    def explained(self) -> bool:
+        return self.unexplained is None or self.unexplained.explained
 
     def to_dict(self) -> dict[str, Any]:
-        return {"rmse_tau": np.round(self.rmse_tau, 4).tolist(), "rmse_tau_total": round(float(self.rmse_tau_total), 4),
-                "noise_floor": np.round(self.noise_floor, 4).tolist(),
-                "ranking": [c.to_dict() for c in self.ranking], "verdict": self.verdict,
-                "selected": list(self.selected)}
+        d = {"rmse_tau": np.round(self.rmse_tau, 4).tolist(), "rmse_tau_total": round(float(self.rmse_tau_total), 4),
+             "noise_floor": np.round(self.noise_floor, 4).tolist(),
+             "ranking": [c.to_dict() for c in self.ranking], "verdict": self.verdict,
+             "selected": [s.to_dict() for s in self.selection]}
+        if self.rmse_tau_selected is not None:
+            d["rmse_tau_selected"] = np.round(self.rmse_tau_selected, 4).tolist()
+        if self.unexplained is not None:
+            d["explained"] = bool(self.unexplained.explained)
+            d["unexplained"] = self.unexplained.to_dict()
+        d["assumptions"] = self.assumptions
+        d["notes"] = list(self.notes)
+        return d
 
 
 def _folds(n: int, k: int) -> list[np.ndarray]:
@@ -133,196 +171,392 @@ def _folds(n: int, k: int) -> list[np.ndarray]:
     return [np.arange(edges[i], edges[i + 1]) for i in range(k)]
 
 
-def _fit_set(ctx: Context, members: list[tuple[Effect, list[int] | None]], y: np.ndarray, idx: np.ndarray,
-             rounds: int = 3) -> tuple[list[Fit], np.ndarray]:
-    """Fit several effects together on samples idx by alternating least squares; returns fits and the total
-    contribution (N, 7)."""
-    k = len(members)
-    contrib = [np.zeros_like(y) for _ in range(k)]
-    fits: list[Fit] = [None] * k  # type: ignore[list-item]
-    for _ in range(1 if k == 1 else rounds):
-        for i, (e, joints) in enumerate(members):
-            others = sum((contrib[m] for m in range(k) if m != i), np.zeros_like(y))
-            f = e.fit(ctx, y - others, idx)
-            if joints is not None:
-                f.joints = list(joints)
-            fits[i] = f
-            contrib[i] = e.contribution(ctx, f)
-    return fits, sum(contrib, np.zeros_like(y))
+class _Selector:
+    """In-context forward selection with a backward pass, on one Engine."""
 
+    def __init__(self, ctx: Context, eng: Engine, noise: np.ndarray, effects: list[Effect], verbose: bool) -> None:
+        self.ctx, self.eng, self.noise, self.effects, self.verbose = ctx, eng, noise, effects, verbose
+        self.rejections: dict[str, str] = {}
 
-def _cross_validate(ctx: Context, members, y: np.ndarray, folds: list[np.ndarray]) -> np.ndarray:
-    out = np.empty_like(y)
-    n = ctx.n
-    for blk in folds:
-        mask = np.ones(n, dtype=bool)
-        mask[blk] = False
-        _, c = _fit_set(ctx, members, y, np.nonzero(mask)[0])
-        out[blk] = y[blk] - c[blk]
-    return out
+    def _neff(self, sf: SetFit) -> np.ndarray:
+        return np.maximum(np.asarray(n_eff(self.eng.residual(sf))), 2.0)
 
+    def _gain(self, mse0: np.ndarray, mse1: np.ndarray, neff: np.ndarray) -> np.ndarray:
+        return neff * np.log(np.maximum(mse0, 1e-30) / np.maximum(mse1, 1e-30))
 
-def _score(ctx: Context, members, y: np.ndarray, folds, noise: np.ndarray, mse0: np.ndarray | None = None):
-    """Held-out evaluation of a set of effects on target y: returns dict with mse1, neff, joint scores, etc."""
-    r_cv = _cross_validate(ctx, members, y, folds)
-    mse0 = np.mean(y ** 2, axis=0) if mse0 is None else mse0
-    mse1 = np.mean(r_cv ** 2, axis=0)
-    neff = n_eff(r_cv)
-    gain = neff * np.log(mse0 / np.maximum(mse1, 1e-30))
-    removed = np.sqrt(np.maximum(mse0 - mse1, 0.0))
-    return {"mse0": mse0, "mse1": mse1, "neff": neff, "gain": gain, "removed": removed, "r_cv": r_cv}
-
-
-def _evaluate_candidate(ctx: Context, members: list[Effect], y: np.ndarray, folds, noise: np.ndarray,
-                        joints_fixed: list[list[int] | None] | None = None) -> Candidate:
-    spec = [(e, None if joints_fixed is None else joints_fixed[i]) for i, e in enumerate(members)]
-    s = _score(ctx, spec, y, folds, noise)
-    mse0, mse1, neff, gain, removed = s["mse0"], s["mse1"], s["neff"], s["gain"], s["removed"]
-    # final fit on all samples
-    fits, _ = _fit_set(ctx, spec, y, np.arange(ctx.n))
-    problems: list[str] = []
-    joint_bad: set[int] = set()
-    for e, f in zip(members, fits, strict=True):
-        for j, msg in e.problems(ctx, f).items():
-            if j < 0:
-                problems.append(f"{e.name}: {msg}")
+    def try_add(self, base: list[Term], base_fit: SetFit, neff: np.ndarray, e: Effect) -> Candidate:
+        eng, noise = self.eng, self.noise
+        target = eng.residual(base_fit)
+        shape = e.shape(self.ctx, target)
+        mse0 = base_fit.mse_cv
+        problems: list[str] = []
+        ln_n = np.log(neff)
+        if e.per_joint:
+            sf_all = eng.fit(base + [Term(e, shape, list(range(7)))])
+            if not base:  # ranking: the effective sample size of what would remain with the candidate alone
+                neff = np.maximum(neff, self._neff(sf_all))
+                ln_n = np.log(neff)
+            js = self._gain(mse0, sf_all.mse_cv, neff) - e.n_params * ln_n
+            removed = np.sqrt(np.maximum(mse0 - sf_all.mse_cv, 0.0))
+            keep = [j for j in range(7) if js[j] > JOINT_SCORE_MIN and removed[j] >= PRACTICAL * noise[j]]
+            sf = sf_all
+            bad: dict[int, str] = {}
+            if keep:
+                sf = eng.fit(base + [Term(e, shape, keep)])
+                bad = e.problems(self.ctx, sf.fits[-1])
+                if any(j >= 0 for j in bad):
+                    problems += [f"joint {j}: {m}" for j, m in sorted(bad.items()) if j >= 0]
+                    keep = [j for j in keep if j not in bad]
+                    sf = eng.fit(base + [Term(e, shape, keep)]) if keep else sf_all
+                problems += [m for j, m in bad.items() if j < 0]
+            gain = self._gain(mse0, sf.mse_cv, neff)
+            removed = np.sqrt(np.maximum(mse0 - sf.mse_cv, 0.0))
+            if keep and float(gain[keep].sum() - e.n_params * ln_n[keep].sum()) > SCORE_MIN:
+                # a significant effect also takes the joints where it removes an error of practical size on held-out
+                # data even if their own evidence is weak (few effective samples when structure remains)
+                removed_all = np.sqrt(np.maximum(mse0 - sf_all.mse_cv, 0.0))
+                more = [j for j in range(7) if j not in keep and j not in bad and js[j] + e.n_params * ln_n[j] > 0
+                        and removed_all[j] >= 2 * PRACTICAL * noise[j]]
+                if more:
+                    trial = eng.fit(base + [Term(e, shape, sorted(keep + more))])
+                    bad2 = e.problems(self.ctx, trial.fits[-1])
+                    if not bad2:
+                        keep, sf = sorted(keep + more), trial
+                        gain = self._gain(mse0, sf.mse_cv, neff)
+                        removed = np.sqrt(np.maximum(mse0 - sf.mse_cv, 0.0))
+            if keep:
+                score = float(gain[keep].sum() - e.n_params * ln_n[keep].sum())
             else:
-                joint_bad.add(j)
-    single = len(members) == 1
-    e0 = members[0]
-    if single and e0.per_joint:
-        js = gain - e0.n_params * np.log(neff)
-        keep = [j for j in range(7) if js[j] > JOINT_SCORE_MIN and j not in joint_bad
-                and removed[j] >= PRACTICAL * noise[j]]
-        score = float(js[keep].sum()) if keep else float(min(js.max(), 0.0))
-        after = np.sqrt(mse0.copy())
-        after[keep] = np.sqrt(mse1[keep])
-        for f in fits:
-            f.joints = keep
-        joints = keep
-        plausible = not problems and bool(keep or not joint_bad)
-        practical = bool(keep)
-    else:
-        k = sum(e.n_params * (7 if e.per_joint else 1) for e in members)
-        js = gain.copy()
-        score = float(gain.sum() - k * np.log(max(neff.mean(), 2.0)))
-        joints = [j for j in range(7) if removed[j] >= PRACTICAL * noise[j] and gain[j] > 0]
-        after = np.sqrt(mse1)
-        per_joint_problems = [f"joint {j}: implausible" for j in sorted(joint_bad)]
-        problems += per_joint_problems
-        plausible = not problems
-        practical = bool(joints)
-    params: dict[str, Any] = {}
-    for e, f in zip(members, fits, strict=True):
-        pub = e.public(f)
-        if len(members) > 1:
-            params[e.name] = pub
+                score = float(min(js.max(), 0.0))
+            joints = keep
+            practical = bool(keep)
+            plausible = not any(not m.startswith("joint ") for m in problems) and bool(keep or not problems)
+            after = np.sqrt(mse0.copy())
+            after[keep] = np.sqrt(sf.mse_cv[keep])
+            fit = sf.fits[-1]
+            fit.joints = list(keep)
         else:
-            params.update(pub)
-    if single and e0.name == "gravity_tilt":
-        params["tilt_deg"] = round(e0.tilt_deg(ctx, fits[0]), 4)
-    significant = bool(score > SCORE_MIN and practical)
-    return Candidate("+".join(e.name for e in members), [e.name for e in members], joints, params, after, score,
-                     significant, plausible, problems, removed, js, fits)
+            sf = eng.fit(base + [Term(e, shape)])
+            if not base:
+                neff = np.maximum(neff, self._neff(sf))
+            gain = self._gain(mse0, sf.mse_cv, neff)
+            js = gain
+            removed = np.sqrt(np.maximum(mse0 - sf.mse_cv, 0.0))
+            score = float(gain.sum() - e.n_params * np.log(max(float(neff.mean()), 2.0)))
+            joints = [j for j in range(7) if removed[j] >= PRACTICAL * noise[j] and gain[j] > 0]
+            practical = bool(joints)
+            fit = sf.fits[-1]
+            problems += [m for m in e.problems(self.ctx, fit).values()]
+            plausible = not problems
+            after = np.sqrt(sf.mse_cv)
+        params = e.public(fit)
+        t = e.tilt_deg(self.ctx, fit)
+        if t is not None:
+            params["tilt_deg"] = round(t, 4)
+        significant = bool(score > SCORE_MIN and practical)
+        term = Term(e, shape, list(joints) if e.per_joint else None)
+        return Candidate(e.name, [e.name], list(joints), params, after, score, significant, plausible,
+                         [f"{e.name}: {m}" for m in problems], removed, js, [fit], [term], sf.mse_cv)
 
+    def try_group(self, base: list[Term], base_fit: SetFit, neff: np.ndarray, a: Candidate, b: Candidate,
+                  ) -> Candidate:
+        terms = []
+        for c in (a, b):
+            t = c.terms[0]
+            if t.effect.per_joint:
+                js = c.joints or [j for j in range(7) if c.joint_scores[j] > 0] or list(range(7))
+                t = Term(t.effect, t.shape, js)
+            terms.append(t)
+        sf = self.eng.fit(base + terms)
+        mse0 = base_fit.mse_cv
+        gain = self._gain(mse0, sf.mse_cv, neff)
+        k = sum(t.k() for t in terms)
+        score = float(gain.sum() - k * np.log(max(float(neff.mean()), 2.0)))
+        removed = np.sqrt(np.maximum(mse0 - sf.mse_cv, 0.0))
+        joints = [j for j in range(7) if removed[j] >= PRACTICAL * self.noise[j] and gain[j] > 0]
+        problems = []
+        for t, f in zip(terms, sf.fits[-2:], strict=True):
+            problems += [f"{t.effect.name}: {m}" for m in t.effect.problems(self.ctx, f).values()]
+        params = {t.effect.name: t.effect.public(f) for t, f in zip(terms, sf.fits[-2:], strict=True)}
+        return Candidate(f"{a.effect}+{b.effect}", [a.effect, b.effect], joints, params, np.sqrt(sf.mse_cv), score,
+                         bool(score > SCORE_MIN and joints), not problems, problems, removed, gain, sf.fits[-2:],
+                         terms, sf.mse_cv)
 
-def _is_command(c: Candidate) -> bool:
-    return c.params.get("channel") == "command"
+    def _collinear(self, base_fit: SetFit, a: Candidate, b: Candidate) -> bool:
+        ca = self.eng.contributions(self.eng.fit([a.terms[0]] if not a.terms[0].effect.per_joint else
+                                                 [Term(a.terms[0].effect, a.terms[0].shape, list(range(7)))],
+                                                 cv=False))[0]
+        cb = self.eng.contributions(self.eng.fit([b.terms[0]] if not b.terms[0].effect.per_joint else
+                                                 [Term(b.terms[0].effect, b.terms[0].shape, list(range(7)))],
+                                                 cv=False))[0]
+        den = float(np.sqrt(np.einsum("ij,ij->", ca, ca) * np.einsum("ij,ij->", cb, cb)))
+        return den > 0 and abs(float(np.einsum("ij,ij->", ca, cb))) / den > COLLINEAR
 
+    def run(self, select: bool, max_effects: int = 5, forced: list[Term] | None = None,
+            ) -> tuple[list[Candidate], list[Term], SetFit]:
+        eng, noise = self.eng, self.noise
+        forced = list(forced or [])
+        chosen: list[Term] = list(forced)
+        cur = eng.fit(chosen)
+        ranking: list[Candidate] = []
+        for rnd in range(max_effects if select else 1):
+            if rnd > 0 and np.all(np.sqrt(cur.mse_cv) <= FLOOR_STOP * noise):
+                break
+            neff = self._neff(cur)
+            names_in = {t.effect.name for t in chosen}
+            cands = []
+            for e in self.effects:
+                if e.name in names_in:
+                    continue
+                progress(f"{'ranking' if rnd == 0 else f'selection round {rnd + 1}'}: {e.name}"
+                         f"{' with ' + '+'.join(sorted(names_in)) if names_in else ''}", self.verbose)
+                cands.append(self.try_add(chosen, cur, neff, e))
+            # collinear pairs among the promising candidates, fitted as groups
+            promising = sorted([c for c in cands if c.score > 0], key=lambda c: -c.score)[:5]
+            groups = []
+            for i in range(len(promising)):
+                for k in range(i + 1, len(promising)):
+                    a, b = promising[i], promising[k]
+                    if not self._collinear(cur, a, b):
+                        continue
+                    progress(f"collinear pair: fitting {a.effect} and {b.effect} together", self.verbose)
+                    g = self.try_group(chosen, cur, neff, a, b)
+                    best = a if a.score >= b.score else b
+                    extra = np.sqrt(np.maximum(best.mse_cv - g.mse_cv, 0.0))
+                    if (g.significant and g.score > best.score + SCORE_MIN
+                            and np.any(extra >= GROUP_PRACTICAL * noise)):
+                        groups.append(g)
+            if rnd == 0:
+                ranking = sorted(cands + groups, key=_order)
+            for c in cands:
+                if c.significant and not c.plausible:
+                    self.rejections.setdefault(c.effect, "; ".join(c.problems))
+            pool = [c for c in cands + groups if c.ok]
+            if not pool:
+                break
+            best = max(pool, key=lambda c: c.score)
+            chosen = chosen + best.terms
+            chosen, cur = self._refresh(chosen)
+            chosen, cur = self._backward(chosen, cur, keep=best.terms + forced)
+            if len(chosen) > len(forced) + 1:
+                chosen, cur = self._swap(chosen, cur, forced)
+                chosen, cur = self._backward(chosen, cur, keep=forced)
+        if select and len(chosen) > len(forced):
+            chosen, cur = self._prune_joints(chosen, cur)
+        return ranking, chosen, cur
 
-def _pick_delay_channel(ctx: Context, measured: Candidate, fl, noise: np.ndarray) -> Candidate:
-    """The delay seen on the inverse-dynamics residual (the measured torque lags the motion) or, when that is not
-    significant, on the command channel (the measured torque lags the logged command)."""
-    if measured.significant and measured.plausible:
-        return measured
-    cmd = _evaluate_candidate(ctx, [COMMAND_DELAY], ctx.cmd_residual, fl, noise)
-    if not (cmd.significant and cmd.plausible):
-        return measured
-    # a command delay leaves the inverse-dynamics prediction unchanged: report both residuals
-    cmd.params["command_rmse_before"] = np.round(rmse(ctx.cmd_residual), 4).tolist()
-    cmd.params["command_rmse_after"] = np.round(cmd.rmse_tau_after, 4).tolist()
-    cmd.rmse_tau_after = rmse(ctx.residual)
-    return cmd
+    def _refresh(self, chosen: list[Term]) -> tuple[list[Term], SetFit]:
+        """Re-choose the shape of every non-linear term on what the others leave (alternating once)."""
+        cur = self.eng.fit(chosen)
+        if not any(t.shape for t in chosen):
+            return chosen, cur
+        contribs = self.eng.contributions(cur)
+        total = sum(contribs, np.zeros_like(self.eng.y))
+        new = []
+        for t, c in zip(chosen, contribs, strict=True):
+            if t.shape:
+                t = Term(t.effect, t.effect.shape(self.ctx, self.eng.y - (total - c)), t.joints)
+            new.append(t)
+        return new, self.eng.fit(new)
+
+    def set_score(self, terms: list[Term], sf: SetFit, neff: np.ndarray) -> float:
+        """Penalised held-out evidence of a whole set against the baseline."""
+        gain = self._gain(self.eng.empty_mse, sf.mse_cv, neff).sum()
+        return float(gain - sum(t.k() for t in terms) * np.log(max(float(neff.mean()), 2.0)))
+
+    def _backward(self, chosen: list[Term], cur: SetFit, keep: list[Term]) -> tuple[list[Term], SetFit]:
+        """Drop, one at a time (weakest first), selections that no longer earn their place in context."""
+        eng, noise = self.eng, self.noise
+        while len(chosen) > 1:
+            neff_b = self._neff(cur)
+            worst, worst_loss = None, None
+            for i, t in enumerate(chosen):
+                if t in keep:
+                    continue
+                sf = eng.fit(chosen[:i] + chosen[i + 1:])
+                loss = float(self._gain(sf.mse_cv, cur.mse_cv, neff_b).sum()
+                             - t.k() * np.log(max(float(neff_b.mean()), 2.0)))
+                removed = np.sqrt(np.maximum(sf.mse_cv - cur.mse_cv, 0.0))
+                weak = loss < SCORE_MIN or not np.any(removed >= PRACTICAL * noise)
+                if weak and (worst_loss is None or loss < worst_loss):
+                    worst, worst_loss = i, loss
+            if worst is None:
+                break
+            progress(f"backward pass: {chosen[worst].effect.name} no longer needed", self.verbose)
+            chosen = chosen[:worst] + chosen[worst + 1:]
+            cur = eng.fit(chosen)
+        return chosen, cur
+
+    def _swap(self, chosen: list[Term], cur: SetFit, forced: list[Term]) -> tuple[list[Term], SetFit]:
+        """Replace a selection by a non-selected candidate when the whole set then scores higher (e.g. a sigmoid
+        picked first that a Coulomb step explains as well with fewer parameters)."""
+        for _ in range(2):
+            neff = self._neff(cur)
+            base_score = self.set_score(chosen, cur, neff)
+            best = None
+            names_in = {t.effect.name for t in chosen}
+            contribs = self.eng.contributions(cur)
+            total = sum(contribs, np.zeros_like(self.eng.y))
+            for i, t in enumerate(chosen):
+                if t in forced:
+                    continue
+                rest = chosen[:i] + chosen[i + 1:]
+                target = self.eng.y - (total - contribs[i])
+                for e in self.effects:
+                    if e.name in names_in:
+                        continue
+                    shape = e.shape(self.ctx, target)
+                    joints = list(range(7)) if e.per_joint else None
+                    cand = rest[:i] + [Term(e, shape, joints)] + rest[i:]
+                    sf = self.eng.fit(cand)
+                    if any(e.problems(self.ctx, sf.fits[i]).values()):
+                        continue
+                    sc = self.set_score(cand, sf, neff)
+                    if sc > base_score + 2.0 and (best is None or sc > best[0]):
+                        best = (sc, cand, sf, t.effect.name, e.name)
+            if best is None:
+                break
+            progress(f"swap: {best[3]} replaced by {best[4]}", self.verbose)
+            chosen, cur = self._refresh(best[1])
+        return chosen, cur
+
+    def _prune_joints(self, chosen: list[Term], cur: SetFit) -> tuple[list[Term], SetFit]:
+        """Drop joints of per-joint selections that do not earn their parameters in the context of the whole set."""
+        for i, t in enumerate(chosen):
+            if not t.effect.per_joint or not t.joints:
+                continue
+            neff = self._neff(cur)
+            for j in list(t.joints):
+                if len(chosen[i].joints) <= 1:
+                    break
+                js = [x for x in chosen[i].joints if x != j]
+                trial = chosen[:i] + [Term(t.effect, chosen[i].shape, js)] + chosen[i + 1:]
+                sf = self.eng.fit(trial)
+                g = float(neff[j] * np.log(max(sf.mse_cv[j], 1e-30) / max(cur.mse_cv[j], 1e-30))
+                          - t.effect.n_params * np.log(neff[j]))
+                removed = np.sqrt(max(sf.mse_cv[j] - cur.mse_cv[j], 0.0))
+                if g < JOINT_SCORE_MIN or removed < PRACTICAL * self.noise[j]:
+                    chosen, cur = trial, sf
+        return chosen, cur
+
+    def describe(self, chosen: list[Term], cur: SetFit) -> list[Selected]:
+        """Per-effect contribution and score in the context of the whole selected set."""
+        out = []
+        neff = self._neff(cur)
+        for i, t in enumerate(chosen):
+            rest = chosen[:i] + chosen[i + 1:]
+            sf = self.eng.fit(rest)
+            loss = float(self._gain(sf.mse_cv, cur.mse_cv, neff).sum()
+                         - t.k() * np.log(max(float(neff.mean()), 2.0)))
+            contrib = np.sqrt(np.maximum(sf.mse_cv - cur.mse_cv, 0.0))
+            fit = cur.fits[i]
+            params = t.effect.public(fit)
+            tilt = t.effect.tilt_deg(self.ctx, fit)
+            if tilt is not None:
+                params["tilt_deg"] = round(tilt, 4)
+            joints = list(t.joints) if t.effect.per_joint else [j for j in range(7)
+                                                                if contrib[j] >= PRACTICAL * self.noise[j]]
+            out.append(Selected(t.effect.name, joints, params, contrib, loss))
+        return out
 
 
 def _order(c: Candidate) -> tuple:
-    return (not (c.significant and c.plausible), not c.plausible, -c.score)
+    return (not c.ok, not c.plausible, -c.score)
+
+
+def _command_delay(ctx: Context, fl, noise: np.ndarray, verbose: bool) -> Candidate | None:
+    """The delay on the command channel (the measured torque lags the logged command), when tau_J_d is logged."""
+    if ctx.cmd_residual is None:
+        return None
+    progress("delay on the command channel (measured torque vs logged command)", verbose)
+    eng = Engine(ctx, ctx.cmd_residual, fl)
+    sel = _Selector(ctx, eng, noise, [COMMAND_DELAY], False)
+    cur = eng.fit([])
+    c = sel.try_add([], cur, sel._neff(cur), COMMAND_DELAY)
+    c.params["command_rmse_before"] = np.round(rmse(ctx.cmd_residual), 4).tolist()
+    c.params["command_rmse_after"] = np.round(c.rmse_tau_after, 4).tolist()
+    c.rmse_tau_after = rmse(ctx.residual)
+    return c
+
+
+def resolve_effects(effects: list[str] | None, registry: EffectRegistry = REGISTRY) -> list[Effect]:
+    """Candidate effects: every registered effect, or the names given; an item ending in ``.py`` is a plug-in file
+    whose effects are registered and added to the candidates."""
+    if effects is None:
+        return list(registry.values())
+    out: list[Effect] = []
+    plugins_only = True
+    for item in effects:
+        item = item.strip()
+        if not item:
+            continue
+        if item.endswith(".py"):
+            for n in load_plugin(item, registry):
+                out.append(registry.get(n))
+            continue
+        plugins_only = False
+        out.append(registry.get(item))
+    if plugins_only:  # only plug-in files: rank them with the whole library
+        out = list(registry.values())
+    seen, uniq = set(), []
+    for e in out:
+        if e.name not in seen:
+            seen.add(e.name)
+            uniq.append(e)
+    return uniq
 
 
 def diagnose(log: MeasurementLog | ProcessedLog | str, model: Any = None, *, rigid_body: bool = False,
              effects: list[str] | None = None, settings: CleanSettings | None = None, folds: int = FOLDS,
-             select: bool = True, verbose: bool = False) -> Diagnosis:
-    """Rank the candidate effects the model ``model`` (default: the log's baseline) lacks on ``log``."""
+             select: bool = True, verbose: bool = False, tool: str | None = None, robot: Any = None) -> Diagnosis:
+    """Rank the candidate effects the model ``model`` (default: the log's baseline) lacks on ``log``, select the set
+    that explains the residual (in context, with a backward pass), and test what remains for structure."""
+    from franka_vs_gym.validation.structure import assumptions_of, test_structure
+
     progress("cleaning the log", verbose)
     data = as_processed(log, settings)
-    cfg = baseline_config(data.log, model, rigid_body)
+    cfg = baseline_config(data.log, model, rigid_body, tool=tool, robot=robot)
     progress(f"evaluating the baseline model and regressors on {data.n} samples", verbose)
     ctx = Context(data, cfg)
     y = ctx.residual
     noise = data.noise
     fl = _folds(ctx.n, folds)
-    names = list(LIBRARY) if effects is None else [get_effect(n).name for n in effects]
-    ranking = []
-    for i, name in enumerate(names):
-        progress(f"[{i + 1}/{len(names)}] held-out fit of {name}", verbose)
-        cand = _evaluate_candidate(ctx, [LIBRARY[name]], y, fl, noise)
-        if name == "delay" and ctx.cmd_residual is not None:
-            cand = _pick_delay_channel(ctx, cand, fl, noise)
-        ranking.append(cand)
-    # collinear groups among significant effects (on the inverse-dynamics residual)
-    sig = [c for c in ranking if c.significant and not _is_command(c)]
-    contribs = {c.effect: LIBRARY[c.effect].contribution(ctx, c.fits[0]) for c in sig}
-    groups = []
-    for a in range(len(sig)):
-        for b in range(a + 1, len(sig)):
-            ca, cb = contribs[sig[a].effect], contribs[sig[b].effect]
-            den = math.sqrt(float(np.einsum("ij,ij->", ca, ca)) * float(np.einsum("ij,ij->", cb, cb)))
-            if den > 0 and abs(float(np.einsum("ij,ij->", ca, cb))) / den > COLLINEAR:
-                progress(f"collinear pair: fitting {sig[a].effect} and {sig[b].effect} together", verbose)
-                g = _evaluate_candidate(ctx, [LIBRARY[sig[a].effect], LIBRARY[sig[b].effect]], y, fl, noise)
-                best = sig[a] if sig[a].score >= sig[b].score else sig[b]
-                # the group must beat its best member statistically AND by an error of practical size
-                extra = np.sqrt(np.maximum(best.rmse_tau_after ** 2 - g.rmse_tau_after ** 2, 0.0))
-                if g.score > best.score + SCORE_MIN and g.significant and np.any(extra >= GROUP_PRACTICAL * noise):
-                    groups.append(g)
-    ranking += groups
-    ranking.sort(key=_order)
-    top = ranking[0] if ranking else None
-    verdict = top.effect if top is not None and top.significant and top.plausible else "none"
-    selected: list[str] = []
-    if select and verdict != "none":
-        selected = _select(ctx, ranking, y, fl, noise, verbose)
-    base_rmse = rmse(y)
-    return Diagnosis(base_rmse, float(np.sqrt(np.mean(y ** 2))), noise.copy(), ranking, verdict, selected, cfg, ctx)
-
-
-def _select(ctx: Context, ranking: list[Candidate], y: np.ndarray, fl, noise: np.ndarray, verbose: bool,
-            max_effects: int = 4) -> list[str]:
-    """Greedy forward selection among the significant plausible singles, stopping at the noise floor."""
-    pool = [c for c in ranking if c.significant and c.plausible and len(c.members) == 1 and not _is_command(c)]
-    command = [c.effect for c in ranking if c.significant and c.plausible and _is_command(c)]
-    chosen: list[Candidate] = []
-    mse_cur = np.mean(y ** 2, axis=0)
-    while pool and len(chosen) < max_effects:
-        if np.all(np.sqrt(mse_cur) <= FLOOR_STOP * noise):
-            break
-        best, best_s = None, None
-        for c in pool[:5]:
-            members = [(LIBRARY[m.effect], m.joints if LIBRARY[m.effect].per_joint else None) for m in chosen + [c]]
-            progress(f"selection: trying {'+'.join(m.effect for m in chosen + [c])}", verbose)
-            s = _score(ctx, members, y, fl, noise, mse0=mse_cur)
-            k = LIBRARY[c.effect].n_params * (len(c.joints) if LIBRARY[c.effect].per_joint else 1)
-            val = float(s["gain"].sum() - k * np.log(max(s["neff"].mean(), 2.0)))
-            practical = bool(np.any(s["removed"] >= PRACTICAL * noise))
-            if practical and val > SCORE_MIN and (best_s is None or val > best_s[0]):
-                best, best_s = c, (val, s["mse1"])
-        if best is None:
-            break
-        chosen.append(best)
-        mse_cur = best_s[1]
-        pool.remove(best)
-    # a command delay does not interact with the inverse-dynamics effects
-    return [c.effect for c in chosen] + command
+    cands = resolve_effects(effects)
+    forced = []
+    if tool == "unknown":  # the tool is a payload of unknown mass, centre of mass and inertia
+        forced = [Term(get_effect("payload"), {})]
+        cands = [e for e in cands if e.name != "payload"]
+    eng = Engine(ctx, y, fl)
+    sel = _Selector(ctx, eng, noise, cands, verbose)
+    ranking, chosen, cur = sel.run(select, forced=forced)
+    notes = [f"{n} not selected: {why}" for n, why in sel.rejections.items()]
+    selection = sel.describe(chosen, cur) if chosen else []
+    # the delay may be on the command channel instead (commands reach the joints late)
+    if any(e.name == "delay" for e in cands):
+        meas = next((c for c in ranking if c.effect == "delay"), None)
+        if meas is not None and not meas.ok:
+            cmd = _command_delay(ctx, fl, noise, verbose)
+            if cmd is not None and cmd.ok:
+                ranking = sorted([c for c in ranking if c.effect != "delay"] + [cmd], key=_order)
+                if select:
+                    selection.append(Selected("delay", [], cmd.params, np.zeros(7), cmd.score, "command"))
+    if not select:
+        selection = []
+    if select:
+        strongest = max(selection, key=lambda s: s.score) if selection else None
+        verdict = strongest.effect if strongest is not None else "none"
+    else:
+        top = ranking[0] if ranking else None
+        verdict = top.effect if top is not None and top.ok else "none"
+    residual = eng.residual(cur)
+    rmse_sel = np.sqrt(cur.mse_cv)
+    unexplained = None
+    if select:
+        progress("testing the remaining residual for structure", verbose)
+        unexplained = test_structure(ctx, residual, noise, fl)
+    d = Diagnosis(rmse(y), float(np.sqrt(np.mean(y ** 2))), noise.copy(), ranking, verdict, selection, cfg, ctx,
+                  rmse_sel, unexplained, assumptions_of(data, cfg, tool), notes, residual)
+    return d
 
 
 @dataclass
@@ -342,6 +576,8 @@ class FitResult:
     data: ProcessedLog
     residual_before: np.ndarray
     residual_after: np.ndarray
+    holdout: dict[str, Any] | None = None
+    assumptions: dict[str, Any] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         return {"effects": self.effects, "params": self.params,
@@ -349,20 +585,57 @@ class FitResult:
                 "rmse_tau_after": np.round(self.rmse_after, 4).tolist(),
                 "rmse_tau_total_before": round(float(rmse(self.rmse_before)), 4),
                 "rmse_tau_total_after": round(float(rmse(self.rmse_after)), 4),
-                "noise_floor": np.round(self.noise_floor, 4).tolist()}
+                "noise_floor": np.round(self.noise_floor, 4).tolist(), "holdout": self.holdout,
+                "assumptions": self.assumptions}
+
+
+def _split(n: int, frac: float = HOLDOUT) -> tuple[np.ndarray, np.ndarray]:
+    """Time split for held-out validation: the first (1 - frac) of the log fits, the last frac validates."""
+    k = int(round(n * (1 - frac)))
+    return np.arange(k), np.arange(k, n)
+
+
+def _alternate(ctx: Context, spec, y: np.ndarray, idx: np.ndarray, refine: bool) -> list[Fit]:
+    """Fit the effects of ``spec`` [(effect, joints)] together on samples idx (alternating least squares, with the
+    non-linear refinements inside when ``refine``)."""
+    fits: list[Fit | None] = [None] * len(spec)
+    contrib = [np.zeros_like(y) for _ in spec]
+    for _ in range(3 if len(spec) > 1 else 1):
+        for i, (e, joints) in enumerate(spec):
+            others = sum((contrib[m] for m in range(len(spec)) if m != i), np.zeros_like(y))
+            f = e.fit(ctx, y - others, idx)
+            if joints is not None:
+                f.joints = list(joints)
+            if refine:
+                f = e.refine(ctx, y - others, f)
+                if joints is not None:
+                    f.joints = list(joints)
+            fits[i] = f
+            contrib[i] = e.contribution(ctx, f)
+    return fits  # type: ignore[return-value]
 
 
 def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], model: Any = None, *,
-                rigid_body: bool = False, settings: CleanSettings | None = None, verbose: bool = False) -> FitResult:
-    """Fit ``effects`` (names, or ["auto"] for the diagnosis' selection) on the whole log, apply them to the model
-    configuration (model and plant), and re-compare."""
+                rigid_body: bool = False, settings: CleanSettings | None = None, verbose: bool = False,
+                holdout: float | None = HOLDOUT, tool: str | None = None, robot: Any = None) -> FitResult:
+    """Fit ``effects`` (names, or ["auto"] for the diagnosis' selection) and apply them to the model configuration
+    (model and plant), then re-compare.
+
+    Held-out validation (default, ``holdout`` = 0.25): the effects are first fitted on the first 75% of the log and
+    the RMSE of the full calibrated model is measured on the last 25%; an effect whose removal does not raise that
+    held-out RMSE is dropped (``dropped`` says which). The kept effects are then fitted on the whole log (with the
+    non-linear refinements) for the final model. ``holdout=None`` skips the check."""
+    from franka_vs_gym.validation.structure import assumptions_of
+
     data = as_processed(log, settings)
-    cfg = baseline_config(data.log, model, rigid_body)
-    if [e.strip() for e in effects] == ["auto"]:
+    cfg = baseline_config(data.log, model, rigid_body, tool=tool, robot=robot)
+    joints_of: dict[str, list[int]] = {}
+    auto = [e.strip() for e in effects] == ["auto"]
+    if auto:
         d = diagnose(data, cfg, verbose=verbose)
-        names = d.selected or ([] if d.verdict == "none" else d.ranking[0].members)
+        names = d.selected
         ctx = d.context
-        joints_of = {c.effect: c.joints for c in d.ranking if len(c.members) == 1}
+        joints_of = {s.effect: s.joints for s in d.selection if s.channel != "command"}
         progress(f"auto: selected {names or 'nothing (verdict none)'}", verbose)
     else:
         names = []
@@ -373,43 +646,115 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
             names.append(n)
         progress(f"evaluating the baseline model and regressors on {data.n} samples", verbose)
         ctx = Context(data, cfg)
-        joints_of = {}
+    for n in names:
+        e = get_effect(n)
+        if type(e).apply is Effect.apply:
+            raise ValueError(f"effect {n!r} can be diagnosed but not applied: the model and the plant have no term "
+                             "for it")
     y = ctx.residual
     noise = data.noise
     fl = _folds(ctx.n, FOLDS)
     command_fit = None
     if "delay" in names and ctx.cmd_residual is not None:
         progress("delay: choosing the channel (measured torque vs motion, or vs command)", verbose)
-        c = _pick_delay_channel(ctx, _evaluate_candidate(ctx, [LIBRARY["delay"]], y, fl, noise), fl, noise)
-        if _is_command(c):
-            command_fit = COMMAND_DELAY.fit(ctx, ctx.cmd_residual, np.arange(ctx.n))
-            names = [n for n in names if n != "delay"]
-    members = [LIBRARY[n] for n in names]
-    # joints of per-joint effects: those where the held-out fit of the whole set helps and is plausible
+        eng = Engine(ctx, y, fl)
+        sel = _Selector(ctx, eng, noise, [get_effect("delay")], False)
+        cur = eng.fit([])
+        meas = sel.try_add([], cur, sel._neff(cur), get_effect("delay"))
+        if not meas.ok:
+            cmd = _command_delay(ctx, fl, noise, False)
+            if cmd is not None and cmd.ok:
+                command_fit = COMMAND_DELAY.fit(ctx, ctx.cmd_residual, np.arange(ctx.n))
+                names = [n for n in names if n != "delay"]
+    members = [get_effect(n) for n in names]
     spec = []
     for e in members:
-        if e.per_joint and e.name not in joints_of and names:
+        if e.per_joint and e.name not in joints_of:
             progress(f"held-out joint selection for {e.name}", verbose)
-            c = _evaluate_candidate(ctx, [e], y, fl, noise)
-            js = c.joints if c.joints else [j for j in range(7) if c.joint_scores[j] > 0]
-            joints_of[e.name] = js
+            eng = Engine(ctx, y, fl)
+            sel = _Selector(ctx, eng, noise, [e], False)
+            cur = eng.fit([])
+            c = sel.try_add([], cur, sel._neff(cur), e)
+            joints_of[e.name] = c.joints if c.joints else [j for j in range(7) if c.joint_scores[j] > 0]
         spec.append((e, joints_of.get(e.name) if e.per_joint else None))
+    dropped: list[str] = []
+    holdout_info: dict[str, Any] | None = None
+    if holdout and (spec or auto):
+        train, test = _split(ctx.n, holdout)
+        sub = data.subset(test)
+
+        def heldout_rmse(sp) -> np.ndarray:
+            new = cfg
+            if sp:
+                for (e, _), f in zip(sp, _alternate(ctx, sp, y, train, refine=False), strict=True):
+                    try:
+                        new = e.apply(new, f)
+                    except NotApplicable:
+                        pass
+            return rmse(sub.tau - evaluate(new, sub).predicted)
+
+        progress(f"held-out check: fitting on the first {100 * (1 - holdout):.0f}% of the log, validating on the "
+                 f"last {100 * holdout:.0f}%", verbose)
+        base_h = rmse(y[test])
+        full_h = heldout_rmse(spec)
+        changed = True
+        while changed and spec:
+            changed = False
+            for i, (e, _) in enumerate(spec):
+                rest = spec[:i] + spec[i + 1:]
+                h = heldout_rmse(rest) if rest else base_h
+                if float(np.sum(h ** 2)) <= float(np.sum(full_h ** 2)):
+                    progress(f"held-out check: {e.name} does not lower the held-out RMSE; dropped", verbose)
+                    dropped.append(e.name)
+                    spec, full_h, changed = rest, h, True
+                    break
+        added: list[str] = []
+        if auto:
+            # with 'auto', effects the diagnosis left out may still lower the held-out error of the fitted model
+            # (the diagnosis is conservative when unexplained structure remains): try each, keep the best while
+            # it lowers the held-out mean squared error by more than 2%
+            for _ in range(2):
+                best = None
+                for e in REGISTRY.values():
+                    if any(e is m for m, _ in spec) or type(e).apply is Effect.apply or e.name in dropped:
+                        continue
+                    if e.name == "asymmetric_friction" and cfg.friction.phi1.any():
+                        continue
+                    js = None
+                    if e.per_joint:
+                        eng = Engine(ctx, y, fl)
+                        sel = _Selector(ctx, eng, noise, [e], False)
+                        cur0 = eng.fit([])
+                        c = sel.try_add([], cur0, sel._neff(cur0), e)
+                        js = c.joints or [j for j in range(7) if c.joint_scores[j] > 0]
+                        if not js:
+                            continue
+                    try:
+                        h = heldout_rmse(spec + [(e, js)])
+                    except (NotApplicable, ValueError):
+                        continue
+                    if np.any(h > 1.02 * full_h):  # an addition must not make any joint worse
+                        continue
+                    if best is None or np.sum(h ** 2) < best[0]:
+                        best = (float(np.sum(h ** 2)), e, js, h)
+                if best is None or best[0] >= 0.98 * float(np.sum(full_h ** 2)):
+                    break
+                progress(f"held-out check: adding {best[1].name} lowers the held-out RMSE", verbose)
+                spec.append((best[1], best[2]))
+                full_h = best[3]
+                added.append(best[1].name)
+        holdout_info = {"split": f"time split: fit on the first {100 * (1 - holdout):.0f}% "
+                                 f"({len(train) / data.settings.rate:.1f} s), validate on the last "
+                                 f"{100 * holdout:.0f}% ({len(test) / data.settings.rate:.1f} s)",
+                        "rmse_tau_before": np.round(base_h, 4).tolist(),
+                        "rmse_tau_after": np.round(full_h, 4).tolist(),
+                        "rmse_tau_total_before": round(float(rmse(base_h)), 4),
+                        "rmse_tau_total_after": round(float(rmse(full_h)), 4), "dropped": dropped,
+                        "added": added}
+        members = [e for e, _ in spec]
+        names = [e.name for e in members]
     progress(f"fitting {names} on all samples", verbose)
-    fits, _ = _fit_set(ctx, spec, y, np.arange(ctx.n)) if names else ([], None)
-    # alternating fits with the non-linear refinement (sigmoid shape, exact delay) inside, each effect fitted to
-    # the residual left by the others
-    everything = np.arange(ctx.n)
-    for _ in range(3 if len(spec) > 1 else 1):
-        for i, (e, joints) in enumerate(spec):
-            others = sum((spec[m][0].contribution(ctx, fits[m]) for m in range(len(spec)) if m != i),
-                         np.zeros_like(y))
-            f = e.fit(ctx, y - others, everything)
-            if joints is not None:
-                f.joints = list(joints)
-            f = e.refine(ctx, y - others, f)
-            if joints is not None:
-                f.joints = list(joints)
-            fits[i] = f
+    fits = _alternate(ctx, spec, y, np.arange(ctx.n), refine=True) if spec else []
     new = cfg
     for e, f in zip(members, fits, strict=True):
         new = e.apply(new, f)
@@ -421,7 +766,9 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
     ev = evaluate(new, data)
     r_after = data.tau - ev.predicted
     params = {e.name: {**e.public(f), "joints": list(map(int, f.joints))} for e, f in zip(members, fits, strict=True)}
-    return FitResult(cfg, new, names, fits, params, rmse(y), rmse(r_after), noise.copy(), data, y, r_after)
+    return FitResult(cfg, new, names, fits, params, rmse(y), rmse(r_after), noise.copy(), data, y, r_after,
+                     holdout_info, assumptions_of(data, cfg, tool))
 
 
-__all__ = ["Candidate", "Diagnosis", "FitResult", "diagnose", "fit_effects", "n_eff", "SCORE_MIN", "PRACTICAL"]
+__all__ = ["Candidate", "Diagnosis", "FitResult", "Selected", "diagnose", "fit_effects", "n_eff",
+           "resolve_effects", "SCORE_MIN", "PRACTICAL"]

@@ -1,45 +1,50 @@
-"""The library of candidate physical effects a model may lack, each with its signature, its fit and its application.
+"""The library of candidate physical effects a model may lack: one class per effect, one registry.
 
 Every effect explains part of the inverse-dynamics residual ``r = tau_J - tau_model`` (N, 7) Nm by a contribution
-``c(theta)`` (N, 7) Nm, fitted by least squares on a set of samples, checked for physical plausibility, and applied to
-a :class:`~franka_vs_gym.model.config.ModelConfig` (so both the pinocchio model and the MuJoCo plant get it).
+that is **linear in its coefficients once its shape is chosen**:
 
-======================  ==========  =======================================================================
-effect                  parameters  signature in the residual
-======================  ==========  =======================================================================
-``viscous_friction``    7 (joint)   proportional to dq_i: a straight line through 0 in residual-vs-velocity
-``coulomb_friction``    7 (joint)   a step of constant height at dq_i = 0 (tanh smoothing, the model's v_c)
-``sigmoid_friction``    3/joint     Gaz et al. sigmoid (Stribeck-like rounded step, may be off-centre);
-                                    re-identifies the model's sigmoid (replaces it on the joints selected)
-``torque_offset``       7 (joint)   a constant per joint (sensor bias)
-``armature``            7 (joint)   proportional to ddq_i (reflected rotor inertia)
-``payload``             10          pattern of a rigid body at the flange: gravity torque that depends on the
-                                    pose of the wrist, plus inertial torques (mass, first moments, inertia)
-``gravity_tilt``        3           gravity torque computed with a different gravity vector (non-vertical
-                                    mounting): g(q) error on all joints that carry weight
-``delay``               1           the measured torque lags the motion: r ~ -d * d(tau_model)/dt
-======================  ==========  =======================================================================
+``c = sum_p design[:, :, p] * theta_p`` (shared effects, ``theta`` (p,)), or, for per-joint effects,
+``c[:, j] = sum_p design[:, j, p] * theta[j, p]`` (``theta`` (7, p), each joint independent).
 
-Fits are linear least squares (the sigmoid's shape parameters by a grid, its height linearly; the delay through the
-first-order expansion, refined by an exact shift in the final fit).
+Non-linear shape parameters (a Coulomb smoothing velocity, a sigmoid's width and centre) are chosen on the residual
+the effect has to explain (:meth:`Effect.shape`); everything else is linear least squares, which lets
+:mod:`franka_vs_gym.validation.selection` fit any set of effects *jointly* and cross-validate it from cached Gram
+matrices. A class also says whether a fitted value is physically plausible (:meth:`Effect.problems`), applies itself
+to a :class:`~franka_vs_gym.model.config.ModelConfig` (so the pinocchio model and the MuJoCo plant both get it:
+:meth:`Effect.apply`), and injects itself into generated data (:meth:`Effect.inject`, used by the hidden-effect
+generator). The registry (:data:`REGISTRY`) is the one list ``diagnose``, ``fit``, the generator and the tests read.
+
+Users add effects by writing one subclass of :class:`Effect` in their own file and passing it with
+``franka-vs diagnose LOG --effects my_effects.py`` (or ``load_plugin("my_effects.py")``, or an entry point in the
+group ``franka_vs_gym.effects``); see docs/workbench.md for a complete example.
 """
 
 from __future__ import annotations
 
+import importlib.util
+import inspect
 import math
+import sys
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pinocchio as pin
 
 from franka_vs_gym.model.config import Friction, ModelConfig, RigidBody
 from franka_vs_gym.model.description import FER
-from franka_vs_gym.model.friction import gaz_sigmoid
+from franka_vs_gym.model.friction import coulomb_friction, gaz_sigmoid, viscous_friction
 from franka_vs_gym.model.geometry import combine_inertials, parallel_axis
 from franka_vs_gym.validation.evaluate import FLANGE_OFFSET, ModelEvaluation, evaluate, shift, sigmoid_friction
 from franka_vs_gym.validation.signals import ProcessedLog
 
-TAU_MAX = FER.limit_arrays()["tau_max"]
+TAU_MAX = FER.limit_arrays()["tau_max"]  # the FER's; effects judge with their context's robot (_tau_max)
+
+
+def _tau_max(ctx) -> np.ndarray:
+    """Joint torque limits (7,) Nm of the robot the context's model describes."""
+    return ctx.config.robot.limit_arrays()["tau_max"]
 SIG_PHI2 = np.geomspace(2.0, 100.0, 12)  # s/rad
 SIG_PHI3 = np.array([-0.08, -0.04, 0.0, 0.04, 0.08])  # rad/s
 COULOMB_VC = (0.005, 0.01, 0.02, 0.05, 0.1)  # rad/s, Coulomb smoothing velocities tried
@@ -49,8 +54,10 @@ MAX_TILT = math.radians(30.0)
 
 
 class Context:
-    """What every effect needs: the processed log, the baseline model's evaluation (with regressors), and the
-    residual of the baseline. Built once per diagnosis."""
+    """What every effect needs, built once per diagnosis: the processed log ``data``, the baseline configuration
+    ``config``, its evaluation ``ev`` (with the gravity and full joint-torque regressors), the baseline residual
+    ``residual`` (N, 7) Nm, the time derivative of the predicted torque ``dpred`` (N, 7) Nm/s, and the per-link
+    torques ``link_torque`` (N, 7, 7) Nm (``[:, :, i]`` = the torque link i+1's own inertial parameters produce)."""
 
     def __init__(self, data: ProcessedLog, config: ModelConfig) -> None:
         self.data = data
@@ -60,12 +67,10 @@ class Context:
         self.dpred = np.gradient(self.ev.predicted, data.time, axis=0)
         self.base_sigmoid = sigmoid_friction(config.friction, data.dq)
         self.n = data.n
-        # decimated sample set for the sigmoid shape grid (the signals are low-passed far below 1 kHz)
+        # decimated sample set for non-linear shape searches (the signals are low-passed far below 1 kHz)
         self.coarse = np.arange(0, self.n, max(1, int(round(data.settings.rate / 250.0))))
         self._sig_basis: np.ndarray | None = None
-        self._grams: dict[tuple, np.ndarray] = {}
-        # command channel (when the commanded torque is logged): r_cmd = tau_J - g(q) - tau_J_d, which a command
-        # delay d turns into ~ -d d(tau_J_d)/dt; both centred per joint (offsets are another effect)
+        self._cache: dict[Any, Any] = {}
         cmd = data.optional.get("tau_J_d")
         self.cmd_residual = self.dcmd = None
         if cmd is not None:
@@ -77,15 +82,23 @@ class Context:
             self.cmd_residual = r - r.mean(axis=0)
             self.dcmd = dcmd - dcmd.mean(axis=0)
 
-    def gram(self, key: str, X: np.ndarray, idx: np.ndarray) -> np.ndarray:
-        """X[idx]^T X[idx] summed over samples and joints, (p, p), cached per effect and sample set."""
-        k = (key, len(idx), int(idx[0]), int(idx[-1]), int(idx.sum()))
-        A = self._grams.get(k)
-        if A is None:
-            Xi = X[idx].reshape(-1, X.shape[2])
-            A = np.einsum("mp,mq->pq", Xi, Xi)
-            self._grams[k] = A
-        return A
+    def cached(self, key: Any, make) -> Any:
+        """A value computed once per context (designs that do not depend on the residual)."""
+        if key not in self._cache:
+            self._cache[key] = make()
+        return self._cache[key]
+
+    @property
+    def link_params(self) -> np.ndarray:
+        """(7, 10) pinocchio dynamic parameters of links 1..7 (without tool), in their joint frames."""
+        return self.cached("link_params", lambda: np.array([
+            pin.Inertia(m, np.asarray(c), np.asarray(inertia)).toDynamicParameters()
+            for m, c, inertia in self.config.link_inertials()]))
+
+    @property
+    def link_torque(self) -> np.ndarray:
+        return self.cached("link_torque", lambda: np.einsum("njlp,lp->njl",
+                                                            self.ev.Y.reshape(self.n, 7, 7, 10), self.link_params))
 
     def sigmoid_basis(self) -> np.ndarray:
         """(n_grid, n_coarse, 7) sigmoid shapes s(dq) = 1/(1+exp(-phi2 (dq+phi3))) - 1/(1+exp(-phi2 phi3))."""
@@ -101,171 +114,250 @@ class Context:
 
 @dataclass
 class Fit:
-    """Parameters of one fitted effect: ``theta`` (effect-specific arrays), ``joints`` the joints it applies to."""
+    """One fitted effect: ``theta`` (``{"coef": (7, p) or (p,), **shape}``, effect-specific), ``joints`` the joints
+    a per-joint effect applies to (all seven for a shared effect)."""
 
     effect: str
     theta: dict[str, Any]
     joints: list[int] = field(default_factory=lambda: list(range(7)))
 
 
+@dataclass
+class PlantChange:
+    """What effects injected into a simulated plant: the plant's configuration, an undeclared payload (a body the
+    controller's model does not know) and a measurement delay (s) of the torque sensor."""
+
+    config: ModelConfig = field(default_factory=ModelConfig)
+    payload: RigidBody | None = None
+    measurement_delay: float = 0.0
+
+
+class NotApplicable(ValueError):
+    """The effect cannot be written into a ModelConfig (the model and the plant have no term for it)."""
+
+
 def _lstsq_joints(X: np.ndarray, Y: np.ndarray) -> np.ndarray:
-    """Per-column least squares of Y (m, 7) on X (m, 7): theta (7,). Element-wise sums (no BLAS threads)."""
+    """Per-column least squares of Y (m, 7) on X (m, 7): theta (7,)."""
     den = np.einsum("mj,mj->j", X, X)
     num = np.einsum("mj,mj->j", X, Y)
     return np.where(den > 1e-12, num / np.maximum(den, 1e-12), 0.0)
 
 
 class Effect:
-    """Base class: name, per_joint (independent parameters per joint) and n_params (per joint if per_joint)."""
+    """Base class of an effect (the plug-in interface).
+
+    Class attributes: ``name`` (what ``--add`` and the JSON say), ``aliases``, ``per_joint`` (independent
+    coefficients per joint, or shared by all), ``n_params`` (coefficients per joint, or in total, used in the
+    information criterion; may exceed the linear columns when the shape has free parameters), ``signature`` (what
+    it looks like in the residual), ``plausible`` (the physical range accepted), ``description``.
+
+    A subclass implements :meth:`design` (and :meth:`shape` when it has non-linear shape parameters),
+    :meth:`apply` and :meth:`inject`; :meth:`problems` and :meth:`public` have sensible defaults.
+    """
 
     name = ""
+    aliases: tuple[str, ...] = ()
     per_joint = True
     n_params = 1
     description = ""
     signature = ""
+    plausible = ""
+    injectable = True
+    #: order of magnitude of the effect in generated data at magnitude 1 (documentation only)
+    typical = ""
+
+    # --- the linear model ------------------------------------------------------------------------------------
+    def shape(self, ctx: Context, target: np.ndarray) -> dict[str, Any]:
+        """Non-linear shape parameters chosen on ``target`` (N, 7) Nm, the residual this effect should explain;
+        ``{}`` for purely linear effects."""
+        return {}
+
+    def design(self, ctx: Context, shape: dict[str, Any]) -> np.ndarray:
+        """(N, 7, p) regressor columns for the given shape (Nm per unit coefficient)."""
+        raise NotImplementedError
+
+    def shape_key(self, shape: dict[str, Any]) -> tuple:
+        """Hashable key of a shape (designs are cached by it)."""
+        return tuple((k, np.asarray(v).round(9).tobytes()) for k, v in sorted(shape.items()))
+
+    def make_fit(self, ctx: Context, coef: np.ndarray, shape: dict[str, Any], joints: list[int] | None) -> Fit:
+        """A Fit from linear coefficients ((7, p) per joint with zeros off ``joints``, or (p,))."""
+        return Fit(self.name, {"coef": np.asarray(coef, dtype=float), **shape},
+                   list(range(7)) if joints is None else list(joints))
+
+    def coef(self, fit: Fit) -> np.ndarray:
+        c = np.asarray(fit.theta["coef"], dtype=float)
+        if self.per_joint:
+            c = c.reshape(7, -1).copy()
+            off = [j for j in range(7) if j not in fit.joints]
+            c[off] = 0.0
+        return c
 
     def fit(self, ctx: Context, y: np.ndarray, idx: np.ndarray) -> Fit:
-        raise NotImplementedError
+        """Least-squares fit on samples ``idx`` of target ``y`` (N, 7), all joints."""
+        shape = self.shape(ctx, y)
+        X = self.design(ctx, shape)[idx]
+        if self.per_joint:
+            A = np.einsum("mjp,mjq->jpq", X, X)
+            b = np.einsum("mjp,mj->jp", X, y[idx])
+            coef = np.array([_solve(A[j], b[j]) for j in range(7)])
+        else:
+            A = np.einsum("mjp,mjq->pq", X, X)
+            b = np.einsum("mjp,mj->p", X, y[idx])
+            coef = _solve(A, b)
+        return self.make_fit(ctx, coef, shape, None)
 
     def contribution(self, ctx: Context, fit: Fit) -> np.ndarray:
         """(N, 7) Nm added to the model's torque by this effect (zero on joints not in ``fit.joints``)."""
-        raise NotImplementedError
+        D = self.design(ctx, {k: v for k, v in fit.theta.items() if k != "coef"})
+        c = self.coef(fit)
+        return np.einsum("njp,jp->nj", D, c) if self.per_joint else D @ c
 
+    def refine(self, ctx: Context, y: np.ndarray, fit: Fit) -> Fit:
+        """Optional non-linear refinement on all samples (the final fit of ``franka-vs fit`` only)."""
+        return fit
+
+    # --- physics -----------------------------------------------------------------------------------------------
     def problems(self, ctx: Context, fit: Fit) -> dict[int, str]:
         """Plausibility problems by joint (key -1 for the whole effect); empty when plausible."""
         return {}
 
     def apply(self, config: ModelConfig, fit: Fit) -> ModelConfig:
-        raise NotImplementedError
+        """The configuration with this effect added (model and plant); raises NotApplicable if it cannot be."""
+        raise NotApplicable(f"effect {self.name!r} cannot be written into a model configuration")
+
+    def inject(self, plant: PlantChange, rng: np.random.Generator, magnitude: float) -> dict[str, Any]:
+        """Put this effect, of a size drawn from ``rng`` and scaled by ``magnitude``, into a simulated plant (in
+        place); returns the true parameters (the answer)."""
+        raise NotImplementedError(f"effect {self.name!r} cannot inject itself into generated data")
 
     def public(self, fit: Fit) -> dict[str, Any]:
         """JSON-able parameters with units in the names."""
-        raise NotImplementedError
+        c = self.coef(fit)
+        out: dict[str, Any] = {"coef": np.round(c, 6).tolist()}
+        for k, v in fit.theta.items():
+            if k != "coef":
+                out[k] = np.round(np.asarray(v, dtype=float), 6).tolist()
+        return out
 
-    def refine(self, ctx: Context, y: np.ndarray, fit: Fit) -> Fit:
-        """Optional non-linear refinement on all samples (final fit only)."""
-        return fit
+    def tilt_deg(self, ctx: Context, fit: Fit) -> float | None:  # only gravity_tilt answers
+        return None
 
-
-class _LinearJointEffect(Effect):
-    unit = ""
-    key = ""
-
-    def column(self, ctx: Context) -> np.ndarray:  # (N, 7)
-        raise NotImplementedError
-
-    def fit(self, ctx, y, idx):
-        th = _lstsq_joints(self.column(ctx)[idx], y[idx])
-        return Fit(self.name, {self.key: th})
-
-    def contribution(self, ctx, fit):
-        th = np.zeros(7)
-        th[fit.joints] = fit.theta[self.key][fit.joints]
-        return self.column(ctx) * th
-
-    def public(self, fit):
-        th = np.zeros(7)
-        th[fit.joints] = fit.theta[self.key][fit.joints]
-        return {f"{self.key}_{self.unit}": th.round(6).tolist()}
+    def __repr__(self) -> str:
+        return f"<effect {self.name}>"
 
 
-class ViscousFriction(_LinearJointEffect):
-    name, key, unit = "viscous_friction", "viscous", "Nms_per_rad"
+def _solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    scale = np.sqrt(np.maximum(np.diag(A), 1e-300))
+    An = A / np.outer(scale, scale)
+    return np.linalg.solve(An + 1e-10 * np.eye(len(b)), b / scale) / scale
+
+
+def _joint_coef(fit: Fit, p: int = 1) -> np.ndarray:
+    c = np.asarray(fit.theta["coef"], dtype=float).reshape(7, p).copy()
+    c[[j for j in range(7) if j not in fit.joints]] = 0.0
+    return c
+
+
+# ---------------------------------------------------------------------------------------------- joint friction
+def _vc_choice(ctx: Context, target: np.ndarray, law) -> float:
+    """The smoothing velocity of COULOMB_VC whose column explains ``target`` best (coarse samples)."""
+    fr = ctx.config.friction
+    if fr.coulomb.any():
+        return fr.coulomb_vel
+    dq, y = ctx.data.dq[ctx.coarse], target[ctx.coarse]
+    best, best_sse = COULOMB_VC[0], np.inf
+    for vc in COULOMB_VC:
+        X = law(dq, vc)
+        th = _lstsq_joints(X, y)
+        sse = float(np.sum((y - X * th) ** 2))
+        if sse < best_sse:
+            best, best_sse = vc, sse
+    return best
+
+
+class ViscousFriction(Effect):
+    """Viscous joint friction ``tau_f = F_v dq`` (added to the model's friction).
+
+    Signature: residual proportional to the joint velocity, a straight line through 0 in residual vs dq.
+    Plausible: total F_v >= 0 and < 0.2 tau_max Nm s/rad (FER joints: about 0.01-0.7 Nm s/rad identified).
+    """
+
+    name, aliases = "viscous_friction", ("viscous",)
     description = "viscous joint friction tau_f = F_v dq (added to the model's friction)"
     signature = "residual proportional to the joint velocity: a line through the origin in residual vs dq"
+    plausible = "total F_v >= 0 and < 0.2 tau_max (Nm s/rad)"
+    SIZES = np.array([0.5, 0.5, 0.4, 0.4, 0.15, 0.15, 0.08])
 
-    def column(self, ctx):
-        return ctx.data.dq
+    def design(self, ctx, shape):
+        return viscous_friction(ctx.data.dq, 1.0)[:, :, None]
 
     def problems(self, ctx, fit):
-        tot = ctx.config.friction.viscous + fit.theta["viscous"]
-        return {j: f"negative viscous friction {tot[j]:.3g} Nm s/rad" for j in range(7) if tot[j] < 0} | {
-            j: f"viscous friction {tot[j]:.3g} Nm s/rad is implausibly large" for j in range(7)
-            if tot[j] > 0.2 * TAU_MAX[j]}
+        tot = ctx.config.friction.viscous + _joint_coef(fit)[:, 0]
+        return {j: f"negative viscous friction {tot[j]:.3g} Nm s/rad" for j in fit.joints if tot[j] < 0} | {
+            j: f"viscous friction {tot[j]:.3g} Nm s/rad is implausibly large" for j in fit.joints
+            if tot[j] > 0.2 * _tau_max(ctx)[j]}
 
     def apply(self, config, fit):
         fr = Friction.from_dict(config.friction.to_dict())
-        fr.viscous[fit.joints] += fit.theta["viscous"][fit.joints]
+        fr.viscous = fr.viscous + _joint_coef(fit)[:, 0]
         return config.copy(friction=fr)
 
-
-class CoulombFriction(_LinearJointEffect):
-    name, key, unit = "coulomb_friction", "coulomb", "Nm"
-    description = ("Coulomb joint friction tau_f = F_c tanh(dq / v_c); the smoothing velocity v_c (common to all "
-                   "joints) is chosen from COULOMB_VC unless the model already has Coulomb friction")
-    signature = "a step of constant height where the joint velocity changes sign"
-
-    def _vcs(self, ctx):
-        fr = ctx.config.friction
-        return [fr.coulomb_vel] if fr.coulomb.any() else list(COULOMB_VC)
-
-    def fit(self, ctx, y, idx):
-        best = None
-        for vc in self._vcs(ctx):
-            X = np.tanh(ctx.data.dq[idx] / vc)
-            th = _lstsq_joints(X, y[idx])
-            sse = float(np.sum((y[idx] - X * th) ** 2))
-            if best is None or sse < best[0]:
-                best = (sse, th, vc)
-        return Fit(self.name, {"coulomb": best[1], "coulomb_vel": best[2]})
-
-    def contribution(self, ctx, fit):
-        th = np.zeros(7)
-        th[fit.joints] = fit.theta["coulomb"][fit.joints]
-        return np.tanh(ctx.data.dq / fit.theta["coulomb_vel"]) * th
+    def inject(self, plant, rng, magnitude):
+        v = self.SIZES * magnitude * rng.uniform(0.7, 1.3, 7)
+        fr = Friction.from_dict(plant.config.friction.to_dict())
+        fr.viscous = fr.viscous + v
+        plant.config = plant.config.copy(friction=fr)
+        return {"viscous_Nms_per_rad": v.tolist()}
 
     def public(self, fit):
-        return super().public(fit) | {"coulomb_vel_rad_per_s": fit.theta["coulomb_vel"]}
+        return {"viscous_Nms_per_rad": np.round(_joint_coef(fit)[:, 0], 6).tolist()}
+
+
+class CoulombFriction(Effect):
+    """Coulomb joint friction ``tau_f = F_c tanh(dq / v_c)``; the smoothing velocity v_c (common to all joints) is
+    chosen from COULOMB_VC on the residual unless the model already has Coulomb friction.
+
+    Signature: a step of constant height where the joint velocity changes sign.
+    Plausible: total F_c >= 0 and < 0.25 tau_max Nm (FER: 0.1-1.5 Nm).
+    """
+
+    name, aliases = "coulomb_friction", ("coulomb",)
+    description = "Coulomb joint friction tau_f = F_c tanh(dq / v_c)"
+    signature = "a step of constant height where the joint velocity changes sign"
+    plausible = "total F_c >= 0 and < 0.25 tau_max (Nm)"
+    SIZES = np.array([0.8, 0.8, 0.6, 0.6, 0.25, 0.25, 0.15])
+    VC = 0.05  # smoothing of injected Coulomb friction (a sharper step chatters in the 1 ms explicit plant)
+
+    def shape(self, ctx, target):
+        return {"coulomb_vel": _vc_choice(ctx, target, lambda dq, vc: coulomb_friction(dq, 1.0, vc))}
+
+    def design(self, ctx, shape):
+        vc = float(shape["coulomb_vel"])
+        return ctx.cached(("tanh", vc), lambda: coulomb_friction(ctx.data.dq, 1.0, vc)[:, :, None])
 
     def problems(self, ctx, fit):
-        tot = ctx.config.friction.coulomb + fit.theta["coulomb"]
-        return {j: f"negative Coulomb friction {tot[j]:.3g} Nm" for j in range(7) if tot[j] < 0} | {
-            j: f"Coulomb friction {tot[j]:.3g} Nm is implausibly large" for j in range(7)
-            if tot[j] > 0.25 * TAU_MAX[j]}
+        tot = ctx.config.friction.coulomb + _joint_coef(fit)[:, 0]
+        return {j: f"negative Coulomb friction {tot[j]:.3g} Nm" for j in fit.joints if tot[j] < 0} | {
+            j: f"Coulomb friction {tot[j]:.3g} Nm is implausibly large" for j in fit.joints
+            if tot[j] > 0.25 * _tau_max(ctx)[j]}
 
     def apply(self, config, fit):
         fr = Friction.from_dict(config.friction.to_dict())
-        fr.coulomb[fit.joints] += fit.theta["coulomb"][fit.joints]
+        fr.coulomb = fr.coulomb + _joint_coef(fit)[:, 0]
         fr.coulomb_vel = float(fit.theta["coulomb_vel"])
         return config.copy(friction=fr)
 
+    def inject(self, plant, rng, magnitude):
+        c = self.SIZES * magnitude * rng.uniform(0.7, 1.3, 7)
+        fr = Friction.from_dict(plant.config.friction.to_dict())
+        fr.coulomb, fr.coulomb_vel = fr.coulomb + c, self.VC
+        plant.config = plant.config.copy(friction=fr)
+        return {"coulomb_Nm": c.tolist(), "coulomb_vel_rad_per_s": self.VC}
 
-class TorqueOffset(_LinearJointEffect):
-    name, key, unit = "torque_offset", "offset", "Nm"
-    description = "constant bias of the joint torque sensors"
-    signature = "a constant shift of the residual, independent of motion and pose"
-
-    def column(self, ctx):
-        return np.ones((ctx.n, 7))
-
-    def problems(self, ctx, fit):
-        tot = ctx.config.torque_offset + fit.theta["offset"]
-        return {j: f"offset {tot[j]:.3g} Nm exceeds 20% of the torque limit" for j in range(7)
-                if abs(tot[j]) > 0.2 * TAU_MAX[j]}
-
-    def apply(self, config, fit):
-        off = config.torque_offset.copy()
-        off[fit.joints] += fit.theta["offset"][fit.joints]
-        return config.copy(torque_offset=off)
-
-
-class Armature(_LinearJointEffect):
-    name, key, unit = "armature", "armature", "kgm2"
-    description = "reflected rotor inertia added to the diagonal of the mass matrix"
-    signature = "residual proportional to the joint's own acceleration"
-
-    def column(self, ctx):
-        return ctx.data.ddq
-
-    def problems(self, ctx, fit):
-        tot = ctx.config.armature + fit.theta["armature"]
-        return {j: f"negative armature {tot[j]:.3g} kg m^2" for j in range(7) if tot[j] < 0} | {
-            j: f"armature {tot[j]:.3g} kg m^2 is implausibly large" for j in range(7) if tot[j] > 2.0}
-
-    def apply(self, config, fit):
-        a = config.armature.copy()
-        a[fit.joints] += fit.theta["armature"][fit.joints]
-        return config.copy(armature=np.maximum(a, 0.0))
+    def public(self, fit):
+        return {"coulomb_Nm": np.round(_joint_coef(fit)[:, 0], 6).tolist(),
+                "coulomb_vel_rad_per_s": float(fit.theta["coulomb_vel"])}
 
 
 def _sig(u):
@@ -283,9 +375,9 @@ def _sigmoid_lm(dq: np.ndarray, y: np.ndarray, p1: np.ndarray, p2: np.ndarray, p
         u = p[:, 1] * (dq + p[:, 2])
         u0 = p[:, 1] * p[:, 2]
         s, s0 = _sig(u), _sig(u0)
-        return p[:, 0] * (s - s0), s, s0, u, u0
+        return p[:, 0] * (s - s0), s, s0
 
-    f, s, s0, u, u0 = model(p)
+    f, s, s0 = model(p)
     sse = np.sum((y - f) ** 2, axis=0)
     lo, hi = np.array([0.0, 0.5, -0.3]), np.array([np.inf, 400.0, 0.3])
     for _ in range(iters):
@@ -297,46 +389,103 @@ def _sigmoid_lm(dq: np.ndarray, y: np.ndarray, p1: np.ndarray, p2: np.ndarray, p
         D = np.einsum("jaa->ja", A)
         step = np.linalg.solve(A + lam[:, None, None] * np.einsum("ja,ab->jab", D + 1e-12, np.eye(3)), g[..., None])
         cand = np.clip(p + step[..., 0], lo, hi)
-        fc, sc, s0c, uc, u0c = model(cand)
+        fc, _, _ = model(cand)
         ssec = np.sum((y - fc) ** 2, axis=0)
         ok = ssec < sse
         p[ok] = cand[ok]
         lam = np.where(ok, lam * 0.3, lam * 10.0)
-        f, s, s0, u, u0 = model(p)
+        f, s, s0 = model(p)
         sse = np.sum((y - f) ** 2, axis=0)
     return p[:, 0], p[:, 1], p[:, 2]
 
 
 class SigmoidFriction(Effect):
-    name = "sigmoid_friction"
+    """Gaz et al. 2019 sigmoid friction ``phi1/(1+exp(-phi2 (dq+phi3))) - phi1/(1+exp(-phi2 phi3))`` per joint: a
+    Stribeck-like rounded step whose width is 1/phi2 and whose centre -phi3 may be off zero, so the levels differ
+    by direction (an asymmetric friction). ``diagnose`` fits an additional sigmoid (its shape chosen on the
+    residual, its height linear); ``fit`` re-identifies the model's sigmoid (replaces it on the joints selected).
+
+    Plausible: phi1 > 0 and < 0.25 tau_max Nm; phi2 in [0.5, 400] s/rad; abs(phi3) <= 0.3 rad/s (Gaz et al.:
+    phi1 0.03-0.55 Nm, phi2 5-40 s/rad, phi3 -0.03-0.06 rad/s).
+    """
+
+    name, aliases = "sigmoid_friction", ("gaz_friction", "stribeck_friction")
     n_params = 3
-    description = ("Gaz et al. sigmoid friction phi1/(1+exp(-phi2 (dq+phi3))) - phi1/(1+exp(-phi2 phi3)) "
-                   "(a Stribeck-like rounded step), re-identified per joint")
+    description = "Gaz et al. sigmoid friction (a Stribeck-like rounded, possibly off-centre step)"
     signature = "a rounded step in residual vs dq whose width is phi2's inverse, possibly off-centre (phi3)"
+    plausible = "phi1 > 0 and < 0.25 tau_max (Nm), phi2 in [0.5, 400] s/rad, abs(phi3) <= 0.3 rad/s"
+
+    def shape(self, ctx, target):
+        basis = ctx.sigmoid_basis()  # (g, nc, 7)
+        t = target[ctx.coarse]
+        num = np.einsum("gmj,mj->gj", basis, t)
+        den = np.einsum("gmj,gmj->gj", basis, basis) + 1e-12
+        best = np.argmax(num ** 2 / den, axis=0)
+        cols = np.arange(7)
+        p1 = num[best, cols] / den[best, cols]
+        p2 = SIG_PHI2[best // len(SIG_PHI3)]
+        p3 = SIG_PHI3[best % len(SIG_PHI3)]
+        sign = np.where(p1 < 0, -1.0, 1.0)
+        _, p2, p3 = _sigmoid_lm(ctx.data.dq[ctx.coarse], t * sign, np.abs(p1), p2, p3, iters=5)
+        return {"phi2": p2, "phi3": p3}
+
+    def design(self, ctx, shape):
+        """Columns: the added sigmoid of the chosen shape, and the model's own sigmoid (its height re-scaled), so a
+        change of the model's sigmoid (height and width) is representable linearly."""
+        p2, p3 = np.asarray(shape["phi2"]), np.asarray(shape["phi3"])
+        new = gaz_sigmoid(ctx.data.dq, 1.0, p2, p3)
+        if not ctx.config.friction.phi1.any():
+            return new[:, :, None]
+        return np.stack([new, ctx.base_sigmoid], axis=2)
 
     def fit(self, ctx, y, idx):
-        basis = ctx.sigmoid_basis()  # (g, nc, 7)
-        coarse = ctx.coarse
+        """Replacement fit (the model's sigmoid re-identified): theta phi1, phi2, phi3 (7,) each."""
+        target = y + ctx.base_sigmoid
         mask = np.zeros(ctx.n, dtype=bool)
         mask[idx] = True
-        sel = mask[coarse]
-        target = (y + ctx.base_sigmoid)[coarse][sel]  # (m, 7)
-        B = basis[:, sel, :]  # (g, m, 7)
-        num = np.einsum("gmj,mj->gj", B, target)
-        den = np.einsum("gmj,gmj->gj", B, B) + 1e-12
-        gain = np.where(num > 0, num ** 2 / den, -np.inf)  # phi1 > 0 only
-        best = np.argmax(gain, axis=0)  # (7,)
+        sel = mask[ctx.coarse]
+        basis = ctx.sigmoid_basis()[:, sel, :]
+        t = target[ctx.coarse][sel]
+        num = np.einsum("gmj,mj->gj", basis, t)
+        den = np.einsum("gmj,gmj->gj", basis, basis) + 1e-12
+        gain = np.where(num > 0, num ** 2 / den, -np.inf)
+        best = np.argmax(gain, axis=0)
         cols = np.arange(7)
         p1 = np.where(np.isfinite(gain[best, cols]), num[best, cols] / den[best, cols], 0.0)
         p2 = SIG_PHI2[best // len(SIG_PHI3)]
         p3 = SIG_PHI3[best % len(SIG_PHI3)]
-        p1, p2, p3 = _sigmoid_lm(ctx.data.dq[coarse][sel], target, p1, p2, p3)
-        return Fit(self.name, {"phi1": p1, "phi2": p2, "phi3": p3})
+        p1, p2, p3 = _sigmoid_lm(ctx.data.dq[ctx.coarse][sel], t, p1, p2, p3)
+        return Fit(self.name, {"phi1": p1, "phi2": p2, "phi3": p3, "replace": True})
+
+    def make_fit(self, ctx, coef, shape, joints):
+        # the additive form of diagnose: an extra sigmoid of height coef[:, 0] on top of the model's, whose height
+        # changes by the factor coef[:, 1]
+        c = np.asarray(coef, float).reshape(7, -1)
+        if c.shape[1] == 1:
+            c = np.column_stack([c, np.zeros(7)])
+        return Fit(self.name, {"coef": c, **shape, "replace": False},
+                   list(range(7)) if joints is None else list(joints))
+
+    def _replacement(self, ctx: Context, fit: Fit) -> Friction:
+        fr = ctx.config.friction
+        new = Friction(fr.phi1.copy(), fr.phi2.copy(), fr.phi3.copy())
+        j = fit.joints
+        new.phi1[j], new.phi2[j], new.phi3[j] = (np.asarray(fit.theta[k])[j] for k in ("phi1", "phi2", "phi3"))
+        return new
+
+    def contribution(self, ctx, fit):
+        if not fit.theta.get("replace"):
+            c = _joint_coef(fit, 2)
+            p2, p3 = np.asarray(fit.theta["phi2"]), np.asarray(fit.theta["phi3"])
+            return gaz_sigmoid(ctx.data.dq, 1.0, p2, p3) * c[:, 0] + ctx.base_sigmoid * c[:, 1]
+        return sigmoid_friction(self._replacement(ctx, fit), ctx.data.dq) - ctx.base_sigmoid
 
     def refine(self, ctx, y, fit):
         from scipy.optimize import least_squares
 
-        th = {k: np.array(v, dtype=float).copy() for k, v in fit.theta.items()}
+        if not fit.theta.get("replace"):
+            return fit
+        th = {k: np.array(v, dtype=float).copy() if k != "replace" else v for k, v in fit.theta.items()}
         dq_all = ctx.data.dq
         tgt_all = y + ctx.base_sigmoid
         sub = np.arange(0, ctx.n, 2)
@@ -350,78 +499,257 @@ class SigmoidFriction(Effect):
                 p2 = math.exp(lp2)
                 return gaz_sigmoid(dq, p1, p2, p3) - tgt
 
-            x0 = [th["phi1"][j], math.log(th["phi2"][j]), th["phi3"][j]]
+            x0 = [th["phi1"][j], math.log(min(max(th["phi2"][j], 0.51), 399.0)), float(np.clip(th["phi3"][j], -0.29,
+                                                                                                  0.29))]
             try:
-                r = least_squares(res, x0, bounds=([0, math.log(0.5), -0.3], [TAU_MAX[j], math.log(400), 0.3]),
+                r = least_squares(res, x0, bounds=([0, math.log(0.5), -0.3], [_tau_max(ctx)[j], math.log(400), 0.3]),
                                   max_nfev=60)
                 th["phi1"][j], th["phi2"][j], th["phi3"][j] = r.x[0], math.exp(r.x[1]), r.x[2]
             except ValueError:
                 pass
         return Fit(self.name, th, fit.joints)
 
-    def contribution(self, ctx, fit):
-        fr = ctx.config.friction
-        new = Friction(fr.phi1.copy(), fr.phi2.copy(), fr.phi3.copy())
-        j = fit.joints
-        new.phi1[j], new.phi2[j], new.phi3[j] = (np.asarray(fit.theta[k])[j] for k in ("phi1", "phi2", "phi3"))
-        return sigmoid_friction(new, ctx.data.dq) - ctx.base_sigmoid
-
     def problems(self, ctx, fit):
-        p1 = fit.theta["phi1"]
-        out = {j: f"sigmoid height phi1 = {p1[j]:.3g} Nm must be > 0" for j in range(7) if p1[j] <= 0}
-        out |= {j: f"sigmoid height phi1 = {p1[j]:.3g} Nm is implausibly large" for j in range(7)
-                if p1[j] > 0.25 * TAU_MAX[j]}
+        if fit.theta.get("replace"):
+            p1 = np.asarray(fit.theta["phi1"])
+            what = "sigmoid height phi1"
+        else:
+            c = _joint_coef(fit, 2)
+            p1 = ctx.config.friction.phi1 * (1 + c[:, 1]) + c[:, 0]
+            what = "total sigmoid height (model + added)"
+        out = {j: f"{what} = {p1[j]:.3g} Nm must be > 0" for j in fit.joints if p1[j] <= 0}
+        tm = _tau_max(ctx)
+        out |= {j: f"{what} = {p1[j]:.3g} Nm is implausibly large" for j in fit.joints if p1[j] > 0.25 * tm[j]}
         return out
 
     def apply(self, config, fit):
+        if not fit.theta.get("replace"):
+            raise NotApplicable("an additive sigmoid is refitted as a replacement by fit_effects before applying")
         fr = Friction.from_dict(config.friction.to_dict())
         j = fit.joints
         fr.phi1[j], fr.phi2[j], fr.phi3[j] = (np.asarray(fit.theta[k])[j] for k in ("phi1", "phi2", "phi3"))
         return config.copy(friction=fr)
 
+    def inject(self, plant, rng, magnitude):
+        base = Friction()
+        phi1 = base.phi1 * (1 + 0.8 * magnitude * rng.uniform(0.7, 1.3, 7))
+        phi2 = base.phi2 * rng.uniform(0.6, 1.4, 7)
+        fr = Friction.from_dict(plant.config.friction.to_dict())
+        fr.phi1, fr.phi2, fr.phi3 = phi1, phi2, base.phi3.copy()
+        plant.config = plant.config.copy(friction=fr)
+        return {"phi1_Nm": phi1.tolist(), "phi2_s_per_rad": phi2.tolist(), "phi3_rad_per_s": base.phi3.tolist()}
+
     def public(self, fit):
-        out = {}
-        for k, unit in (("phi1", "Nm"), ("phi2", "s_per_rad"), ("phi3", "rad_per_s")):
-            v = np.full(7, np.nan)
-            v[fit.joints] = np.asarray(fit.theta[k])[fit.joints]
-            out[f"{k}_{unit}"] = [None if not np.isfinite(x) else round(float(x), 6) for x in v]
+        out: dict[str, Any] = {}
+        if fit.theta.get("replace"):
+            keys = (("phi1", "Nm"), ("phi2", "s_per_rad"), ("phi3", "rad_per_s"))
+            for k, unit in keys:
+                v = np.full(7, np.nan)
+                v[fit.joints] = np.asarray(fit.theta[k])[fit.joints]
+                out[f"{k}_{unit}"] = [None if not np.isfinite(x) else round(float(x), 6) for x in v]
+            return out
+        c = _joint_coef(fit, 2)
+        out["added_phi1_Nm"] = np.round(c[:, 0], 6).tolist()
+        out["model_phi1_change"] = np.round(c[:, 1], 6).tolist()
+        for k, unit in (("phi2", "s_per_rad"), ("phi3", "rad_per_s")):
+            v = np.asarray(fit.theta[k], float)
+            out[f"{k}_{unit}"] = [round(float(v[j]), 6) if j in fit.joints else None for j in range(7)]
         return out
 
 
-class _SharedLinearEffect(Effect):
+class AsymmetricFriction(Effect):
+    """Direction-dependent Coulomb friction: ``F_plus`` while the joint turns positively, ``F_minus`` while it
+    turns negatively, ``tau_f = F_plus max(s, 0) + F_minus min(s, 0)`` with ``s = tanh(dq / v_c)``. Harmonic drives
+    show it (Gaz et al. 2019 model it with the sigmoid's centre phi3; Tadese/Wolf et al. measure it on Franka joints).
+
+    Signature: a step at dq = 0 whose two levels differ in magnitude. Away from rest it is indistinguishable from a
+    symmetric Coulomb step plus a torque offset; only the samples near zero velocity tell them apart, so on logs
+    that rarely stop it forms a collinear group with ``coulomb_friction`` + ``torque_offset``.
+    Plausible: both levels >= 0 and < 0.25 tau_max Nm; the model applies it as the sigmoid with the same two
+    levels, so it is only applicable on joints whose model has no sigmoid.
+    """
+
+    name, aliases = "asymmetric_friction", ("asymmetric",)
+    n_params = 2
+    description = "direction-dependent Coulomb friction (F_plus for dq > 0, F_minus for dq < 0)"
+    signature = "a step at zero velocity whose positive and negative levels differ"
+    plausible = "F_plus, F_minus >= 0 (total) and < 0.25 tau_max (Nm)"
+
+    def shape(self, ctx, target):
+        return {"coulomb_vel": _vc_choice(ctx, target, lambda dq, vc: np.tanh(dq / vc))}
+
+    def design(self, ctx, shape):
+        vc = float(shape["coulomb_vel"])
+
+        def make():
+            s = np.tanh(ctx.data.dq / vc)
+            return np.stack([np.maximum(s, 0.0), np.minimum(s, 0.0)], axis=2)
+        return ctx.cached(("asym", vc), make)
+
+    def problems(self, ctx, fit):
+        c = _joint_coef(fit, 2)
+        base = ctx.config.friction.coulomb
+        out = {}
+        for j in fit.joints:
+            lo = min(base[j] + c[j, 0], base[j] + c[j, 1])
+            hi = max(base[j] + c[j, 0], base[j] + c[j, 1])
+            if lo < 0:
+                out[j] = f"a negative friction level {lo:.3g} Nm"
+            elif hi > 0.25 * _tau_max(ctx)[j]:
+                out[j] = f"friction level {hi:.3g} Nm is implausibly large"
+        return out
+
+    def apply(self, config, fit):
+        # F_plus (1 + s)/2-like levels through the model's sigmoid: phi1 = F_plus + F_minus, centred so that the
+        # level is F_plus for large positive and -F_minus for large negative velocity
+        c = _joint_coef(fit, 2)
+        fr = Friction.from_dict(config.friction.to_dict())
+        for j in fit.joints:
+            if fr.phi1[j] != 0:
+                raise NotApplicable(f"asymmetric_friction on joint {j}: the model already has a sigmoid there; "
+                                    "fit sigmoid_friction instead (its centre phi3 makes it asymmetric)")
+            fp, fm = c[j, 0] + fr.coulomb[j], c[j, 1] + fr.coulomb[j]
+            if fp <= 0 or fm <= 0:
+                continue
+            phi2 = 2.0 / float(fit.theta["coulomb_vel"])
+            s0 = fm / (fp + fm)
+            fr.phi1[j], fr.phi2[j], fr.phi3[j] = fp + fm, phi2, math.log(s0 / (1 - s0)) / phi2
+            fr.coulomb[j] = 0.0
+        return config.copy(friction=fr)
+
+    injectable = False
+
+    def public(self, fit):
+        c = _joint_coef(fit, 2)
+        return {"F_plus_Nm": np.round(c[:, 0], 6).tolist(), "F_minus_Nm": np.round(c[:, 1], 6).tolist(),
+                "coulomb_vel_rad_per_s": float(fit.theta["coulomb_vel"])}
+
+
+class LoadDependentFriction(Effect):
+    """Load-dependent Coulomb friction of a strain-wave (harmonic) gear: the friction grows with the torque the
+    gear transmits, ``tau_f = mu |tau_load| tanh(dq / v_c)`` with ``tau_load`` the model's rigid-body torque
+    (gravity + inertia). Reported for Franka joints by Wolf et al. 2018 and in harmonic-drive models
+    (Tjahjowidodo; Taghirad & Belanger 1998).
+
+    Signature: a friction step whose height follows the joint's load (large where gravity loads the joint).
+    Plausible: 0 <= total mu < 0.3 (a gear efficiency above about 70%). Diagnose-only: the model's friction law
+    has no load term, so ``apply`` raises NotApplicable and ``fit`` says so.
+    """
+
+    name, aliases = "load_dependent_friction", ("load_friction",)
+    description = "Coulomb friction proportional to the transmitted torque (gear efficiency)"
+    signature = "a step at zero velocity whose height grows with abs(load torque)"
+    plausible = "0 <= mu < 0.3 (gear efficiency > 70%)"
+    injectable = False
+
+    def shape(self, ctx, target):
+        load = np.abs(ctx.ev.rigid)
+        return {"coulomb_vel": _vc_choice(ctx, target, lambda dq, vc: np.tanh(dq / vc) * load[ctx.coarse])}
+
+    def design(self, ctx, shape):
+        vc = float(shape["coulomb_vel"])
+        return ctx.cached(("load", vc), lambda: (np.abs(ctx.ev.rigid) * np.tanh(ctx.data.dq / vc))[:, :, None])
+
+    def problems(self, ctx, fit):
+        mu = _joint_coef(fit)[:, 0]
+        return {j: f"negative load coefficient {mu[j]:.3g}" for j in fit.joints if mu[j] < 0} | {
+            j: f"load coefficient {mu[j]:.3g} implies a gear efficiency below 70%" for j in fit.joints
+            if mu[j] >= 0.3}
+
+    def public(self, fit):
+        return {"mu": np.round(_joint_coef(fit)[:, 0], 6).tolist(),
+                "coulomb_vel_rad_per_s": float(fit.theta["coulomb_vel"])}
+
+
+class TorqueOffset(Effect):
+    """Constant bias of the joint torque sensors (per joint).
+
+    Signature: a constant shift of the residual, independent of motion and pose.
+    Plausible: abs(total) < 0.2 tau_max Nm (FER torque sensors: offsets of 0.1-1 Nm drift with temperature).
+    """
+
+    name, aliases = "torque_offset", ("offset",)
+    description = "constant bias of the joint torque sensors"
+    signature = "a constant shift of the residual, independent of motion and pose"
+    plausible = "abs(total offset) < 0.2 tau_max (Nm)"
+    SIZES = np.array([0.6, 0.6, 0.5, 0.5, 0.2, 0.2, 0.1])
+
+    def design(self, ctx, shape):
+        return ctx.cached("ones", lambda: np.ones((ctx.n, 7, 1)))
+
+    def problems(self, ctx, fit):
+        tot = ctx.config.torque_offset + _joint_coef(fit)[:, 0]
+        return {j: f"offset {tot[j]:.3g} Nm exceeds 20% of the torque limit" for j in fit.joints
+                if abs(tot[j]) > 0.2 * _tau_max(ctx)[j]}
+
+    def apply(self, config, fit):
+        return config.copy(torque_offset=config.torque_offset + _joint_coef(fit)[:, 0])
+
+    def inject(self, plant, rng, magnitude):
+        o = self.SIZES * magnitude * rng.uniform(0.7, 1.3, 7) * rng.choice([-1.0, 1.0], 7)
+        plant.config = plant.config.copy(torque_offset=plant.config.torque_offset + o)
+        return {"offset_Nm": o.tolist()}
+
+    def public(self, fit):
+        return {"offset_Nm": np.round(_joint_coef(fit)[:, 0], 6).tolist()}
+
+
+class Armature(Effect):
+    """Reflected rotor inertia added to the diagonal of the mass matrix (per joint).
+
+    Signature: residual proportional to the joint's own acceleration.
+    Plausible: total >= 0 and < 2 kg m^2 (FER rotors reflected through 1:100 gears: about 0.1-0.4 kg m^2).
+    """
+
+    name = "armature"
+    description = "reflected rotor inertia added to the diagonal of the mass matrix"
+    signature = "residual proportional to the joint's own acceleration"
+    plausible = "total >= 0 and < 2 (kg m^2)"
+    SIZES = np.array([0.25, 0.25, 0.2, 0.2, 0.06, 0.06, 0.03])
+
+    def design(self, ctx, shape):
+        return ctx.data.ddq[:, :, None]
+
+    def problems(self, ctx, fit):
+        tot = ctx.config.armature + _joint_coef(fit)[:, 0]
+        return {j: f"negative armature {tot[j]:.3g} kg m^2" for j in fit.joints if tot[j] < 0} | {
+            j: f"armature {tot[j]:.3g} kg m^2 is implausibly large" for j in fit.joints if tot[j] > 2.0}
+
+    def apply(self, config, fit):
+        return config.copy(armature=np.maximum(config.armature + _joint_coef(fit)[:, 0], 0.0))
+
+    def inject(self, plant, rng, magnitude):
+        a = self.SIZES * magnitude * rng.uniform(0.7, 1.3, 7)
+        plant.config = plant.config.copy(armature=plant.config.armature + a)
+        return {"armature_kgm2": a.tolist()}
+
+    def public(self, fit):
+        return {"armature_kgm2": np.round(_joint_coef(fit)[:, 0], 6).tolist()}
+
+
+# ---------------------------------------------------------------------------------------------- shared effects
+class GravityTilt(Effect):
+    """The gravity vector in the base frame differs from the model's (a non-vertical mounting, or a gravity-model
+    error): 3 parameters, the change of the gravity vector (m/s^2).
+
+    Signature: gravity-torque error on the weight-carrying joints that varies with the pose.
+    Plausible: tilt <= 30 deg and abs(g) within 5% of 9.81 m/s^2.
+    """
+
+    name, aliases = "gravity_tilt", ("tilt",)
     per_joint = False
-
-    def design(self, ctx: Context) -> np.ndarray:  # (N, 7, p)
-        raise NotImplementedError
-
-    def fit(self, ctx, y, idx):
-        Xall = self.design(ctx)
-        A = ctx.gram(type(self).__name__, Xall, idx)
-        X = Xall[idx]
-        b = np.einsum("mjp,mj->p", X, y[idx])
-        scale = np.sqrt(np.maximum(np.diag(A), 1e-300))
-        An = A / np.outer(scale, scale)
-        th = np.linalg.solve(An + 1e-10 * np.eye(len(b)), b / scale) / scale
-        return Fit(self.name, {"theta": th})
-
-    def contribution(self, ctx, fit):
-        return self.design(ctx) @ fit.theta["theta"]
-
-
-class GravityTilt(_SharedLinearEffect):
-    name = "gravity_tilt"
     n_params = 3
     description = "the gravity vector in the base frame differs from the model's (non-vertical mounting)"
     signature = "gravity-torque error on the weight-carrying joints that varies with the pose"
+    plausible = "tilt <= 30 deg, abs(g) within 5% of 9.81 m/s^2"
 
-    def design(self, ctx):
+    def design(self, ctx, shape):
         return ctx.ev.G
 
     def _g(self, ctx, fit):
-        return ctx.config.gravity + fit.theta["theta"]
+        return ctx.config.gravity + self.coef(fit)
 
     def _tilt(self, ctx, fit) -> float:
-        """Angle (rad) between the fitted and the model's gravity vectors."""
         g0, g = ctx.config.gravity, self._g(ctx, fit)
         return math.acos(max(-1.0, min(1.0, float(g @ g0 / (np.linalg.norm(g) * np.linalg.norm(g0))))))
 
@@ -436,12 +764,21 @@ class GravityTilt(_SharedLinearEffect):
         return out
 
     def apply(self, config, fit):
-        return config.copy(gravity=config.gravity + fit.theta["theta"])
+        return config.copy(gravity=config.gravity + self.coef(fit))
+
+    def inject(self, plant, rng, magnitude):
+        ang = math.radians(4.0 * magnitude * rng.uniform(0.7, 1.3))
+        az = rng.uniform(0, 2 * math.pi)
+        axis = np.array([math.cos(az), math.sin(az), 0.0])
+        g0 = plant.config.gravity
+        g = g0 * math.cos(ang) + np.cross(axis, g0) * math.sin(ang) + axis * (axis @ g0) * (1 - math.cos(ang))
+        plant.config = plant.config.copy(gravity=g)
+        return {"tilt_deg": math.degrees(ang), "gravity_m_per_s2": g.tolist()}
 
     def public(self, fit):
-        return {"delta_gravity_m_per_s2": np.round(fit.theta["theta"], 6).tolist()}
+        return {"delta_gravity_m_per_s2": np.round(self.coef(fit), 6).tolist()}
 
-    def tilt_deg(self, ctx, fit) -> float:
+    def tilt_deg(self, ctx, fit):
         return math.degrees(self._tilt(ctx, fit))
 
 
@@ -456,8 +793,6 @@ def _payload_body(th: np.ndarray) -> tuple[RigidBody, list[str]]:
     Ixx, Ixy, Iyy, Ixz, Iyz, Izz = th[4:10]
     Io = np.array([[Ixx, Ixy, Ixz], [Ixy, Iyy, Iyz], [Ixz, Iyz, Izz]])
     Ic = Io - parallel_axis(m, c7)
-    # project onto a physically consistent inertia: principal moments >= 1e-6 kg m^2 satisfying the triangle
-    # inequality (the simulator rejects anything else)
     w, V = np.linalg.eigh(0.5 * (Ic + Ic.T))
     w = np.maximum(w, 1e-6)
     if w[0] + w[1] < 1.001 * w[2]:  # with a margin: the simulator re-checks after its own eigen-decomposition
@@ -473,48 +808,118 @@ def _payload_body(th: np.ndarray) -> tuple[RigidBody, list[str]]:
     return RigidBody(m, com, Ic), problems
 
 
-class Payload(_SharedLinearEffect):
+def _combine(a: RigidBody, b: RigidBody) -> RigidBody:
+    return RigidBody(*combine_inertials([(a.mass, a.com, a.inertia), (b.mass, b.com, b.inertia)]))
+
+
+class Payload(Effect):
+    """An unknown rigid body held at the flange: 10 parameters (mass, first moments, inertia about the joint-7
+    origin, pinocchio's order), reported as mass, centre of mass and inertia in the flange frame.
+
+    Signature: wrist-pose-dependent gravity torque on joints 1-6 plus inertial torques of a body at the flange.
+    Plausible: 0 < m <= 3.5 kg (FER rated payload 3 kg), centre of mass within 0.3 m of the flange.
+    """
+
     name = "payload"
+    per_joint = False
     n_params = 10
     description = "an unknown rigid body held at the flange (mass, centre of mass, inertia)"
     signature = "wrist-pose-dependent gravity torque on joints 1-6 plus inertial torques of a body at the flange"
+    plausible = "0 < m <= 3.5 kg, centre of mass within 0.3 m of the flange"
 
-    def design(self, ctx):
+    def design(self, ctx, shape):
         return ctx.ev.Y_last
 
     def problems(self, ctx, fit):
-        _, pr = _payload_body(fit.theta["theta"])
+        _, pr = _payload_body(self.coef(fit))
         return {-1: "; ".join(pr)} if pr else {}
 
     def apply(self, config, fit):
-        body, _ = _payload_body(fit.theta["theta"])
+        body, _ = _payload_body(self.coef(fit))
         if body.mass <= 0:
             return config.copy()
         if config.payload is not None and config.payload.mass > 0:
             body = _combine(config.payload, body)
         return config.copy(payload=body)
 
+    def inject(self, plant, rng, magnitude):
+        m = 0.8 * magnitude * rng.uniform(0.7, 1.3)
+        com = np.array([rng.uniform(-0.03, 0.03), rng.uniform(-0.03, 0.03), rng.uniform(0.03, 0.1)])
+        plant.payload = RigidBody(m, com, np.eye(3) * m * 0.06 ** 2 / 6)
+        return {"mass_kg": m, "com_flange_m": com.tolist()}
+
     def public(self, fit):
-        body, _ = _payload_body(fit.theta["theta"])
+        body, _ = _payload_body(self.coef(fit))
         return {"mass_kg": round(body.mass, 6), "com_flange_m": np.round(body.com, 6).tolist(),
                 "inertia_kgm2": np.round(body.inertia, 6).tolist()}
 
 
-def _combine(a: RigidBody, b: RigidBody) -> RigidBody:
-    return RigidBody(*combine_inertials([(a.mass, a.com, a.inertia), (b.mass, b.com, b.inertia)]))
+class LinkMass(Effect):
+    """Errors in the link masses: each link's mass and inertia scaled by ``1 + s_i`` with its centre of mass kept
+    (``ModelConfig.link_mass_scale``), 7 parameters. The torque of link i's own inertial parameters is a regressor
+    column, so the fit is linear.
+
+    Signature: gravity and inertial torque errors that follow the pose, largest on the joints below the link.
+    Plausible: scales within [0.25, 2] (CAD-based link masses are rarely off by more; Gaz et al. 2019 re-identify
+    them within about 30%).
+    """
+
+    name, aliases = "link_mass", ("link_mass_scale",)
+    per_joint = False
+    n_params = 7
+    description = "link masses (and inertias) scaled, centres of mass kept"
+    signature = "pose-dependent gravity and inertial torque errors below the mis-modelled links"
+    plausible = "scales within [0.25, 2] (links the log does not excite are not judged)"
+
+    def design(self, ctx, shape):
+        return ctx.link_torque
+
+    def _visible(self, ctx, fit) -> np.ndarray:
+        """Links whose fitted change produces more than 0.05 Nm RMS on some joint (the others are not identifiable
+        from this log: their scale is left unchanged)."""
+        c = self.coef(fit)
+        rms = np.sqrt(np.mean(ctx.link_torque ** 2, axis=0))  # (7 joints, 7 links)
+        return (np.abs(c) * rms).max(axis=0) > 0.05
+
+    def problems(self, ctx, fit):
+        s = ctx.config.link_mass_scale * (1 + self.coef(fit))
+        vis = self._visible(ctx, fit)
+        bad = [f"link {i + 1} mass scale {s[i]:.3g}" for i in range(7) if vis[i] and not 0.25 <= s[i] <= 2.0]
+        return {-1: "outside [0.25, 2]: " + ", ".join(bad)} if bad else {}
+
+    def apply(self, config, fit):
+        c = np.clip(self.coef(fit), -0.5, 0.5)
+        return config.copy(link_mass_scale=config.link_mass_scale * (1 + c))
+
+    def inject(self, plant, rng, magnitude):
+        s = 1 + 0.15 * magnitude * rng.uniform(0.5, 1.0, 7) * rng.choice([-1.0, 1.0], 7)
+        plant.config = plant.config.copy(link_mass_scale=plant.config.link_mass_scale * s)
+        return {"link_mass_scale": s.tolist()}
+
+    def public(self, fit):
+        return {"mass_scale_change": np.round(self.coef(fit), 6).tolist()}
 
 
-class Delay(_SharedLinearEffect):
+class Delay(Effect):
+    """The measured torque lags the measured motion by a constant time d (s).
+
+    Signature: residual ~ -d x time derivative of the predicted torque, largest where torque changes fast.
+    Plausible: 1.5 sample periods <= d <= 0.1 s (below 1.5 samples logged signals are not aligned better).
+    """
+
     name = "delay"
+    per_joint = False
     n_params = 1
     description = "the measured torque lags the measured motion by a constant time (s)"
     signature = "residual ~ -delay x time derivative of the predicted torque: largest where torque changes fast"
+    plausible = "1.5 sample periods <= d <= 0.1 s"
+    channel = "measurement"
 
-    def design(self, ctx):
+    def design(self, ctx, shape):
         return -ctx.dpred[:, :, None]
 
     def refine(self, ctx, y, fit):
-        d0 = float(fit.theta["theta"][0])
+        d0 = float(self.coef(fit)[0])
         if d0 <= 0:
             return fit
         target = y + ctx.ev.predicted
@@ -524,14 +929,10 @@ class Delay(_SharedLinearEffect):
             sse = float(np.sum((target - shift(ctx.ev.predicted, t, d)) ** 2))
             if sse < best_sse:
                 best, best_sse = d, sse
-        return Fit(self.name, {"theta": np.array([best])}, fit.joints)
-
-    def contribution(self, ctx, fit):
-        d = float(fit.theta["theta"][0])
-        return -ctx.dpred * d
+        return Fit(self.name, {"coef": np.array([best])}, fit.joints)
 
     def problems(self, ctx, fit):
-        d = float(fit.theta["theta"][0])
+        d = float(self.coef(fit)[0])
         if d < 0:
             return {-1: f"negative delay {d * 1000:.2f} ms (the torque would lead the motion)"}
         if d < 1.5 * ctx.data.dt:
@@ -542,11 +943,14 @@ class Delay(_SharedLinearEffect):
         return {}
 
     def apply(self, config, fit):
-        return config.copy(delay=max(0.0, config.delay + float(fit.theta["theta"][0])),
-                           delay_channel="measurement")
+        return config.copy(delay=max(0.0, config.delay + float(self.coef(fit)[0])), delay_channel=self.channel)
+
+    def inject(self, plant, rng, magnitude):
+        plant.measurement_delay = 0.010 * magnitude * rng.uniform(0.7, 1.3)
+        return {"delay_s": plant.measurement_delay}
 
     def public(self, fit):
-        return {"delay_s": round(float(fit.theta["theta"][0]), 6), "channel": "measurement"}
+        return {"delay_s": round(float(self.coef(fit)[0]), 6), "channel": self.channel}
 
 
 class CommandDelay(Delay):
@@ -556,39 +960,131 @@ class CommandDelay(Delay):
 
     description = "torque commands reach the joints late: the measured torque lags the commanded torque"
     signature = "tau_J - g(q) - tau_J_d ~ -delay x d(tau_J_d)/dt"
+    channel = "command"
 
-    def design(self, ctx):
+    def design(self, ctx, shape):
         return -ctx.dcmd[:, :, None]
 
     def refine(self, ctx, y, fit):
         return fit
 
-    def contribution(self, ctx, fit):
-        return -ctx.dcmd * float(fit.theta["theta"][0])
 
-    def apply(self, config, fit):
-        return config.copy(delay=max(0.0, config.delay + float(fit.theta["theta"][0])),
-                           delay_channel="command")
+# ---------------------------------------------------------------------------------------------- registry
+class EffectRegistry:
+    """The one list of effects (name -> instance, with aliases) that diagnose, fit, the generators and the tests
+    read. ``register(EffectClass)`` adds one (a user's plug-in, or a library extension); names must be unique."""
 
-    def public(self, fit):
-        return {"delay_s": round(float(fit.theta["theta"][0]), 6), "channel": "command"}
+    def __init__(self) -> None:
+        self._effects: dict[str, Effect] = {}
+        self._aliases: dict[str, str] = {}
+
+    def register(self, effect: type[Effect] | Effect, replace: bool = False) -> Effect:
+        e = effect() if isinstance(effect, type) else effect
+        if not isinstance(e, Effect):
+            raise ValueError(f"{effect!r} is not an Effect subclass")
+        if not e.name or not e.name.replace("_", "").isalnum():
+            raise ValueError(f"effect class {type(e).__name__} needs a name made of letters, digits and '_'")
+        if (e.name in self._effects or e.name in self._aliases) and not replace:
+            raise ValueError(f"an effect named {e.name!r} is already registered")
+        if type(e).design is Effect.design:
+            raise ValueError(f"effect {e.name!r} must implement design(ctx, shape)")
+        self._effects[e.name] = e
+        for a in e.aliases:
+            self._aliases[a] = e.name
+        return e
+
+    def unregister(self, name: str) -> None:
+        e = self._effects.pop(name)
+        for a in e.aliases:
+            self._aliases.pop(a, None)
+
+    def get(self, name: str) -> Effect:
+        key = self._aliases.get(name.strip(), name.strip())
+        if key not in self._effects:
+            raise ValueError(f"unknown effect {name!r}: choose from {', '.join(self._effects)}")
+        return self._effects[key]
+
+    def names(self) -> list[str]:
+        return list(self._effects)
+
+    def injectable(self) -> list[str]:
+        return [n for n, e in self._effects.items() if e.injectable]
+
+    def __contains__(self, name: str) -> bool:
+        return name in self._effects or name in self._aliases
+
+    def __getitem__(self, name: str) -> Effect:
+        return self.get(name)
+
+    def __iter__(self):
+        return iter(self._effects)
+
+    def __len__(self) -> int:
+        return len(self._effects)
+
+    def items(self):
+        return self._effects.items()
+
+    def values(self):
+        return self._effects.values()
 
 
+REGISTRY = EffectRegistry()
+for _cls in (ViscousFriction, CoulombFriction, SigmoidFriction, AsymmetricFriction, LoadDependentFriction,
+             TorqueOffset, Armature, Payload, LinkMass, GravityTilt, Delay):
+    REGISTRY.register(_cls)
+LIBRARY = REGISTRY  # the historical name
 COMMAND_DELAY = CommandDelay()
-LIBRARY: dict[str, Effect] = {e.name: e for e in (
-    ViscousFriction(), CoulombFriction(), SigmoidFriction(), TorqueOffset(), Armature(), Payload(),
-    GravityTilt(), Delay())}
-ALIASES = {"gaz_friction": "sigmoid_friction", "stribeck_friction": "sigmoid_friction", "offset": "torque_offset",
-           "tilt": "gravity_tilt", "viscous": "viscous_friction", "coulomb": "coulomb_friction"}
-FRICTION_EFFECTS = ("viscous_friction", "coulomb_friction", "sigmoid_friction")
+FRICTION_EFFECTS = ("viscous_friction", "coulomb_friction", "sigmoid_friction", "asymmetric_friction",
+                    "load_dependent_friction")
+ENTRY_POINT_GROUP = "franka_vs_gym.effects"
 
 
 def get_effect(name: str) -> Effect:
-    """The effect called ``name`` (aliases: gaz_friction/stribeck_friction, offset, tilt, viscous, coulomb)."""
-    key = ALIASES.get(name.strip(), name.strip())
-    if key not in LIBRARY:
-        raise ValueError(f"unknown effect {name!r}: choose from {', '.join(LIBRARY)}")
-    return LIBRARY[key]
+    """The registered effect called ``name`` (or one of its aliases)."""
+    return REGISTRY.get(name)
 
 
-__all__ = ["ALIASES", "COMMAND_DELAY", "Context", "Effect", "Fit", "FRICTION_EFFECTS", "LIBRARY", "get_effect"]
+def load_plugin(path: str | Path, registry: EffectRegistry = REGISTRY, replace: bool = False) -> list[str]:
+    """Import a user's Python file and register every :class:`Effect` subclass it defines (with a ``name``).
+    Returns the names registered. Raises ValueError naming the problem (missing file, import error, no effect)."""
+    p = Path(path)
+    if not p.is_file():
+        raise ValueError(f"effects file not found: {p}")
+    if p.suffix != ".py":
+        raise ValueError(f"{p}: an effects plug-in must be a Python file (.py)")
+    mod_name = f"franka_vs_gym_user_effects_{abs(hash(str(p.resolve())))}"
+    spec = importlib.util.spec_from_file_location(mod_name, p)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[mod_name] = module
+    try:
+        spec.loader.exec_module(module)
+    except Exception as exc:  # the user's code: report its error in one line
+        sys.modules.pop(mod_name, None)
+        raise ValueError(f"{p}: importing the effects file failed: {type(exc).__name__}: {exc}") from exc
+    names = []
+    for _, obj in inspect.getmembers(module, inspect.isclass):
+        if issubclass(obj, Effect) and obj.__module__ == mod_name and obj.name:
+            if obj.name in registry and not replace and type(registry.get(obj.name)) is obj:
+                continue
+            names.append(registry.register(obj, replace=replace).name)
+    if not names:
+        raise ValueError(f"{p}: defines no Effect subclass with a name")
+    return names
+
+
+def load_entry_points(registry: EffectRegistry = REGISTRY) -> list[str]:
+    """Register the effects installed packages declare in the entry-point group ``franka_vs_gym.effects``."""
+    from importlib.metadata import entry_points
+
+    names = []
+    for ep in entry_points(group=ENTRY_POINT_GROUP):
+        obj = ep.load()
+        if ep.name in registry:
+            continue
+        names.append(registry.register(obj).name)
+    return names
+
+
+__all__ = ["COMMAND_DELAY", "Context", "Effect", "EffectRegistry", "ENTRY_POINT_GROUP", "Fit", "FRICTION_EFFECTS",
+           "LIBRARY", "NotApplicable", "PlantChange", "REGISTRY", "get_effect", "load_entry_points", "load_plugin"]

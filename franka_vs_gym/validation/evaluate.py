@@ -57,7 +57,8 @@ class ModelEvaluation:
     rigid: B ddq + C dq + g (armature included); friction: tau_f(dq); offset: (7,); predicted: the delayed sum;
     gravity: g(q); G: (N, 7, 3) gravity torque per unit gravity component (base frame); Y_last: (N, 7, 10) joint
     torque regressor of the last body (pinocchio dynamic parameters in the joint-7 frame: m, m c, inertia about the
-    joint-7 origin as Ixx, Ixy, Iyy, Ixz, Iyz, Izz), or None when not requested.
+    joint-7 origin as Ixx, Ixy, Iyy, Ixz, Iyz, Izz); Y: (N, 7, 70) the full joint-torque regressor (10 parameters per
+link, links 1..7 in order), or None when not requested.
     """
 
     config: ModelConfig
@@ -67,7 +68,12 @@ class ModelEvaluation:
     predicted: np.ndarray
     gravity: np.ndarray
     G: np.ndarray | None
-    Y_last: np.ndarray | None
+    Y: np.ndarray | None
+
+    @property
+    def Y_last(self) -> np.ndarray | None:
+        """(N, 7, 10) joint-torque regressor of the last body (a payload's parameters)."""
+        return None if self.Y is None else self.Y[:, :, 60:70]
 
 
 def evaluate(config: ModelConfig, data: ProcessedLog, regressors: bool = False) -> ModelEvaluation:
@@ -82,7 +88,7 @@ def evaluate(config: ModelConfig, data: ProcessedLog, regressors: bool = False) 
     G = Y = None
     if regressors:
         G = np.empty((n, 7, 3))
-        Y = np.empty((n, 7, 10))
+        Y = np.empty((n, 7, 70))
         gm, _, _ = build_pinocchio_model(config)
         gd = gm.createData()
         reg = pin.computeJointTorqueRegressor
@@ -93,7 +99,7 @@ def evaluate(config: ModelConfig, data: ProcessedLog, regressors: bool = False) 
             for c in range(3):
                 gm.gravity.linear = units[c]
                 G[k, :, c] = ggrav(gm, gd, qk)
-            Y[k] = reg(model, d, qk, dq[k], ddq[k])[:, 60:70]
+            Y[k] = reg(model, d, qk, dq[k], ddq[k])
         grav = np.einsum("nic,c->ni", G, config.gravity)
     else:
         for k in range(n):

@@ -34,24 +34,22 @@ from typing import Any
 
 import numpy as np
 
-from franka_vs_gym.model.config import Friction, ModelConfig, RigidBody
-from franka_vs_gym.model.description import FER, GRAVITY
+from franka_vs_gym.model.config import ModelConfig
+from franka_vs_gym.model.description import FER
 from franka_vs_gym.validation.logs import MeasurementLog
 
-EFFECTS = ("viscous_friction", "coulomb_friction", "sigmoid_friction", "torque_offset", "armature", "payload",
-           "gravity_tilt", "delay")
 TORQUE_NOISE = np.array([0.25, 0.25, 0.2, 0.2, 0.08, 0.08, 0.05])
 DQ_NOISE = 2e-3
 Q_NOISE = 1e-5
-# Smoothing velocity of the hidden Coulomb friction: the plant applies friction explicitly, and a steeper tanh on the
-# light wrist joints would chatter at a 1 ms step (a simulator limit, not a property of the workbench).
-COULOMB_VEL = 0.05
-_SIZES = {
-    "viscous_friction": np.array([0.5, 0.5, 0.4, 0.4, 0.15, 0.15, 0.08]),
-    "coulomb_friction": np.array([0.8, 0.8, 0.6, 0.6, 0.25, 0.25, 0.15]),
-    "torque_offset": np.array([0.6, 0.6, 0.5, 0.5, 0.2, 0.2, 0.1]),
-    "armature": np.array([0.25, 0.25, 0.2, 0.2, 0.06, 0.06, 0.03]),
-}
+
+
+def _effects() -> tuple[str, ...]:
+    from franka_vs_gym.validation.effects import REGISTRY
+
+    return tuple(REGISTRY.injectable())
+
+
+EFFECTS = _effects()  # every registered effect that can inject itself into a plant (read from the registry)
 
 
 def fourier_trajectory(rng: np.random.Generator, duration: float, f0: float = 0.1, harmonics: int = 5,
@@ -83,63 +81,28 @@ def fourier_trajectory(rng: np.random.Generator, duration: float, f0: float = 0.
     return traj
 
 
-def _draw(effect: str, magnitude: float, rng: np.random.Generator) -> tuple[ModelConfig, RigidBody | None,
-                                                                             float, dict[str, Any]]:
-    """Plant configuration, undeclared payload, measurement delay (s) and the answer parameters."""
-    cfg = ModelConfig()
-    u = rng.uniform(0.7, 1.3, 7)
-    payload = None
-    delay = 0.0
+def _draw(effect: str, magnitude: float, rng: np.random.Generator):
+    """Plant change and answer parameters for ``effect`` (one registered effect, or several joined by '+')."""
+    from franka_vs_gym.validation.effects import REGISTRY, PlantChange
+
+    plant = PlantChange(ModelConfig())
+    rng.uniform(0.7, 1.3, 7)  # keeps the trajectories and noise of each seed as in earlier versions
     ans: dict[str, Any] = {}
-    if effect == "viscous_friction":
-        v = _SIZES[effect] * magnitude * u
-        cfg = cfg.copy(friction=Friction(viscous=v))
-        ans = {"viscous_Nms_per_rad": v.tolist()}
-    elif effect == "coulomb_friction":
-        c = _SIZES[effect] * magnitude * u
-        cfg = cfg.copy(friction=Friction(coulomb=c, coulomb_vel=COULOMB_VEL))
-        ans = {"coulomb_Nm": c.tolist(), "coulomb_vel_rad_per_s": COULOMB_VEL}
-    elif effect == "sigmoid_friction":
-        base = Friction()
-        phi1 = base.phi1 * (1 + 0.8 * magnitude * u)
-        phi2 = base.phi2 * rng.uniform(0.6, 1.4, 7)
-        cfg = cfg.copy(friction=Friction(phi1, phi2, base.phi3.copy()))
-        ans = {"phi1_Nm": phi1.tolist(), "phi2_s_per_rad": phi2.tolist(), "phi3_rad_per_s": base.phi3.tolist()}
-    elif effect == "torque_offset":
-        o = _SIZES[effect] * magnitude * u * rng.choice([-1.0, 1.0], 7)
-        cfg = cfg.copy(torque_offset=o)
-        ans = {"offset_Nm": o.tolist()}
-    elif effect == "armature":
-        a = _SIZES[effect] * magnitude * u
-        cfg = cfg.copy(armature=a)
-        ans = {"armature_kgm2": a.tolist()}
-    elif effect == "payload":
-        m = 0.8 * magnitude * float(u[0])
-        com = np.array([rng.uniform(-0.03, 0.03), rng.uniform(-0.03, 0.03), rng.uniform(0.03, 0.1)])
-        side = 0.06
-        inertia = np.eye(3) * m * side ** 2 / 6
-        payload = RigidBody(m, com, inertia)
-        ans = {"mass_kg": m, "com_flange_m": com.tolist()}
-    elif effect == "gravity_tilt":
-        ang = math.radians(4.0 * magnitude * float(u[0]))
-        az = rng.uniform(0, 2 * math.pi)
-        axis = np.array([math.cos(az), math.sin(az), 0.0])
-        g0 = np.array(GRAVITY, dtype=np.float64)
-        # Rodrigues rotation of g0 about axis
-        g = g0 * math.cos(ang) + np.cross(axis, g0) * math.sin(ang) + axis * (axis @ g0) * (1 - math.cos(ang))
-        cfg = cfg.copy(gravity=g)
-        ans = {"tilt_deg": math.degrees(ang), "gravity_m_per_s2": g.tolist()}
-    elif effect == "delay":
-        delay = 0.010 * magnitude * float(u[0])
-        ans = {"delay_s": delay}
-    elif effect != "none":
-        raise ValueError(f"unknown effect {effect!r}: choose from {', '.join(EFFECTS)}, none or random")
-    return cfg, payload, delay, ans
+    if effect == "none":
+        return plant, ans
+    for name in effect.split("+"):
+        if name not in REGISTRY or not REGISTRY.get(name).injectable:
+            raise ValueError(f"unknown effect {name!r}: choose from {', '.join(_effects())}, none or random")
+        e = REGISTRY.get(name)
+        ans[e.name] = e.inject(plant, rng, magnitude)
+    return plant, ans
 
 
 def make_hidden_effect_log(effect: str, seed: int = 0, *, duration: float = 20.0, magnitude: float = 1.0,
                            noise_scale: float = 1.0) -> tuple[MeasurementLog, dict[str, Any]]:
-    """Simulate the FER with one hidden effect (or "none", or "random": effect and magnitude drawn from the seed).
+    """Simulate the FER with one hidden effect (or "none", or "random": effect and magnitude drawn from the seed,
+    or several effects joined by "+", whose answer parameters are then keyed by effect). Each effect injects itself
+    into the plant through its class (:meth:`Effect.inject`).
 
     Returns the log (1 kHz; declared tool the Franka Hand, declared gravity vertical, controller eq. (2) with its
     gains and model) and the answer ``{"effect", "magnitude", "params", "seed"}``.
@@ -154,9 +117,12 @@ def make_hidden_effect_log(effect: str, seed: int = 0, *, duration: float = 20.0
         raise ValueError(f"magnitude must be > 0, got {magnitude}")
     rng = np.random.default_rng(seed)
     if effect == "random":
-        effect = str(rng.choice(list(EFFECTS) + ["none"]))
+        effect = str(rng.choice(list(_effects()) + ["none"]))
         magnitude = float(rng.uniform(1.0, 2.0))
-    plant_cfg, payload, delay, ans = _draw(effect, magnitude, rng)
+    plant, ans = _draw(effect, magnitude, rng)
+    plant_cfg, payload, delay = plant.config, plant.payload, plant.measurement_delay
+    if "+" not in effect and effect != "none":
+        ans = ans[effect]
     traj = fourier_trajectory(rng, duration)
     sig_tau = TORQUE_NOISE * noise_scale * rng.uniform(0.8, 1.2, 7)
     sim = FrankaSim(model=plant_cfg, camera=False, table=False, undeclared_payload=payload)

@@ -90,6 +90,7 @@ class MeasurementLog:
     controller: dict[str, Any] | None = None
     extra: dict[str, Any] = field(default_factory=dict)
     source: str = ""
+    tool_declared: bool = True
 
     def __post_init__(self) -> None:
         self.time = np.array(self.time, dtype=np.float64)
@@ -140,7 +141,8 @@ class MeasurementLog:
         """A new log with samples [start, stop)."""
         kw = {f: (None if getattr(self, f) is None else getattr(self, f)[start:stop].copy()) for f in JOINT_FIELDS}
         return MeasurementLog(self.time[start:stop].copy(), **kw, tool=self.tool, gravity=self.gravity.copy(),
-                              controller=self.controller, extra=dict(self.extra), source=self.source)
+                              controller=self.controller, extra=dict(self.extra), source=self.source,
+                              tool_declared=self.tool_declared)
 
 
 def validate(log: MeasurementLog) -> None:
@@ -215,6 +217,7 @@ def _meta_kwargs(meta: dict[str, Any]) -> dict[str, Any]:
 
     meta = dict(meta)
     kw: dict[str, Any] = {}
+    kw["tool_declared"] = "tool" in meta
     kw["tool"] = meta.pop("tool", _TOOL_DEFAULT)
     if isinstance(kw["tool"], str) and kw["tool"] not in ("franka_hand", "none"):
         raise ValueError(f"unknown tool {kw['tool']!r} in the log metadata: use 'franka_hand', null, or an object "
@@ -319,6 +322,11 @@ def _load_csv(path: Path) -> dict[str, np.ndarray]:
         raise ValueError(f"{path}: no data rows")
     if data.shape[1] != len(header):
         raise ValueError(f"{path}: rows have {data.shape[1]} values, the header has {len(header)} columns")
+    from franka_vs_gym.validation.readers import is_libfranka_csv, libfranka_columns
+
+    if is_libfranka_csv(header):  # libfranka's logToCSV: state./cmd. prefixes, time in ms
+        header, to_s = libfranka_columns(header)
+        data[:, [h.strip() for h in header].index("time")] *= to_s
     return _columns_to_fields(header, data, str(path))
 
 
@@ -440,16 +448,23 @@ def _load_gaz(folder: Path) -> dict[str, np.ndarray]:
     return out
 
 
-def load_log(path: str | os.PathLike) -> MeasurementLog:
-    """Read a log: a CSV file, an NPZ file, or a Gaz et al. 2019 text folder (see the module docstring).
+def load_log(path: str | os.PathLike, topic: str | None = None) -> MeasurementLog:
+    """Read a log: a CSV file (ours or libfranka's logToCSV), an NPZ file, a ROS 2 bag of JointState messages
+    (``topic`` chooses the topic; see :mod:`franka_vs_gym.validation.readers`), or a Gaz et al. 2019 text folder
+    (see the module docstring).
 
     The sidecar ``<log>.json`` supplies tool, gravity and controller. Raises FileNotFoundError when the path does
     not exist and ValueError when the content is malformed. The file is only read.
     """
+    from franka_vs_gym.validation.readers import is_rosbag, read_rosbag
+
     p = Path(path)
     if not os.path.lexists(p):
         raise FileNotFoundError(f"log not found: {p}")
-    if p.is_dir():
+    if is_rosbag(p):
+        arrays, meta = read_rosbag(p, topic)
+        meta.update(_read_sidecar(p))
+    elif p.is_dir():
         arrays = _load_gaz(p)
         meta: dict[str, Any] = {"tool": None, "source_format": "gaz2019"}
         meta.update(_read_sidecar(p / "log"))

@@ -123,6 +123,61 @@ def compare_figures(res: CompareResult, outdir: Path) -> dict[str, Path]:
     }
 
 
+def plot_unexplained(diagnosis: Diagnosis, path: Path) -> Path | None:
+    """Residual of the selected model against what it follows, one panel per joint with structure left."""
+    u = diagnosis.unexplained
+    if u is None or not u.plot_data:
+        return None
+    plt = _plt()
+    joints = sorted(u.plot_data)
+    fig, axes = plt.subplots(1, len(joints), figsize=(4.2 * len(joints), 3.4), squeeze=False)
+    from franka_vs_gym.validation.structure import FOLLOWS
+
+    for ax, j in zip(axes[0], joints, strict=True):
+        group, x, r, nf = u.plot_data[j]
+        ax.plot(x, r, ".", ms=1.5, alpha=0.35, color="C0")
+        order = np.argsort(x)
+        k = max(1, len(x) // 60)
+        xs = x[order]
+        rs = np.convolve(r[order], np.ones(k) / k, mode="same")
+        ax.plot(xs, rs, "-", color="C3", lw=1.5, label="running mean")
+        ax.axhspan(-nf[0], nf[0], color="0.85", zorder=0, label="noise floor")
+        ax.set_xlabel(FOLLOWS[group])
+        ax.set_ylabel(f"residual joint {j} (Nm)")
+        ax.set_title(f"joint {j}: unexplained")
+    axes[0][0].legend(loc="best", fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def _diagnosis_section(d: Diagnosis, out: Path) -> list[str]:
+    L = ["## Diagnosis", "", f"Verdict: **{d.verdict}**; selected (fitted together, in context): "
+         + (", ".join(f"{s.effect} (joints {s.joints})" for s in d.selection) or "nothing"), ""]
+    if d.selection:
+        L += ["| selected effect | joints | score in context | removes per joint (Nm, held out) |",
+              "|---|---|---|---|"]
+        for s in d.selection:
+            L.append(f"| {s.effect} | {s.joints} | {s.score:.1f} | {np.round(s.contribution, 3).tolist()} |")
+        L.append("")
+    if d.unexplained is not None:
+        L += [f"Explained: **{d.unexplained.explained}**. " + " ".join(d.unexplained.text), ""]
+        p = plot_unexplained(d, out / "unexplained.png")
+        if p is not None:
+            L += [f"![unexplained residual]({p.name})", ""]
+    if d.notes:
+        L += ["Notes:", ""] + [f"- {n}" for n in d.notes] + [""]
+    L += ["Each effect alone on the baseline residual:", "",
+          "| rank | effect | joints | score | significant | plausible | held-out RMSE after (Nm) | problems |",
+          "|---|---|---|---|---|---|---|---|"]
+    for i, c in enumerate(d.ranking):
+        L.append(f"| {i + 1} | {c.effect} | {c.joints} | {c.score:.1f} | {c.significant} | {c.plausible} | "
+                 f"{np.round(c.rmse_tau_after, 3).tolist()} | {'; '.join(c.problems)} |")
+    L += ["", "Assumptions: `" + json.dumps(d.assumptions) + "`", ""]
+    return L
+
+
 def _row(values, fmt="{:.3f}") -> str:
     return " | ".join(fmt.format(v) for v in values)
 
@@ -166,15 +221,7 @@ def markdown_report(res: CompareResult, outdir: str | os.PathLike, diagnosis: Di
     for name, p in figs.items():
         L += [f"![residual vs {name}]({p.name})", ""]
     if diagnosis is not None:
-        L += ["## Diagnosis", "", f"Verdict: **{diagnosis.verdict}**"
-              + (f"; greedy selection down to the noise floor: {', '.join(diagnosis.selected)}"
-                 if diagnosis.selected else ""), "",
-              "| rank | effect | joints | score | significant | plausible | held-out RMSE after (Nm) |",
-              "|---|---|---|---|---|---|---|"]
-        for i, c in enumerate(diagnosis.ranking):
-            L.append(f"| {i + 1} | {c.effect} | {c.joints} | {c.score:.1f} | {c.significant} | {c.plausible} | "
-                     f"{np.round(c.rmse_tau_after, 3).tolist()} |")
-        L.append("")
+        L += _diagnosis_section(diagnosis, out)
     if fit is not None:
         p = plot_before_after(fit, out / "before_after.png", published)
         L += ["## Fit: before and after", "", f"Effects added: {', '.join(fit.effects) or 'none'}", "",
@@ -189,4 +236,5 @@ def markdown_report(res: CompareResult, outdir: str | os.PathLike, diagnosis: Di
     return md
 
 
-__all__ = ["compare_figures", "markdown_report", "plot_before_after", "plot_residual_against", "plot_residual_time"]
+__all__ = ["compare_figures", "markdown_report", "plot_before_after", "plot_unexplained", "plot_residual_against",
+           "plot_residual_time"]

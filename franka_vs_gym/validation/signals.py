@@ -5,13 +5,16 @@ Stated choices (all in :class:`CleanSettings`, reported in :class:`CleaningRepor
 1. **Stale rows.** A row whose q, dq and tau_J are bit-identical to the previous row is a sample the robot did not
    refresh (the Gaz et al. logs hold about 1100 of them); it is dropped, as are rows repeating the previous
    timestamp (the first is kept).
-2. **Resampling.** The remaining samples are linearly interpolated onto a uniform grid at ``rate`` (1 kHz by
-   default) spanning the log. Gaps longer than ``max_gap`` (50 ms) are reported as an error: interpolating over
-   them would invent motion.
+2. **Resampling.** The remaining samples are linearly interpolated onto a uniform grid at ``rate`` (by default the
+   log's own median rate, at most 1 kHz: a 30 Hz ROS log stays at 30 Hz, nothing is invented between its samples)
+   spanning the log. Gaps are judged relative to the log's own rate: longer than ``max_gap`` (by default 4 median
+   sample periods, at least 50 ms) is an error (interpolating over them would invent motion); shorter gaps are
+   bridged and counted in the report's warnings.
 3. **Filtering.** q, dq (and the optional desired signals) are low-passed with a Butterworth filter of order
-   ``order`` (4) at ``cutoff`` (10 Hz), applied forward and backward (zero phase, so no time shift between torque
-   and motion is introduced). ``tau_J`` is kept unfiltered for the error statistics (RMSE is quoted against the raw
-   measurement, as in Gaz et al. 2019); a filtered copy is kept for plots.
+   ``order`` (4) at ``cutoff`` (10 Hz, or a quarter of the rate for logs slower than 40 Hz), applied forward and
+   backward (zero phase, so no time shift between torque and motion is introduced). ``tau_J`` is kept unfiltered
+   for the error statistics (RMSE is quoted against the raw measurement, as in Gaz et al. 2019); a filtered copy is
+   kept for plots.
 4. **Derivatives.** ddq is the central difference of the filtered measured dq (the robot's own velocity is less
    noisy than differentiated positions).
 5. **Noise floor.** The torque measurement noise per joint is the RMS of ``tau_J - lowpass(tau_J)`` (the content
@@ -31,26 +34,47 @@ from scipy import signal
 
 from franka_vs_gym.validation.logs import OPTIONAL, MeasurementLog
 
+MAX_RATE = 1000.0  # Hz: logs faster than this are resampled down to it
+GAP_FACTOR = 4.0  # default max_gap: this many of the log's own median sample periods (at least 50 ms)
+MIN_SECONDS = 3.0  # shortest log (after trimming) a diagnosis is attempted on
+
 
 @dataclass(frozen=True)
 class CleanSettings:
-    """Cleaning parameters: rate (Hz) of the uniform grid, cutoff (Hz) and order of the zero-phase Butterworth
-    low-pass, max_gap (s) the longest gap interpolated over, trim (s) cut at each end after filtering (edge
-    effects of the filter and of the derivative)."""
+    """Cleaning parameters: rate (Hz) of the uniform grid (None: the log's own median rate, at most 1 kHz), cutoff
+    (Hz) and order of the zero-phase Butterworth low-pass (cutoff None: 10 Hz, or a quarter of the rate for slower
+    logs), max_gap (s) the longest gap interpolated over (None: ``GAP_FACTOR`` median sample periods of the log, at
+    least 50 ms), trim (s) cut at each end after filtering (edge effects of the filter and of the derivative)."""
 
-    rate: float = 1000.0
-    cutoff: float = 10.0
+    rate: float | None = None
+    cutoff: float | None = None
     order: int = 4
-    max_gap: float = 0.05
+    max_gap: float | None = None
     trim: float = 0.3
 
     def __post_init__(self) -> None:
-        if not self.rate > 0:
+        if self.rate is not None and not self.rate > 0:
             raise ValueError(f"rate must be > 0 Hz, got {self.rate}")
-        if not 0 < self.cutoff < self.rate / 2:
+        if self.cutoff is not None and not self.cutoff > 0:
+            raise ValueError(f"cutoff must be > 0 Hz, got {self.cutoff}")
+        if self.rate is not None and self.cutoff is not None and not self.cutoff < self.rate / 2:
             raise ValueError(f"cutoff must be in (0, rate/2) = (0, {self.rate / 2}) Hz, got {self.cutoff}")
+        if self.max_gap is not None and not self.max_gap > 0:
+            raise ValueError(f"max_gap must be > 0 s, got {self.max_gap}")
         if self.order < 1:
             raise ValueError(f"order must be >= 1, got {self.order}")
+
+    def resolved(self, raw_dt: float) -> CleanSettings:
+        """The settings with the automatic values fixed for a log whose median sample period is raw_dt (s)."""
+        from dataclasses import replace
+
+        raw_rate = 1.0 / raw_dt
+        rate = self.rate if self.rate is not None else min(MAX_RATE, float(round(raw_rate)))
+        cutoff = self.cutoff if self.cutoff is not None else min(10.0, 0.25 * min(rate, raw_rate))
+        if not cutoff < rate / 2:
+            raise ValueError(f"cutoff {cutoff} Hz must be below half the rate ({rate / 2} Hz)")
+        max_gap = self.max_gap if self.max_gap is not None else max(0.05, GAP_FACTOR * raw_dt)
+        return replace(self, rate=rate, cutoff=cutoff, max_gap=max_gap)
 
 
 @dataclass
@@ -65,6 +89,8 @@ class CleaningReport:
     dt_max: float
     samples_out: int
     settings: dict[str, Any] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+    gaps_bridged: int = 0
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -112,7 +138,10 @@ def _lowpass(settings: CleanSettings):
 
 
 def highpass_power_fraction(settings: CleanSettings) -> float:
-    """Fraction of white-noise power left in ``x - filtfilt(x)`` (from the frequency response)."""
+    """Fraction of white-noise power left in ``x - filtfilt(x)`` (from the frequency response); automatic
+    settings are taken at 1 kHz."""
+    if settings.rate is None or settings.cutoff is None or settings.max_gap is None:
+        settings = settings.resolved(1.0 / (settings.rate or MAX_RATE))
     sos = _lowpass(settings)
     _, h = signal.sosfreqz(sos, worN=8192, fs=settings.rate)
     h2 = np.abs(h) ** 2  # filtfilt: magnitude squared, zero phase
@@ -121,7 +150,7 @@ def highpass_power_fraction(settings: CleanSettings) -> float:
 
 def clean(log: MeasurementLog, settings: CleanSettings | None = None) -> ProcessedLog:
     """Clean, resample, filter and differentiate a log (see the module docstring). Returns a new object."""
-    s = settings or CleanSettings()
+    s0 = settings or CleanSettings()
     t_raw = log.time
     n_in = len(t_raw)
     stale = np.zeros(n_in, dtype=bool)
@@ -136,18 +165,39 @@ def clean(log: MeasurementLog, settings: CleanSettings | None = None) -> Process
     if len(t) < 10:
         raise ValueError(f"log has only {len(t)} distinct samples after dropping stale rows; need at least 10")
     dts = np.diff(t)
+    raw_dt = np.diff(t_raw)
+    raw_dt = raw_dt[raw_dt > 0]
+    med = float(np.median(raw_dt))
+    s = s0.resolved(med)
     gap = float(dts.max())
     if gap > s.max_gap:
         i = int(np.argmax(dts))
-        raise ValueError(f"log has a {gap * 1000:.1f} ms gap at t = {t[i]:.4f} s (longer than max_gap "
-                         f"{s.max_gap * 1000:.0f} ms): split the log there")
-    raw_dt = np.diff(t_raw)
-    raw_dt = raw_dt[raw_dt > 0]
+        raise ValueError(f"log has a {gap * 1000:.1f} ms gap at t = {t[i]:.4f} s, longer than max_gap "
+                         f"{s.max_gap * 1000:.0f} ms ({s.max_gap / med:.1f} of its median sample periods of "
+                         f"{med * 1000:.1f} ms): split the log there, or allow it with --max-gap")
+    warnings: list[str] = []
+    bridged = int(np.sum(dts > 1.5 * med))
+    if bridged:
+        warnings.append(f"{bridged} gaps longer than 1.5 sample periods (up to {gap * 1000:.1f} ms) were bridged by "
+                        "linear interpolation")
+    raw_rate = 1.0 / med
+    if raw_rate < 250:
+        warnings.append(f"the log's rate is {raw_rate:.0f} Hz: motion is low-passed at {s.cutoff:g} Hz and the "
+                        f"acceleration is the derivative of a velocity sampled every {med * 1000:.0f} ms, so "
+                        "inertial effects (armature, payload inertia) are poorly identifiable and delays shorter "
+                        f"than {1.5 * med * 1000:.0f} ms cannot be seen")
+    jitter = float(np.std(raw_dt) / med)
+    if jitter > 0.05:
+        warnings.append(f"irregular time stamps (sample period {med * 1000:.2f} ms +- {jitter * 100:.0f}%): "
+                        "resampled by linear interpolation onto a uniform grid")
     grid = np.arange(t[0], t[-1] + 0.5 / s.rate, 1.0 / s.rate)
     grid = grid[grid <= t[-1]]
     min_len = int(2 * s.trim * s.rate) + 3 * (s.order * 6)
     if len(grid) <= min_len:
         raise ValueError(f"log too short: {t[-1] - t[0]:.3f} s; need more than {min_len / s.rate:.2f} s")
+    if t[-1] - t[0] - 2 * s.trim < MIN_SECONDS:
+        warnings.append(f"short log: {t[-1] - t[0]:.1f} s; results on less than {MIN_SECONDS + 2 * s.trim:.1f} s "
+                        "are unreliable")
 
     def resample(a: np.ndarray) -> np.ndarray:
         out = np.empty((len(grid), a.shape[1]))
@@ -177,7 +227,7 @@ def clean(log: MeasurementLog, settings: CleanSettings | None = None) -> Process
     hf = (tau - tau_filt)[sl]
     noise = np.sqrt(np.mean(hf ** 2, axis=0) / frac)
     report = CleaningReport(n_in, int(stale.sum()), int(rep.sum()), float(raw_dt.min()), float(np.median(raw_dt)),
-                            float(raw_dt.max()), int(sl.stop - sl.start), asdict(s))
+                            float(raw_dt.max()), int(sl.stop - sl.start), asdict(s), warnings, bridged)
     return ProcessedLog(grid[sl] - grid[0], q[sl], dq[sl], ddq[sl], tau[sl], tau_filt[sl],
                         {kk: v[sl] for kk, v in optional.items()}, noise, log, report, s)
 

@@ -1,0 +1,224 @@
+"""Joint least-squares fits of sets of effects, cross-validated from cached Gram matrices, and the in-context
+selection that ``diagnose`` runs.
+
+Every effect is linear in its coefficients once its shape is fixed (see :mod:`franka_vs_gym.validation.effects`), so
+a set of effects is fitted *jointly* by one linear least-squares problem. The log is cut into ``F`` contiguous blocks;
+for each block ``f`` and joint ``j`` the engine keeps the Gram blocks ``X_fj^T X_fj``, ``X_fj^T y_fj`` and
+``y_fj^T y_fj`` of every effect pair it has seen, so fitting any set on all blocks but one and scoring it on the
+held-out block costs a few small solves, not a pass over the data. That is what makes selection *in context*
+affordable: each candidate is re-fitted together with the effects already selected, earlier selections are re-tested
+once later ones are in, and collinear pairs are tried as groups.
+
+Scores (the same information criterion as the ranking; see :mod:`franka_vs_gym.validation.diagnose`): adding a set of
+coefficients to a model whose held-out mean squared error per joint is ``MSE0_j`` and becomes ``MSE1_j`` scores
+``sum_j N_eff_j ln(MSE0_j / MSE1_j) - k ln(N_eff)``, with ``N_eff`` the effective sample size of the current residual
+under its autocorrelation.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from franka_vs_gym.validation.effects import Context, Effect, Fit
+
+
+def n_eff(r: np.ndarray, max_lag: int = 2000) -> np.ndarray | float:
+    """Effective number of independent samples of a series r (N,) or of each column of r (N, k):
+    N / tau_int with tau_int = 1 + 2 * (sum of the autocorrelations up to the first non-positive one)."""
+    x = np.asarray(r, dtype=np.float64)
+    one = x.ndim == 1
+    if one:
+        x = x[:, None]
+    n = x.shape[0]
+    x = x - x.mean(axis=0)
+    var = np.einsum("nk,nk->k", x, x)
+    lag = min(max_lag, n - 1)
+    m = 1 << int(np.ceil(np.log2(n + lag + 1)))
+    f = np.fft.rfft(x, m, axis=0)
+    ac = np.fft.irfft(f.real ** 2 + f.imag ** 2, m, axis=0)[: lag + 1] / np.maximum(var, 1e-300)
+    out = np.empty(x.shape[1])
+    for c in range(x.shape[1]):
+        if var[c] <= 0:
+            out[c] = n
+            continue
+        neg = np.nonzero(ac[1:, c] <= 0)[0]
+        k = int(neg[0]) if len(neg) else lag
+        tau = 1.0 + 2.0 * float(ac[1:k + 1, c].sum())
+        out[c] = n / max(tau, 1.0)
+    return float(out[0]) if one else out
+
+
+@dataclass(eq=False)
+class Term:
+    """One effect in a set: its shape (non-linear parameters), and for a per-joint effect the joints it acts on."""
+
+    effect: Effect
+    shape: dict[str, Any]
+    joints: list[int] | None = None  # per-joint effects only
+
+    @property
+    def key(self) -> tuple:
+        return (self.effect.name, self.effect.shape_key(self.shape))
+
+    def active(self, j: int) -> bool:
+        return not self.effect.per_joint or (self.joints is not None and j in self.joints)
+
+    def k(self) -> int:
+        """Number of parameters (for the information criterion)."""
+        e = self.effect
+        return e.n_params * (len(self.joints or []) if e.per_joint else 1)
+
+
+@dataclass
+class SetFit:
+    """A set of terms fitted jointly: held-out MSE per joint (7,), in-sample coefficients per term, in-sample
+    contribution (N, 7) and the fits."""
+
+    terms: list[Term]
+    mse_cv: np.ndarray
+    coefs: list[np.ndarray]
+    fits: list[Fit] = field(default_factory=list)
+    _contribs: list[np.ndarray] | None = None
+
+
+class Engine:
+    """Cached cross-validated joint fits of sets of effects on one target ``y`` (N, 7) Nm."""
+
+    def __init__(self, ctx: Context, y: np.ndarray, folds: list[np.ndarray]) -> None:
+        self.ctx, self.y, self.folds = ctx, y, folds
+        self.F = len(folds)
+        self.n = len(y)
+        self.yy = np.array([np.einsum("nj,nj->j", y[b], y[b]) for b in folds])  # (F, 7)
+        self._design: dict[tuple, np.ndarray] = {}
+        self._xy: dict[tuple, np.ndarray] = {}
+        self._gram: dict[tuple, np.ndarray] = {}
+        self.empty_mse = self.yy.sum(axis=0) / self.n
+
+    # --- caches
+    def design(self, t: Term) -> np.ndarray:
+        k = t.key
+        if k not in self._design:
+            D = np.asarray(t.effect.design(self.ctx, t.shape), dtype=np.float64)
+            if D.ndim != 3 or D.shape[:2] != (self.n, 7):
+                raise ValueError(f"effect {t.effect.name!r}: design must have shape ({self.n}, 7, p), got {D.shape}")
+            if not np.isfinite(D).all():
+                raise ValueError(f"effect {t.effect.name!r}: design contains NaN or inf")
+            self._design[k] = D
+        return self._design[k]
+
+    def xy(self, t: Term) -> np.ndarray:  # (F, 7, p)
+        k = t.key
+        if k not in self._xy:
+            D = self.design(t)
+            self._xy[k] = np.array([np.einsum("njp,nj->jp", D[b], self.y[b]) for b in self.folds])
+        return self._xy[k]
+
+    def gram(self, a: Term, b: Term) -> np.ndarray:  # (F, 7, pa, pb)
+        k = (a.key, b.key)
+        if k not in self._gram:
+            kt = (b.key, a.key)
+            if kt in self._gram:
+                return self._gram[kt].transpose(0, 1, 3, 2)
+            Da, Db = self.design(a), self.design(b)
+            self._gram[k] = np.array([np.matmul(Da[blk].transpose(1, 2, 0), Db[blk].transpose(1, 0, 2))
+                                      for blk in self.folds])
+        return self._gram[k]
+
+    # --- fits
+    def _layout(self, terms: list[Term]) -> tuple[int, list[dict[int, slice]]]:
+        """Global parameter index of each term: {joint: slice} for per-joint terms, {-1: slice} for shared ones."""
+        pos = 0
+        out = []
+        for t in terms:
+            p = self.design(t).shape[2]
+            d: dict[int, slice] = {}
+            if t.effect.per_joint:
+                for j in (t.joints or []):
+                    d[j] = slice(pos, pos + p)
+                    pos += p
+            else:
+                d[-1] = slice(pos, pos + p)
+                pos += p
+            out.append(d)
+        return pos, out
+
+    def fit(self, terms: list[Term], cv: bool = True) -> SetFit:
+        """Fit ``terms`` jointly: held-out MSE per joint (when ``cv``) and in-sample coefficients."""
+        P, lay = self._layout(terms)
+        if P == 0:
+            return SetFit(terms, self.empty_mse.copy(), [np.zeros((7, self.design(t).shape[2])) if
+                                                         t.effect.per_joint else np.zeros(self.design(t).shape[2])
+                                                         for t in terms])
+        A = np.zeros((self.F, P, P))
+        b = np.zeros((self.F, P))
+        per_joint_idx = []
+        blocks = []
+        for j in range(7):
+            act = [(i, lay[i][j if t.effect.per_joint else -1]) for i, t in enumerate(terms) if t.active(j)]
+            if not act:
+                per_joint_idx.append(None)
+                blocks.append(None)
+                continue
+            idx = np.concatenate([np.arange(s.start, s.stop) for _, s in act])
+            G = np.concatenate([np.concatenate([self.gram(terms[a], terms[c])[:, j] for c, _ in act], axis=2)
+                                for a, _ in act], axis=1)  # (F, pj, pj)
+            xy = np.concatenate([self.xy(terms[a])[:, j] for a, _ in act], axis=1)  # (F, pj)
+            A[:, idx[:, None], idx[None, :]] += G
+            b[:, idx] += xy
+            per_joint_idx.append(idx)
+            blocks.append((G, xy))
+        At, bt = A.sum(axis=0), b.sum(axis=0)
+        theta = _solve(At, bt)
+        mse_cv = self.empty_mse.copy()
+        if cv:
+            sse = self.yy.copy()
+            for f in range(self.F):
+                th = _solve(At - A[f], bt - b[f])
+                for j in range(7):
+                    if per_joint_idx[j] is None:
+                        continue
+                    G, xy = blocks[j]
+                    tj = th[per_joint_idx[j]]
+                    sse[f, j] = self.yy[f, j] - 2 * tj @ xy[f] + tj @ G[f] @ tj
+            mse_cv = np.maximum(sse.sum(axis=0), 0.0) / self.n
+        coefs = []
+        for t, d in zip(terms, lay, strict=True):
+            p = self.design(t).shape[2]
+            if t.effect.per_joint:
+                c = np.zeros((7, p))
+                for j, s in d.items():
+                    c[j] = theta[s]
+            else:
+                c = theta[d[-1]].copy()
+            coefs.append(c)
+        fits = [t.effect.make_fit(self.ctx, c, t.shape, t.joints if t.effect.per_joint else None)
+                for t, c in zip(terms, coefs, strict=True)]
+        return SetFit(terms, mse_cv, coefs, fits)
+
+    def contributions(self, sf: SetFit) -> list[np.ndarray]:
+        """In-sample contribution (N, 7) Nm of each term of a fitted set."""
+        if sf._contribs is None:
+            out = []
+            for t, c in zip(sf.terms, sf.coefs, strict=True):
+                D = self.design(t)
+                out.append(np.einsum("njp,jp->nj", D, c) if t.effect.per_joint else D @ c)
+            sf._contribs = out
+        return sf._contribs
+
+    def residual(self, sf: SetFit) -> np.ndarray:
+        return self.y - sum(self.contributions(sf), np.zeros_like(self.y))
+
+
+def _solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    scale = np.sqrt(np.maximum(np.diag(A), 1e-300))
+    An = A / np.outer(scale, scale)
+    try:
+        return np.linalg.solve(An + 1e-9 * np.eye(len(b)), b / scale) / scale
+    except np.linalg.LinAlgError:
+        return np.linalg.lstsq(An, b / scale, rcond=1e-10)[0] / scale
+
+
+__all__ = ["Engine", "SetFit", "Term", "n_eff"]
