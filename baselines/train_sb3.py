@@ -43,6 +43,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--eval-seed", type=int, default=10_000)
     p.add_argument("--threads", type=int, default=1, help="torch threads (keep 1 on a shared machine)")
     p.add_argument("--force", action="store_true", help="overwrite an existing output")
+    p.add_argument("--batched", action="store_true", help="step the environments' physics together on mujoco.batch "
+                   "(gymnasium.make_vec's native vector env) instead of one Python env each")
+    p.add_argument("--batch-threads", type=int, default=None, help="threads of the batch (default min(n-envs, CPUs))")
     p.add_argument("--smoke", action="store_true", help="a few hundred steps, tiny evaluation (CI smoke test)")
     p.add_argument("--env-kwargs", default="{}", help="JSON dict of extra gymnasium.make keyword arguments")
     return p
@@ -116,8 +119,16 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
     n_envs = args.n_envs if args.n_envs else (1 if args.algo == "sac" else 8)
     if n_envs < 1:
         raise ValueError(f"--n-envs must be >= 1, got {n_envs}")
-    env = DummyVecEnv([lambda: Monitor(make_agent_env(args.env_id, args.action_scale, **env_kwargs))
-                       for _ in range(n_envs)])
+    if args.batched:  # the robots' physics on one mujoco.batch (franka_vs_gym.envs.vector)
+        from stable_baselines3.common.vec_env import VecMonitor
+
+        from franka_vs_gym.envs.sb3 import make_agent_vec_env
+
+        env = VecMonitor(make_agent_vec_env(args.env_id, n_envs, args.action_scale, nthread=args.batch_threads,
+                                            **env_kwargs))
+    else:
+        env = DummyVecEnv([lambda: Monitor(make_agent_env(args.env_id, args.action_scale, **env_kwargs))
+                           for _ in range(n_envs)])
     env.seed(args.seed)
     tb = args.tensorboard or None
     if args.algo == "sac":
@@ -141,7 +152,7 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
     model.save(str(zip_path), exclude=["replay_buffer"])
     meta = {"algo": args.algo, "env_id": args.env_id, "env_kwargs": env_kwargs, "action_scale": args.action_scale,
             "action_type": "joint_velocity", "observation_layout": OBS_LAYOUT, "timesteps": timesteps,
-            "seed": args.seed, "n_envs": n_envs, "train_time_s": round(train_time, 1),
+            "seed": args.seed, "n_envs": n_envs, "batched": bool(args.batched), "train_time_s": round(train_time, 1),
             "command": "python " + " ".join(sys.argv)}
     meta_path.write_text(json.dumps(meta, indent=2))
     print(f"saved {zip_path} ({zip_path.stat().st_size / 1e6:.2f} MB) and {meta_path}; "

@@ -31,6 +31,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "diagnose": ("franka_vs_gym.validation.cli_diagnose", "find which physical effect a model lacks on a log"),
     "fit": ("franka_vs_gym.validation.cli_fit", "fit effects on a log and save a calibrated model file"),
     "evaluate": ("franka_vs_gym.envs.cli_evaluate", "evaluate a scripted policy or an SB3 model on an environment"),
+    "diagnose-folder": ("franka_vs_gym.scale", "diagnose (and fit) every log of a folder in parallel on Ray "
+                        "(local or a cluster)"),
     "serve": ("franka_vs_gym.fci.cli", "serve the simulated FER on libfranka's network interface (FCI)"),
 }
 

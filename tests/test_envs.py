@@ -14,17 +14,28 @@ import pytest
 import franka_vs_gym
 from franka_vs_gym.envs.registration import ENVS
 
-VISUAL = ["FrankaIBVS-v0", "FrankaPBVS-v0", "FrankaVisualTorque-v0"]
+
+def _env_class(env_id):
+    return gym.envs.registration.load_env_creator(ENVS[env_id])
+
+
+def _visual_ids():
+    from franka_vs_gym.envs.visual import VisualServoEnv
+
+    return [env_id for env_id in sorted(ENVS) if issubclass(_env_class(env_id), VisualServoEnv)]
+
+
+VISUAL = _visual_ids()  # read from the registry: every visual-servoing task
 SMALL_IMAGE = {"image_width": 48, "image_height": 36}  # SB3's CnnPolicy minimum is 36x36
 
 
 def combos():
-    for env_id in VISUAL:
-        for act in ("torque", "joint_velocity", "cartesian_velocity"):
-            for obs in ("features", "image", "features+image", "state"):
+    """Every registered environment with every action and observation type its class supports."""
+    for env_id in sorted(ENVS):
+        cls = _env_class(env_id)
+        for act in cls.supported_action_types:
+            for obs in cls.supported_observation_types:
                 yield env_id, act, obs
-    for act in ("torque", "joint_velocity"):
-        yield "FrankaTorqueTracking-v0", act, "state"
 
 
 def make(env_id, **kw):

@@ -236,6 +236,7 @@ def scene_xml(scene: SceneSpec) -> str:
     return f"""<mujoco model="franka_vs_gym">
 <compiler angle="radian" meshdir="{mesh_dir()}" inertiafromgeom="false" autolimits="true"/>
 <option timestep="{scene.timestep:.9g}" integrator="implicitfast" gravity="{_fmt(g)}"/>
+<size nuser_jnt="7"/>
 <visual><global offwidth="{scene.offwidth}" offheight="{scene.offheight}"/>
 <quality shadowsize="0"/><map znear="0.01" zfar="20"/></visual>
 <default>

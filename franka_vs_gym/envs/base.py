@@ -93,17 +93,21 @@ class ObservationPacker:
             i += n
         self.low, self.high = np.concatenate(lows), np.concatenate(highs)
         self._work = np.zeros(i)
+        # (key, slice, None for a flat key or its shape), so that the hot path reshapes only where needed
+        self._views = [(k, sl, None if len(sh) == 1 else sh) for k, sl, sh in self.items]
+        self.last: np.ndarray | None = None  # the flat float32 buffer of the last observation (its keys' base)
 
     def __call__(self, raw: dict[str, Any]) -> dict[str, np.ndarray]:
         v = self._work
-        for k, sl, _ in self.items:
+        for k, sl, _ in self._views:
             v[sl] = raw[k]
         np.maximum(v, self.low, out=v)
         np.minimum(v, self.high, out=v)
-        if v.sum() != v.sum():  # NaN somewhere (defensive: a NaN never reaches the agent)
+        total = v.sum()
+        if total != total:  # NaN somewhere (defensive: a NaN never reaches the agent)
             v[np.isnan(v)] = 0.0
-        buf = v.astype(np.float32)
-        return {k: buf[sl] if len(sh) == 1 else buf[sl].reshape(sh) for k, sl, sh in self.items}
+        buf = self.last = v.astype(np.float32)
+        return {k: buf[sl] if sh is None else buf[sl].reshape(sh) for k, sl, sh in self._views}
 
 
 class FrankaEnv(gym.Env):
@@ -298,9 +302,19 @@ class FrankaEnv(gym.Env):
     def _after_reset(self) -> None:
         """Called once the robot is at q0 (e.g. to take the first camera frame)."""
 
+    def _segments(self) -> tuple[tuple[int, bool], ...]:
+        """The physics of the next control period as (substeps, camera frame after them) segments (tasks with a
+        camera capture frames in between); the batched vector env runs them on mujoco.batch."""
+        return ((self.n_substeps, False),)
+
+    def _segment_done(self, n: int, capture: bool) -> None:
+        """Called after each segment of :meth:`_segments` has run."""
+
     def _advance(self) -> None:
-        """Run the physics for one control period (tasks with a camera capture frames in between)."""
-        self.world.step(self.n_substeps)
+        """Run the physics for one control period."""
+        for n, capture in self._segments():
+            self.world.step(n)
+            self._segment_done(n, capture)
 
     def _get_obs(self) -> dict[str, np.ndarray]:
         raise NotImplementedError
@@ -378,28 +392,54 @@ class FrankaEnv(gym.Env):
         return {}
 
     def step(self, action: Any):
+        self._step_begin(action)
+        try:
+            if self._reflex is None:
+                self._advance()
+        except SimulationDiverged as e:
+            return self._step_diverged(e)
+        except ControlException as e:  # a reflex stopped the robot during the period
+            self._reflex = e
+        return self._step_end()
+
+    # the three parts of a step, run by the batched vector env around its batched physics
+    def _step_begin(self, action: Any) -> None:
         if self._diverged is not None:
             raise RuntimeError(f"the simulation diverged ({self._diverged}); call reset() before step()")
         if self._last_obs is None:
             raise RuntimeError("call reset() before step()")
         a = self._check_action(action)
+        self._reflex: ControlException | None = None
         try:
             self._apply_action(a)
-            self._advance()
-            self.sim.check_reflexes()
-        except ControlException as e:  # a reflex stopped the robot (held by its brakes): the episode ends
-            self._steps += 1
-            obs = self._get_obs()
-            self._last_obs = obs
-            info = {"time": self.episode_time, "is_success": False, "failure": ",".join(e.reasons),
-                    "reflex": e.detail, **self._episode_params}
-            return obs, -self._failure_cost(), True, False, info
-        except SimulationDiverged as e:
-            self._diverged = str(e)
-            info = {"time": self.episode_time, "is_success": False, "failure": f"diverged: {e}",
-                    **self._episode_params}
-            obs = {k: v.copy() for k, v in self._last_obs.items()}  # the last valid state, never NaN
-            return obs, -self._failure_cost(), True, False, info
+        except ControlException as e:  # the robot is still in a reflex (held by its brakes)
+            self._reflex = e
+        self._action = a
+
+    def _step_reflex(self, e: ControlException):
+        """A reflex stopped the robot (held by its brakes): the episode ends with the reason in info."""
+        self._steps += 1
+        obs = self._get_obs()
+        self._last_obs = obs
+        info = {"time": self.episode_time, "is_success": False, "failure": ",".join(e.reasons), "reflex": e.detail,
+                **self._episode_params}
+        return obs, -self._failure_cost(), True, False, info
+
+    def _step_diverged(self, e: SimulationDiverged):
+        self._diverged = str(e)
+        info = {"time": self.episode_time, "is_success": False, "failure": f"diverged: {e}", **self._episode_params}
+        obs = {k: v.copy() for k, v in self._last_obs.items()}  # the last valid state, never NaN
+        return obs, -self._failure_cost(), True, False, info
+
+    def _step_end(self):
+        if self._reflex is None:
+            try:  # the state at the end of the period (the batched vector env steps the physics itself)
+                self.sim.check_reflexes()
+            except ControlException as e:
+                self._reflex = e
+        if self._reflex is not None:
+            return self._step_reflex(self._reflex)
+        a = self._action
         self._steps += 1
         obs = self._get_obs()
         self._last_obs = obs

@@ -126,3 +126,124 @@ def bench(env_ids: list[str] | None = None, n_steps: int = 300, seed: int = 0, a
             a = out["async"]
             print(f"AsyncVectorEnv({async_envs}) {async_env_id}: {a['env_steps_per_s']:.0f} env steps/s", flush=True)
     return out
+
+
+def _raw_us(env: Any, reps: int = 100) -> float:
+    """Best-of-3 time (us) of the raw ``mj_step`` calls of one env step (its substeps, one call) on a copy of the
+    env's state."""
+    m = env.world.model
+    d = mujoco.MjData(m)
+    best = math.inf
+    for _ in range(3):
+        mujoco.mj_copyData(d, m, env.world.data)
+        t0 = time.perf_counter()
+        for _ in range(reps):
+            mujoco.mj_step(m, d, env.n_substeps)
+        best = min(best, (time.perf_counter() - t0) / reps)
+    return best * 1e6
+
+
+def bench_batched(env_id: str, num_envs: int, nthread: int, seconds: float = 1.0, seed: int = 0,
+                  kwargs: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Env steps per second of the batched vector env (``gymnasium.make_vec``) next to the raw-physics limit
+    ``nthread / (raw mj_step time of one env step's substeps)``, timed in alternating blocks in one run.
+
+    Returns ``{"env_id", "num_envs", "nthread", "env_steps_per_s", "raw_us_per_env_step", "limit_steps_per_s",
+    "ratio", "batch_physics_steps_per_s", "batch_physics_ratio", "ratio_to_batch_physics"}``: ratio =
+    env_steps_per_s / limit_steps_per_s (1 would be physics only); batch_physics_* time ``Batch.step`` alone on the
+    same states and threads, which shows what the machine's cores deliver (threads > 1 on a machine whose cores are
+    shared reach less than the limit even without any Python)."""
+    import franka_vs_gym  # noqa: F401
+
+    kw = dict(kwargs if kwargs is not None else ({} if env_id == "FrankaTorqueTracking-v0"
+                                                 else {"observation_type": "features"}))
+    venv = gym.make_vec(env_id, num_envs=num_envs, nthread=nthread, **kw)
+    try:
+        venv.reset(seed=seed)
+        actions = np.zeros(venv.action_space.shape, dtype=venv.action_space.dtype)
+        venv.step(actions)
+        env0 = venv.envs[0]
+        raw = _raw_us(env0)
+        per_block = max(1, int(round(0.2 / (raw * 1e-6 * num_envs / nthread))))
+        best, best_phys, t_end = math.inf, math.inf, time.perf_counter() + seconds
+        b, n_sub = venv.batch, env0.n_substeps
+        while True:
+            t0 = time.perf_counter()
+            for _ in range(per_block):
+                venv.step(actions)
+            best = min(best, (time.perf_counter() - t0) / (per_block * num_envs))
+            raw = min(raw, _raw_us(env0, 20))
+            # the batch's physics alone on the same states and threads (the rows are reloaded at the next step)
+            t0 = time.perf_counter()
+            for _ in range(per_block):
+                b.step(nstep=n_sub)
+            best_phys = min(best_phys, (time.perf_counter() - t0) / (per_block * num_envs))
+            if time.perf_counter() > t_end:
+                break
+    finally:
+        venv.close()
+    limit = nthread / (raw * 1e-6)
+    return {"env_id": env_id, "num_envs": num_envs, "nthread": nthread, "env_steps_per_s": 1.0 / best,
+            "raw_us_per_env_step": raw, "limit_steps_per_s": limit, "ratio": (1.0 / best) / limit,
+            "batch_physics_steps_per_s": 1.0 / best_phys, "batch_physics_ratio": (1.0 / best_phys) / limit,
+            "ratio_to_batch_physics": best_phys / best}
+
+
+def bench_vector_modes(env_id: str, num_envs: int = 2, n_steps: int = 200, seed: int = 0) -> dict[str, Any]:
+    """Env steps/s of ``gymnasium.make_vec(env_id, num_envs, mode)`` for the async, sync and native (batched)
+    modes, each as a ratio to one plain env (``gymnasium.make``), in one run."""
+    import franka_vs_gym  # noqa: F401
+
+    kw = {} if env_id == "FrankaTorqueTracking-v0" else {"observation_type": "features"}
+    env = gym.make(env_id, **kw)
+    env.reset(seed=seed)
+    a = np.zeros(env.action_space.shape, dtype=env.action_space.dtype)
+    env.step(a)
+    t0 = time.perf_counter()
+    for _ in range(n_steps):
+        _, _, term, trunc, _ = env.step(a)
+        if term or trunc:
+            env.reset()
+    single = n_steps / (time.perf_counter() - t0)
+    env.close()
+    out: dict[str, Any] = {"env_id": env_id, "num_envs": num_envs, "single_steps_per_s": single}
+    for mode in ("async", "sync", "vector_entry_point"):
+        venv = gym.make_vec(env_id, num_envs=num_envs, vectorization_mode=mode, **kw)
+        try:
+            venv.reset(seed=seed)
+            va = np.zeros(venv.action_space.shape, dtype=venv.action_space.dtype)
+            venv.step(va)
+            t0 = time.perf_counter()
+            for _ in range(n_steps):
+                venv.step(va)
+            rate = num_envs * n_steps / (time.perf_counter() - t0)
+        finally:
+            venv.close()
+        name = "native" if mode == "vector_entry_point" else mode
+        out[f"{name}_steps_per_s"] = rate
+        out[f"{name}_ratio"] = rate / single
+    return out
+
+
+def bench_image_batched(env_id: str = "FrankaIBVS-v0", num_envs: int = 8, n_steps: int = 30,
+                        seed: int = 0) -> dict[str, Any]:
+    """Camera frames per second per core of an image-observation env on the batched vector env (one thread: the
+    physics on the batch, each robot's 128x96 wrist image rendered in turn by MuJoCo's offscreen renderer)."""
+    import franka_vs_gym  # noqa: F401
+
+    venv = gym.make_vec(env_id, num_envs=num_envs, nthread=1, observation_type="image")
+    try:
+        venv.reset(seed=seed)
+        a = np.zeros(venv.action_space.shape, dtype=venv.action_space.dtype)
+        venv.step(a)
+        cpu0, t0 = time.process_time(), time.perf_counter()
+        for _ in range(n_steps):
+            venv.step(a)
+        wall, cpu = time.perf_counter() - t0, time.process_time() - cpu0
+        e = venv.envs[0]
+        frames_per_step = e.control_period / e.camera_period
+    finally:
+        venv.close()
+    frames = num_envs * n_steps * frames_per_step
+    return {"env_id": env_id, "num_envs": num_envs, "frames_per_s": frames / wall,
+            "frames_per_s_per_core": frames / cpu, "cpu_cores_busy": cpu / wall}

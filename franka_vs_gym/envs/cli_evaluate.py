@@ -34,6 +34,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", default=None, help="also write the summary to this JSON file")
     parser.add_argument("--force", action="store_true", help="overwrite the --json file if it exists")
     parser.add_argument("--quiet", action="store_true", help="no per-episode lines")
+    parser.add_argument("--robot", default=None, help="the simulated arm (fer or fr3); the same as --env-kwargs "
+                        "'{\"robot\": ...}'")
+    parser.add_argument("--ray", nargs="?", const="", default=None, metavar="ADDRESS",
+                        help="spread the episodes over a Ray cluster at ADDRESS ('auto', 'ray://host:10001'), or a "
+                        "local Ray instance when no address is given (needs the [scale] extra); same table")
+    parser.add_argument("--ray-cpus", type=int, default=None, help="CPUs of the local Ray instance (default: all)")
 
 
 def _scripted(name: str, env_kwargs: dict[str, Any]) -> tuple[Any, str, dict[str, Any]]:
@@ -99,6 +105,37 @@ def check_env_kwargs(env_id: str, kwargs: dict[str, Any]) -> None:
                         f"{', '.join(sorted(known))})")
 
 
+def resolve_policy(name: str, env: str | None, env_kwargs: dict[str, Any]) -> tuple[Any, str, dict[str, Any]]:
+    """(policy, env id, env kwargs) for a policy name of the command line (see the module docstring)."""
+    from franka_vs_gym.policies import load_agent, shipped_agents
+
+    if (name.endswith(".zip") or Path(name).suffix == ".zip" or Path(name + ".zip").is_file()
+            or name in shipped_agents()):
+        policy = load_agent(name)
+        env_id = env or policy.env_id
+        kw = {"observation_type": "features", "action_type": "joint_velocity"} | policy.env_kwargs | env_kwargs
+    elif name == "zero":
+        env_id = env or "FrankaIBVS-v0"
+        kw = env_kwargs
+        check_env_kwargs(env_id, kw)
+        policy = _zero_policy(env_id, kw)
+    elif name in SCRIPTED:
+        policy, default_env, kw = _scripted(name, env_kwargs)
+        env_id = env or default_env
+    else:
+        raise ValueError(f"unknown policy {name!r}: use one of {', '.join(SCRIPTED + tuple(shipped_agents()))} "
+                         "or an agent .zip path")
+    check_env_kwargs(env_id, kw)  # one line for an unknown environment or keyword, before anything runs
+    return policy, env_id, kw
+
+
+def _policy_only(name: str, env: str | None, env_kwargs: dict[str, Any]) -> Any:
+    """The policy alone (built in each Ray task: policies need not be picklable)."""
+    import franka_vs_gym  # noqa: F401
+
+    return resolve_policy(name, env, env_kwargs)[0]
+
+
 def main(args: argparse.Namespace) -> int:
     import franka_vs_gym
     from franka_vs_gym.io import atomic_write, check_output
@@ -109,32 +146,27 @@ def main(args: argparse.Namespace) -> int:
         raise ValueError(f"--env-kwargs is not valid JSON: {e}") from None
     if not isinstance(env_kwargs, dict):
         raise ValueError("--env-kwargs must be a JSON object")
+    if getattr(args, "robot", None) is not None:
+        from franka_vs_gym.model.description import robot_description
+
+        env_kwargs["robot"] = robot_description(args.robot).name
     if args.episodes < 1:
         raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
     if args.json:
         check_output(args.json, args.force, what="--json file")
-    from franka_vs_gym.policies import load_agent, shipped_agents
-
     name = args.policy
-    if (name.endswith(".zip") or Path(name).suffix == ".zip" or Path(name + ".zip").is_file()
-            or name in shipped_agents()):
-        policy = load_agent(name)
-        env_id = args.env or policy.env_id
-        kw = {"observation_type": "features", "action_type": "joint_velocity"} | policy.env_kwargs | env_kwargs
-        check_env_kwargs(env_id, kw)
-    elif name == "zero":
-        env_id = args.env or "FrankaIBVS-v0"
-        kw = env_kwargs
-        check_env_kwargs(env_id, kw)
-        policy = _zero_policy(env_id, kw)
-    elif name in SCRIPTED:
-        policy, default_env, kw = _scripted(name, env_kwargs)
-        env_id = args.env or default_env
-        check_env_kwargs(env_id, kw)
+    policy, env_id, kw = resolve_policy(name, args.env, env_kwargs)
+    if args.ray is not None:
+        import functools
+
+        from franka_vs_gym.scale import evaluate_distributed
+
+        factory = functools.partial(_policy_only, name, args.env, env_kwargs)
+        r = evaluate_distributed(factory, env_id, args.episodes, args.seed, env_kwargs=kw,
+                                 address=args.ray or None, num_cpus=args.ray_cpus, progress=not args.quiet)
     else:
-        raise ValueError(f"unknown policy {name!r}: use one of {', '.join(SCRIPTED + tuple(shipped_agents()))} "
-                         "or an agent .zip path")
-    r = franka_vs_gym.evaluate(policy, env_id, args.episodes, args.seed, env_kwargs=kw, progress=not args.quiet)
+        r = franka_vs_gym.evaluate(policy, env_id, args.episodes, args.seed, env_kwargs=kw,
+                                   progress=not args.quiet)
     t = r["mean_time_to_converge"]
     print(f"{name} on {env_id} ({args.episodes} episodes, seeds {args.seed}..{args.seed + args.episodes - 1}): "
           f"success rate {r['success_rate']:.2f}, mean time to converge "

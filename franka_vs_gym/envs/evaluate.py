@@ -83,37 +83,50 @@ def evaluate(policy: Any, env_id_or_env: Any, n_episodes: int = 20, seed: int = 
     if not isinstance(seed, (int, np.integer)):
         raise ValueError(f"seed must be an integer, got {seed!r}")
     env, owned = _make_env(env_id_or_env, env_kwargs)
-    act = _action_fn(policy)
-    reset = getattr(policy, "reset", None)
-    episodes: list[dict[str, Any]] = []
     try:
-        for i in range(int(n_episodes)):
-            if callable(reset):
-                reset()
-            obs, info = env.reset(seed=int(seed) + i)
-            ret, length, t_conv = 0.0, 0, math.nan
-            done = False
-            while not done:
-                action = act(obs)
-                obs, r, terminated, truncated, info = env.step(action)
-                ret += float(r)
-                length += 1
-                if info.get("is_success") and math.isnan(t_conv):
-                    t_conv = float(info.get("time", math.nan))
-                done = terminated or truncated
-            ep = {"seed": int(seed) + i, "success": bool(info.get("is_success", False)), "return": ret,
-                  "length": length, "time": float(info.get("time", math.nan)),
-                  "final_error": float(info.get("error", math.nan)),
-                  "time_to_converge": t_conv if info.get("is_success") else math.nan,
-                  "failure": info.get("failure")}
-            episodes.append(ep)
-            if progress:
-                status = "success" if ep["success"] else (ep["failure"] or "time limit")
-                print(f"episode {i + 1}/{n_episodes} seed {ep['seed']}: {status}, {length} steps, "
-                      f"final error {ep['final_error']:.4g}, return {ret:.3f}", flush=True)
+        episodes = run_episodes(policy, env, [int(seed) + i for i in range(int(n_episodes))], progress=progress)
     finally:
         if owned:
             env.close()
+    return summarise(episodes)
+
+
+def run_episodes(policy: Any, env: gym.Env, seeds: list[int], progress: bool = False) -> list[dict[str, Any]]:
+    """One episode of ``policy`` per seed (``env.reset(seed=s)``); the per-episode dicts of :func:`evaluate`."""
+    act = _action_fn(policy)
+    reset = getattr(policy, "reset", None)
+    episodes: list[dict[str, Any]] = []
+    for i, s in enumerate(seeds):
+        if callable(reset):
+            reset()
+        obs, info = env.reset(seed=int(s))
+        ret, length, t_conv = 0.0, 0, math.nan
+        done = False
+        while not done:
+            action = act(obs)
+            obs, r, terminated, truncated, info = env.step(action)
+            ret += float(r)
+            length += 1
+            if info.get("is_success") and math.isnan(t_conv):
+                t_conv = float(info.get("time", math.nan))
+            done = terminated or truncated
+        ep = {"seed": int(s), "success": bool(info.get("is_success", False)), "return": ret,
+              "length": length, "time": float(info.get("time", math.nan)),
+              "final_error": float(info.get("error", math.nan)),
+              "time_to_converge": t_conv if info.get("is_success") else math.nan,
+              "failure": info.get("failure")}
+        episodes.append(ep)
+        if progress:
+            status = "success" if ep["success"] else (ep["failure"] or "time limit")
+            print(f"episode {i + 1}/{len(seeds)} seed {ep['seed']}: {status}, {length} steps, "
+                  f"final error {ep['final_error']:.4g}, return {ret:.3f}", flush=True)
+    return episodes
+
+
+def summarise(episodes: list[dict[str, Any]]) -> dict[str, Any]:
+    """The summary of :func:`evaluate` from its per-episode dicts (in seed order)."""
+    if not episodes:
+        raise ValueError("no episodes to summarise")
     succ = [e for e in episodes if e["success"]]
     failures: dict[str, int] = {}
     for e in episodes:

@@ -126,9 +126,9 @@ class FrankaTorqueTrackingEnv(FrankaEnv):
 
     def _get_obs(self) -> dict[str, np.ndarray]:
         q, dq = self._noisy_joint_state()
-        qd, dqd, ddqd = self._desired_now = self.desired(self.episode_time)
-        raw = {"q": q, "dq": dq, "q_desired": qd, "dq_desired": dqd, "ddq_desired": ddqd,
-               "time": np.array([self.episode_time])}
+        t = self.episode_time
+        qd, dqd, ddqd = self._desired_now = self.desired(t)
+        raw = {"q": q, "dq": dq, "q_desired": qd, "dq_desired": dqd, "ddq_desired": ddqd, "time": t}
         return self._pack(raw)
 
     def _evaluate(self, action: np.ndarray) -> tuple[float, bool, str | None, dict[str, Any]]:

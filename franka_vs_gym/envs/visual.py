@@ -221,19 +221,18 @@ class VisualServoEnv(FrankaEnv):
         self._truth_cache = (-1, {})
         self._capture()
 
-    def _advance(self) -> None:
+    def _segments(self) -> tuple[tuple[int, bool], ...]:
         n, c = self.n_substeps, self.camera_substeps
         k0, k1 = self._k, self._k + n
         last = (k1 // c) * c  # the last camera frame of this control period
         if last > k0:
-            self.world.step(last - k0)
-            self._k = last
+            return ((last - k0, True), (k1 - last, False)) if k1 > last else ((last - k0, True),)
+        return ((n, False),)
+
+    def _segment_done(self, n: int, capture: bool) -> None:
+        self._k += n
+        if capture:
             self._capture()
-            if k1 > last:
-                self.world.step(k1 - last)
-        else:
-            self.world.step(n)
-        self._k = k1
 
     # ------------------------------------------------------------------ observation
     def _measure_true(self) -> dict[str, np.ndarray]:

@@ -22,12 +22,13 @@ import math
 import sys
 import time
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
 from franka_vs_gym.assets.mjcf import TagSpec
 from franka_vs_gym.assets.textures import BORDER_CELLS, TAG_CELLS
-from franka_vs_gym.model.geometry import inverse_pose, pose_vector
+from franka_vs_gym.model.geometry import desired_tag_pose, inverse_pose, pose_vector
 from franka_vs_gym.sim import JOINT_STATE, VELOCITY, FrankaSim
 from franka_vs_gym.vision import (
     CameraIntrinsics,
@@ -50,11 +51,9 @@ def _rot(axis: np.ndarray, angle: float) -> np.ndarray:
 
 
 def desired_pose(distance: float) -> np.ndarray:
-    """cdMo: tag centred, parallel, ``distance`` m in front of the camera (tag z towards the camera)."""
-    M = np.eye(4)
-    M[:3, :3] = np.diag([1.0, -1.0, -1.0])
-    M[2, 3] = distance
-    return M
+    """cdMo: tag centred, parallel, ``distance`` m in front of the camera (:func:`~franka_vs_gym.model.geometry.
+    desired_tag_pose`)."""
+    return desired_tag_pose(distance)
 
 
 @dataclass
@@ -105,11 +104,12 @@ def _draw(image: np.ndarray, meas, desired_px: np.ndarray, trail: list[np.ndarra
 
 def setup(seed: int, *, tag_size: float = 0.08, desired_distance: float = 0.20, max_offset: float = 0.15,
           max_angle_deg: float = 30.0, intrinsics: CameraIntrinsics | None = None,
-          render: bool = False) -> tuple[FrankaSim, np.ndarray, np.ndarray, float, float]:
-    """A simulated FER with a tag on the table, at a seeded random start. Returns (sim, fMo, cdMo, offset,
-    angle). The start satisfies the study's constraints (tag and quiet zone in view, joints within limits)."""
+          render: bool = False, robot: Any = None) -> tuple[FrankaSim, np.ndarray, np.ndarray, float, float]:
+    """A simulated arm (``robot``, the FER by default) with a tag on the table, at a seeded random start. Returns
+    (sim, fMo, cdMo, offset, angle). The start satisfies the study's constraints (tag and quiet zone in view, joints
+    within limits)."""
     intr = intrinsics or CameraIntrinsics.default()
-    sim = FrankaSim(tags=[TagSpec(tag_id=0, size=tag_size, pos=TAG_POS)], camera=True)
+    sim = FrankaSim(tags=[TagSpec(tag_id=0, size=tag_size, pos=TAG_POS)], camera=True, robot=robot)
     fMo = np.eye(4)
     fMo[:3, 3] = TAG_POS
     cdMo = desired_pose(desired_distance)
@@ -142,8 +142,10 @@ def setup(seed: int, *, tag_size: float = 0.08, desired_distance: float = 0.20, 
 def run_servo(kind: str, seed: int, *, features: str = "ideal", duration: float = 10.0, camera_period: float = 0.02,
               intrinsics: CameraIntrinsics | None = None, tag_size: float = 0.08, desired_distance: float = 0.20,
               max_offset: float = 0.15, max_angle_deg: float = 30.0, record_frames: bool = False,
-              hold: float = 0.3, show_progress: bool = False, interaction: str = "MEAN") -> ServoResult:
-    """Run IBVS or PBVS from a seeded start; stops ``hold`` s after convergence or at ``duration``."""
+              hold: float = 0.3, show_progress: bool = False, interaction: str = "MEAN",
+              robot: Any = None) -> ServoResult:
+    """Run IBVS or PBVS on ``robot`` (the FER by default) from a seeded start; stops ``hold`` s after convergence or
+    at ``duration``."""
     from franka_vs_gym.policies import IBVSPolicy, PBVSPolicy
 
     if kind not in ("ibvs", "pbvs"):
@@ -154,7 +156,8 @@ def run_servo(kind: str, seed: int, *, features: str = "ideal", duration: float 
         raise ValueError("duration and camera_period must be > 0 s")
     intr = intrinsics or CameraIntrinsics.default()
     sim, fMo, cdMo, offset, angle = setup(seed, tag_size=tag_size, desired_distance=desired_distance,
-                                          max_offset=max_offset, max_angle_deg=max_angle_deg, intrinsics=intr)
+                                          max_offset=max_offset, max_angle_deg=max_angle_deg, intrinsics=intr,
+                                          robot=robot)
     policy = (IBVSPolicy(interaction=interaction, tag_size=tag_size, eMc=sim.get_eMc(), model=sim.model)
               if kind == "ibvs" else PBVSPolicy(eMc=sim.get_eMc(), model=sim.model))
     camera = WristCamera(sim, intr, camera_period) if (features == "detect" or record_frames) else None
@@ -252,7 +255,8 @@ def main(args: argparse.Namespace, kind: str) -> int:
     intr = CameraIntrinsics.default(width, height)
     wall = time.perf_counter()
     res = run_servo(kind, args.seed, features=args.features, duration=duration, camera_period=args.camera_period,
-                    intrinsics=intr, record_frames=not args.no_video, show_progress=not args.quiet)
+                    intrinsics=intr, record_frames=not args.no_video, show_progress=not args.quiet,
+                    robot=getattr(args, "robot", None))
     wall = time.perf_counter() - wall
     fig, ax = plt.subplots(3, 1, figsize=(9, 10), sharex=True)
     if kind == "ibvs":

@@ -101,5 +101,6 @@ def rot_z(a: float) -> np.ndarray:
 
 def desired_tag_pose(distance: float) -> np.ndarray:
     """The visual-servoing goal cdMo (4, 4): the tag centred, ``distance`` m in front of the camera, facing it (tag z
-    towards the camera, tag x along the camera x), as in ViSP's Franka visual-servoing examples."""
-    return homogeneous(rot_x(math.pi), (0.0, 0.0, distance))
+    towards the camera, tag x along the camera x), as in ViSP's Franka visual-servoing examples. The rotation is
+    exactly diag(1, -1, -1) (a half turn about x)."""
+    return homogeneous(np.diag([1.0, -1.0, -1.0]), (0.0, 0.0, distance))

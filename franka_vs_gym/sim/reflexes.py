@@ -14,13 +14,18 @@ docs/reliability.md), what is checked, and the reason raised:
 ================  ==========================================  ===================================================
 limit             checked against                             reason
 ================  ==========================================  ===================================================
-``q_min, q_max``  measured q, every physics step              ``joint_position_limits_violation``
-``dq_max``        measured dq, every physics step             ``joint_velocity_violation``
+``q_min, q_max``  measured q, after every step (see below)     ``joint_position_limits_violation``
+``dq_max``        measured dq, after every step               ``joint_velocity_violation``
 ``tau_max``       measured tau_J (sensor torque incl. offset) ``tau_J_range_violation``
 ``dtau_max``      commanded torque, change per 1 ms cycle     ``controller_torque_discontinuity``
 ``ddq_max``       commanded joint velocity, change per 1 ms   ``joint_motion_generator_velocity_discontinuity``
 ``dddq_max``      commanded acceleration, change per 1 ms     ``joint_motion_generator_acceleration_discontinuity``
 ================  ==========================================  ===================================================
+
+The measured state is checked after every ``SimWorld.step(n)`` call: after each physics step for
+``FrankaSim.step``, ``wait`` and ``set_position`` (which step one at a time while the reflexes are on), after each
+control period in the environments (the compiled plant runs a period in one call; the joints' hard stops hold in
+between).
 
 The last three are limits on what a controller sends (libfranka's motion-generator and torque-command checks);
 ``command_rates`` chooses how FrankaSim treats them:
@@ -105,7 +110,6 @@ class Reflexes:
         self.dddq_max = _limit(limits, "dddq_max")
         self.tau_max, self.dtau_max = _limit(limits, "tau_max"), _limit(limits, "dtau_max")
         self._enabled = bool(enabled)
-        self._slow = True
         self.command_rates = command_rates
         self.dt = float(sim.dt)
         self.errors: tuple[str, ...] = ()
@@ -222,35 +226,34 @@ class Reflexes:
         self.sim._ctrl_vel[:] = dq
 
     # ------------------------------------------------------------------ every physics step
-    def make_hook(self):
-        """The per-physics-step hook (runs before every mj_step at 1 kHz). In the common case (no brakes, no
-        command being rate-limited, no torque offset) it is a closure over preallocated buffers checking
-        |q - center| <= half range and |dq| <= dq_max in one comparison (about 1.6 us); otherwise
-        :meth:`pre_step`."""
-        sim = self.sim
-        q, dq = sim._qpos, sim._qvel
-        center = (self.q_min + self.q_max) / 2
-        lim = np.concatenate([(self.q_max - self.q_min) / 2, self.dq_max])
-        buf = np.empty(14)
-        bq, bd = buf[:7], buf[7:]
-        sub, absolute = np.subtract, np.abs
-        full = self.pre_step
+    def install(self, world: Any) -> None:
+        """Register with the world: a check after every ``world.step(n)`` call, and a per-physics-step hook that
+        does nothing (so the compiled plant keeps stepping a whole period in one call) except while the brakes
+        hold the joints, a command is being rate-limited or a recovered joint is coming back inside its limits."""
+        from franka_vs_gym.sim.world import no_op
 
-        def reflex_hook() -> None:
-            if self._slow:
-                full()
-                return
-            sub(q, center, out=bq)
-            bd[:] = dq
-            absolute(buf, out=buf)
-            if (buf > lim).any():
-                self.check_state()
+        self._world = world
+        self._hook = no_op
+        world.add_pre_step(self._hook)
+        world.add_check(self.after_steps)
+        self._update_mode()
 
-        return reflex_hook
+    def after_steps(self) -> None:
+        """After physics steps: check the measured state (the brakes already hold a robot in error)."""
+        if self._enabled and self._hold is None:
+            self.check_state()
 
     def _update_mode(self) -> None:
-        self._slow = (self._hold is not None or self._ramp_tau or self._ramp_vel or self._relaxed
-                      or self._check_tau or not self._enabled)
+        slow = self._hold is not None or self._ramp_tau or self._ramp_vel or self._relaxed
+        world = getattr(self, "_world", None)
+        if world is None:
+            return
+        from franka_vs_gym.sim.world import no_op
+
+        hook = self.pre_step if slow else no_op
+        if hook is not self._hook:
+            world.replace_pre_step(self._hook, hook)
+            self._hook = hook
 
     @property
     def enabled(self) -> bool:
@@ -259,7 +262,6 @@ class Reflexes:
     @enabled.setter
     def enabled(self, on: bool) -> None:
         self._enabled = bool(on)
-        self._update_mode()
 
     def pre_step(self) -> None:
         """Before each physics step: hold the brakes, advance the rate limiters, check the measured state."""

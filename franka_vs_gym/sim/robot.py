@@ -22,8 +22,10 @@ from franka_vs_gym.model.description import RobotDescription
 from franka_vs_gym.model.franka_model import FrankaModel
 from franka_vs_gym.model.friction import make_plant_friction
 from franka_vs_gym.model.geometry import combine_inertials, pose_vector, twist_transform
+from franka_vs_gym.sim import plant
 from franka_vs_gym.sim.reflexes import ControlException, Reflexes, position_profile_time
 from franka_vs_gym.sim.world import SimulationDiverged, SimWorld
+from franka_vs_gym.sim.world import no_op as _no_op
 
 
 class RobotState(enum.IntEnum):
@@ -63,10 +65,6 @@ VELOCITY_GAINS = np.array([120.0, 120.0, 80.0, 80.0, 15.0, 15.0, 6.0])
 # the velocity reflex (libfranka's rate limiter likewise keeps commands a margin below the limits).
 VELOCITY_COMMAND_SCALE = 0.98
 _R_CV = np.diag([1.0, -1.0, -1.0])  # ViSP camera (z forward, y down) -> MuJoCo camera (-z forward, y up)
-
-
-def _no_op() -> None:
-    pass
 
 
 class FrankaSim:
@@ -178,6 +176,11 @@ class FrankaSim:
         self._friction_enabled = bool(friction) and not fr.is_zero()
         self._friction_scale = 1.0
         self._friction_step = self._make_friction_step()
+        # the compiled plant applies the friction inside mj_step from the parameters in the model (jnt_user); the
+        # Python friction step is the fallback without it (franka_vs_gym.sim.plant)
+        self._native = plant.install()
+        self._jids = jids
+        self._write_plant_friction()
         n_delay = int(round(cfg.delay / self.dt))
         self._delay_steps = n_delay if cfg.delay_channel == "command" else 0
         self._meas_fifo: deque[np.ndarray] | None = None
@@ -196,7 +199,7 @@ class FrankaSim:
         world.add_pre_step(self._hook)
         # the reflexes' limits come from the robot description (config.robot)
         self._reflexes = Reflexes(self, cfg.robot.limits, enabled=reflexes, command_rates=command_rates)
-        world.add_pre_step(self._reflexes.make_hook())
+        self._reflexes.install(world)
         if self._cam >= 0:
             self.set_eMc(self._eMc)
         self.reset(cfg.robot.neutral() if q0 is None else q0)
@@ -229,9 +232,15 @@ class FrankaSim:
     def _refresh_hook(self) -> None:
         if not self._friction_enabled:
             self._qfrc_applied[:] = 0.0
+        self._write_plant_friction()
         hook = self._make_pre_step()
         self.world.replace_pre_step(self._hook, hook)
         self._hook = hook
+
+    def _write_plant_friction(self) -> None:
+        """The friction parameters into the model's joint user numbers, read by the compiled plant."""
+        on = self._native and self._friction_enabled
+        self._m.jnt_user[self._jids] = plant.friction_rows(self.spec.config.friction, self._friction_scale, on)
 
     def _make_friction_step(self):
         fr = self.spec.config.friction
@@ -239,15 +248,16 @@ class FrankaSim:
                                    fr.coulomb, fr.coulomb_vel, self._friction_scale)
 
     def _make_pre_step(self):
-        """The per-physics-step hook (runs at 1 kHz before every mj_step). Without command delay it is the friction
-        step itself (allocation-free, :func:`franka_vs_gym.model.friction.make_plant_friction`)."""
+        """The per-physics-step hook (runs at 1 kHz before every mj_step): none with the compiled plant and no
+        command delay; without the compiled plant, the friction step itself (allocation-free,
+        :func:`franka_vs_gym.model.friction.make_plant_friction`)."""
         if self._delay_steps:
             return self._pre_step
-        return self._friction_step if self._friction_enabled else _no_op
+        return self._friction_step if self._friction_enabled and not self._native else _no_op
 
     def _pre_step(self) -> None:
-        """General hook: friction, and the command delay FIFO."""
-        if self._friction_enabled:
+        """General hook: friction (without the compiled plant), and the command delay FIFO."""
+        if self._friction_enabled and not self._native:
             self._friction_step()
         if self._delay_steps and self._state == RobotState.STATE_FORCE_TORQUE_CONTROL:
             self._tau_fifo.append(self._tau_cmd.copy())
@@ -259,15 +269,20 @@ class FrankaSim:
     def step(self) -> None:
         """Advance the simulation by one physics step (``dt``, 1 ms by default); all robots of the world move.
         Raises ControlException when a reflex fires (the robot is then held until ``automatic_error_recovery``)."""
-        self.world.step()
-        self.check_reflexes()
+        self.world.step()  # the world runs the reflex check after the step
 
     def wait(self, duration: float) -> None:
         """Advance the simulation by ``duration`` seconds (rounded to whole physics steps); ControlException as
         ``step``."""
         if not (duration >= 0 and math.isfinite(duration)):
             raise ValueError(f"duration must be a finite number >= 0 s, got {duration}")
-        self.world.step(int(round(duration / self.dt)))
+        n = int(round(duration / self.dt))
+        if self._reflexes.enabled:  # the reflexes watch every physics step, as the robot's do
+            step = self.world.step
+            for _ in range(n):
+                step()
+        else:
+            self.world.step(n)
         self.check_reflexes()
 
     # ------------------------------------------------------------------ reflexes

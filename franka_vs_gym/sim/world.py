@@ -22,6 +22,10 @@ _BAD_WARNINGS = {
 }
 
 
+def no_op() -> None:
+    """A pre-step hook that does nothing (a robot whose per-step effects all run inside MuJoCo's step)."""
+
+
 class SimWorld:
     """A compiled MuJoCo scene stepped in simulated time.
 
@@ -41,7 +45,9 @@ class SimWorld:
         self.data = mujoco.MjData(self.model)
         self.dt = float(self.model.opt.timestep)
         self._hooks: list[Callable[[], None]] = []
+        self._active: list[Callable[[], None]] = []  # the hooks that do something
         self._post_hooks: list[Callable[[], None]] = []
+        self._checks: list[Callable[[], None]] = []  # run after every step(n) call (the robots' reflexes)
         self._renderers: dict[tuple[int, int], mujoco.Renderer] = {}
         self.diverged: str | None = None
         self._wn = self.data.warning.number  # live view of MuJoCo's warning counters
@@ -51,12 +57,19 @@ class SimWorld:
 
     def add_pre_step(self, hook: Callable[[], None]) -> None:
         self._hooks.append(hook)
+        self._active = [h for h in self._hooks if h is not no_op]
 
     def replace_pre_step(self, old: Callable[[], None], new: Callable[[], None]) -> None:
         self._hooks[self._hooks.index(old)] = new
+        self._active = [h for h in self._hooks if h is not no_op]
 
     def add_post_step(self, hook: Callable[[], None]) -> None:
         self._post_hooks.append(hook)
+
+    def add_check(self, check: Callable[[], None]) -> None:
+        """A check run after every ``step(n)`` call (not between its physics steps: the compiled plant runs them
+        in one call), e.g. a robot's reflexes; it may raise to stop the caller."""
+        self._checks.append(check)
 
     @property
     def time(self) -> float:
@@ -68,15 +81,24 @@ class SimWorld:
         m, d, step, wn = self.model, self.data, mujoco.mj_step, self._wn
         a, b, c = self._w_pos, self._w_vel, self._w_acc
         post = self._post_hooks
-        if len(self._hooks) == 1 and not post:  # one robot, no post-step work: the 1 kHz fast path
-            h = self._hooks[0]
+        if not self._active and not post:  # every effect inside MuJoCo's step (compiled plant): one call
+            step(m, d, n)
+            if wn[a] or wn[b] or wn[c]:
+                self._diverge()
+            for check in self._checks:
+                check()
+            return
+        if len(self._active) == 1 and not post:  # one robot, no post-step work: the 1 kHz fast path
+            h = self._active[0]
             for _ in range(n):
                 h()
                 step(m, d)
                 if wn[a] or wn[b] or wn[c]:  # MuJoCo found NaN/inf/huge values (and auto-reset the state)
                     self._diverge()
+            for check in self._checks:
+                check()
             return
-        hooks = self._hooks
+        hooks = self._active
         for _ in range(n):
             for h in hooks:
                 h()
@@ -85,6 +107,8 @@ class SimWorld:
                 self._diverge()
             for h in post:
                 h()
+        for check in self._checks:
+            check()
 
     def _diverge(self) -> None:
         reasons = [msg for w, msg in _BAD_WARNINGS.items() if self._wn[w] > 0]

@@ -1,0 +1,199 @@
+"""Past one machine: evaluation episodes and workbench logs spread over a Ray cluster (the ``[scale]`` extra).
+
+Ray does the distribution; this module only cuts the work into independent pieces and gathers the results in the
+order a serial run produces them, so a distributed run gives the same table as a serial one:
+
+- :func:`evaluate_distributed`: episodes of a policy (seed ``seed + i``, randomised dynamics drawn from that seed
+  as in :func:`franka_vs_gym.evaluate`) in chunks of consecutive seeds, one Ray task per chunk, each building its
+  own policy and environment; the summary is :func:`franka_vs_gym.envs.evaluate.summarise` of the episodes in seed
+  order. ``franka-vs evaluate ... --ray [ADDRESS]``.
+- :func:`diagnose_folder`: the workbench's public ``diagnose`` (and, with ``fit=True``, ``fit_effects(log,
+  ["auto"])``) on every log of a folder, one Ray task per log. ``franka-vs diagnose-folder FOLDER [--ray ADDRESS]``.
+
+Without an address a local Ray instance is started (``num_cpus`` of this machine's CPUs) and stopped afterwards;
+with one (``"auto"`` or ``"ray://head:10001"``) the work runs on that cluster, whose nodes need franka_vs_gym
+installed (or a ``runtime_env``), as any Ray job does.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import os
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+LOG_SUFFIXES = (".csv", ".npz")
+
+
+def _ray():
+    try:
+        import ray
+    except ImportError:
+        from franka_vs_gym.errors import UserError
+
+        raise UserError("distributed runs need Ray: pip install -e '.[scale]'") from None
+    return ray
+
+
+@contextlib.contextmanager
+def ray_session(address: str | None = None, num_cpus: int | None = None) -> Iterator[Any]:
+    """Connect to the Ray cluster at ``address``, or start a local instance (``num_cpus`` CPUs) when it is None;
+    a session this function started is shut down at the end. An already initialised Ray is used as it is."""
+    ray = _ray()
+    if ray.is_initialized():
+        yield ray
+        return
+    env = {"env_vars": {k: os.environ[k] for k in ("PYTHONPATH", "MUJOCO_GL") if k in os.environ}}
+    if address:
+        ray.init(address=address, runtime_env=env, log_to_driver=False)
+    else:
+        ray.init(num_cpus=num_cpus, include_dashboard=False, log_to_driver=False, runtime_env=env)
+    try:
+        yield ray
+    finally:
+        ray.shutdown()
+
+
+def _episode_chunk(policy_factory: Callable[[], Any], env_id: str, env_kwargs: dict[str, Any],
+                   seeds: list[int]) -> list[dict[str, Any]]:
+    """Run the episodes of ``seeds`` in one process (a Ray task): one policy, one environment."""
+    import gymnasium as gym
+
+    import franka_vs_gym  # noqa: F401  (registers the ids in the worker)
+    from franka_vs_gym.envs.evaluate import run_episodes
+
+    policy = policy_factory()
+    env = gym.make(env_id, **env_kwargs)
+    try:
+        return run_episodes(policy, env, seeds)
+    finally:
+        env.close()
+
+
+def evaluate_distributed(policy_factory: Callable[[], Any], env_id: str, n_episodes: int = 20, seed: int = 0, *,
+                         env_kwargs: dict[str, Any] | None = None, address: str | None = None,
+                         num_cpus: int | None = None, chunk: int | None = None,
+                         progress: bool = False) -> dict[str, Any]:
+    """:func:`franka_vs_gym.evaluate` over a Ray cluster: the same summary and episodes as the serial run.
+
+    Parameters
+    ----------
+    policy_factory : callable
+        A picklable zero-argument function returning the policy (policies holding compiled models need not be
+        picklable: each task builds its own).
+    env_id, n_episodes, seed, env_kwargs :
+        As :func:`franka_vs_gym.evaluate` (episode i is reset with seed ``seed + i``).
+    address : str or None
+        A Ray cluster address, or None for a local instance of ``num_cpus`` CPUs.
+    chunk : int or None
+        Episodes per task (default: the episodes split in about 4 tasks per CPU).
+    """
+    from franka_vs_gym.envs.evaluate import summarise
+
+    if not isinstance(n_episodes, int) or n_episodes < 1:
+        raise ValueError(f"n_episodes must be an integer >= 1, got {n_episodes!r}")
+    if not isinstance(seed, int):
+        raise ValueError(f"seed must be an integer, got {seed!r}")
+    seeds = [seed + i for i in range(n_episodes)]
+    with ray_session(address, num_cpus) as ray:
+        if chunk is None:
+            cpus = max(1, int(ray.cluster_resources().get("CPU", 1)))
+            chunk = max(1, math.ceil(n_episodes / (4 * cpus)))
+        if chunk < 1:
+            raise ValueError(f"chunk must be >= 1, got {chunk}")
+        task = ray.remote(num_cpus=1)(_episode_chunk)
+        pieces = [seeds[i:i + chunk] for i in range(0, n_episodes, chunk)]
+        refs = [task.remote(policy_factory, env_id, dict(env_kwargs or {}), p) for p in pieces]
+        episodes: list[dict[str, Any]] = []
+        pending = list(refs)
+        done_count = 0
+        while pending:
+            ready, pending = ray.wait(pending, num_returns=1)
+            done_count += 1
+            if progress:
+                print(f"evaluate: {done_count}/{len(refs)} chunks done", flush=True)
+        for ref in refs:  # in seed order, as the serial run
+            episodes.extend(ray.get(ref))
+    return summarise(episodes)
+
+
+def find_logs(folder: str | os.PathLike) -> list[Path]:
+    """The measurement logs (``*.csv``, ``*.npz``) directly in ``folder``, sorted by name."""
+    p = Path(folder)
+    if not p.is_dir():
+        raise FileNotFoundError(f"not a folder: {p}")
+    logs = sorted(f for f in p.iterdir() if f.is_file() and f.suffix in LOG_SUFFIXES)
+    if not logs:
+        raise FileNotFoundError(f"no measurement logs ({', '.join(LOG_SUFFIXES)}) in {p}")
+    return logs
+
+
+def _diagnose_one(path: str, model: Any, fit: bool, rigid_body: bool) -> dict[str, Any]:
+    """The workbench's diagnose (and fit) of one log, as JSON-ready values (runs in a Ray task)."""
+    from franka_vs_gym.validation import diagnose, fit_effects
+
+    d = diagnose(path, model, rigid_body=rigid_body)
+    out: dict[str, Any] = {"log": path, "diagnosis": d.to_dict()}
+    if fit:
+        f = fit_effects(path, ["auto"], model, rigid_body=rigid_body)
+        out["fit"] = f.to_dict() | {"config": f.after.to_dict()}
+    return out
+
+
+def diagnose_folder(folder: str | os.PathLike, model: Any = None, *, fit: bool = False, rigid_body: bool = False,
+                    address: str | None = None, num_cpus: int | None = None,
+                    progress: bool = False) -> list[dict[str, Any]]:
+    """Diagnose (and with ``fit`` also fit) every log of ``folder`` in parallel on Ray; one result per log, in
+    file-name order: ``{"log", "diagnosis": Diagnosis.to_dict(), "fit": {...}}``."""
+    logs = [str(p) for p in find_logs(folder)]
+    with ray_session(address, num_cpus) as ray:
+        task = ray.remote(num_cpus=1)(_diagnose_one)
+        refs = [task.remote(p, model, fit, rigid_body) for p in logs]
+        pending, n = list(refs), 0
+        while pending:
+            _, pending = ray.wait(pending, num_returns=1)
+            n += 1
+            if progress:
+                print(f"diagnose: {n}/{len(refs)} logs done", flush=True)
+        return [ray.get(r) for r in refs]
+
+
+__all__ = ["diagnose_folder", "evaluate_distributed", "find_logs", "ray_session"]
+
+
+# ---------------------------------------------------------------------- franka-vs diagnose-folder
+def add_arguments(parser: Any) -> None:
+    parser.add_argument("folder", help="folder of measurement logs (*.csv, *.npz)")
+    parser.add_argument("--model", default=None, help="calibrated model file to start from (default: each log's "
+                        "baseline)")
+    parser.add_argument("--fit", action="store_true", help="also fit the diagnosed effects (fit --add auto)")
+    parser.add_argument("--rigid-body", action="store_true", help="start from the rigid-body model (no friction)")
+    parser.add_argument("--ray", nargs="?", const="", default=None, metavar="ADDRESS",
+                        help="Ray cluster address; without one (or without --ray) a local Ray instance")
+    parser.add_argument("--ray-cpus", type=int, default=None, help="CPUs of the local Ray instance (default: all)")
+    parser.add_argument("--json", default=None, help="write every log's result to this JSON file (must not exist)")
+    parser.add_argument("--quiet", action="store_true", help="no progress lines")
+
+
+def main(args: Any) -> int:
+    import json
+
+    from franka_vs_gym.io import atomic_write, check_output
+
+    if args.json:
+        check_output(args.json)  # refuse an existing file before the work, not after
+    res = diagnose_folder(args.folder, args.model, fit=args.fit, rigid_body=args.rigid_body,
+                          address=args.ray or None, num_cpus=args.ray_cpus, progress=not args.quiet)
+    for r in res:
+        d = r["diagnosis"]
+        line = f"{Path(r['log']).name}: verdict {d['verdict']}, RMSE {d['rmse_tau_total']:.3f} Nm"
+        if "fit" in r:
+            line += (f" -> {r['fit']['rmse_tau_total_after']:.3f} Nm after fitting "
+                     f"{','.join(r['fit']['effects']) or 'nothing'}")
+        print(line)
+    if args.json:
+        atomic_write(args.json, json.dumps(res, indent=2))
+        print(f"wrote {args.json}")
+    return 0

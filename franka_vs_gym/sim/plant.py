@@ -1,0 +1,134 @@
+"""The plant's joint friction inside MuJoCo's step.
+
+The simulated FER's friction (the law of :class:`franka_vs_gym.model.config.Friction`) is a C passive-force
+callback (``franka_vs_gym/sim/_plant.c``, compiled at install) that MuJoCo runs inside every ``mj_step``, so an
+environment step's substeps are one call into MuJoCo and ``mujoco.batch`` can step many robots on its threads.
+
+MuJoCo's callbacks are global to a process, so the parameters live in each model: every joint of a robot carries
+its friction parameters in its user numbers (``jnt_user``, :data:`NUSER` per joint, the scene declares
+``<size nuser_jnt="7"/>``):
+
+====  =====================  =========
+ col   meaning                 unit
+====  =====================  =========
+ 0     :data:`TAG` when the plant applies friction at this joint, else 0
+ 1     phi1                    Nm
+ 2     phi2                    s/rad
+ 3     phi3                    rad/s
+ 4     viscous                 Nm s/rad
+ 5     coulomb                 Nm
+ 6     coulomb_vel             rad/s
+====  =====================  =========
+
+Two robots in one scene, the dual-arm scene, or a batch of robots with randomised friction (one model each, see
+``mujoco.batch.Batch.set_models``) each get their own law. Joints of other models never carry the tag, so the
+callback leaves them alone.
+
+Without the compiled extension (no C compiler at install, a MuJoCo whose headers differ from the build's, or
+``FRANKA_VS_GYM_PURE_PYTHON=1``) :data:`NATIVE` is False and FrankaSim applies the same law from Python before
+every physics step (into ``qfrc_applied``): the same physics, slower, and no batched vector environments.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import warnings
+from typing import Any
+
+import mujoco
+import numpy as np
+
+NUSER = 7  # user numbers per joint
+TAG = 1179013959.0  # jnt_user[:, 0] of a joint whose friction the plant applies
+
+_native: Any = None
+_reason: str | None = None
+if os.environ.get("FRANKA_VS_GYM_PURE_PYTHON", "") not in ("", "0"):
+    _reason = "FRANKA_VS_GYM_PURE_PYTHON is set"
+else:
+    import importlib.util
+
+    if importlib.util.find_spec("franka_vs_gym.sim._plant") is None:
+        _reason = ("the compiled plant (franka_vs_gym.sim._plant) was not built (no C compiler at install?); "
+                   "reinstall with one (pip install -e .) for the fast plant and batched environments")
+    else:
+        try:
+            from franka_vs_gym.sim import _plant as _native
+        except ImportError as e:
+            _reason = f"the compiled plant (franka_vs_gym.sim._plant) does not load: {e}; reinstall (pip install -e .)"
+    if _native is not None:
+        if _native.MJ_VERSION_HEADER != mujoco.mj_version() or _native.TAG != TAG or _native.NUSER != NUSER:
+            _reason = (f"the compiled plant was built against MuJoCo {_native.MJ_VERSION_HEADER} but MuJoCo "
+                       f"{mujoco.mj_version()} is installed; reinstall franka_vs_gym (pip install -e .)")
+            _native = None
+
+NATIVE: bool = _native is not None
+_CB_TYPE = ctypes.CFUNCTYPE(None, ctypes.c_void_p, ctypes.c_void_p)
+_callback = _CB_TYPE(_native.callback_address()) if NATIVE else None
+
+
+def unavailable_reason() -> str | None:
+    """Why the compiled plant is not used (None when it is)."""
+    return _reason
+
+
+def _installed() -> bool:
+    cur = mujoco.get_mjcb_passive()
+    return cur is not None and NATIVE and ctypes.cast(cur, ctypes.c_void_p).value == _native.callback_address()
+
+
+def install() -> bool:
+    """Make sure MuJoCo runs the plant's C callback (``mjcb_passive``); returns whether it does.
+
+    Idempotent. Returns False (the caller then applies friction from Python) when the extension is unavailable or
+    another passive callback is already installed in this process (it is kept: callbacks are global)."""
+    global _reason
+    if not NATIVE:
+        return False
+    cur = mujoco.get_mjcb_passive()
+    if cur is None:
+        mujoco.set_mjcb_passive(_callback)
+        return True
+    if _installed():
+        return True
+    if _reason is None:
+        _reason = "another mjcb_passive callback is installed in this process"
+        warnings.warn(f"franka_vs_gym: pure-Python plant friction (slower): {_reason}", RuntimeWarning,
+                      stacklevel=2)
+    return False
+
+
+def friction_rows(friction: Any, scale: float = 1.0, enabled: bool = True) -> np.ndarray:
+    """The (7, NUSER) ``jnt_user`` rows of a robot's seven joints for a friction law (``Friction``: phi1, phi2,
+    phi3, viscous, coulomb (7,) each, coulomb_vel) multiplied by ``scale`` (phi1, viscous and Coulomb scaled, which
+    scales the whole torque). ``enabled=False`` (or a zero law) clears the tag."""
+    rows = np.zeros((7, NUSER))
+    on = enabled and not friction.is_zero()
+    rows[:, 0] = TAG if on else 0.0
+    rows[:, 1] = friction.phi1 * scale
+    rows[:, 2] = friction.phi2
+    rows[:, 3] = friction.phi3
+    rows[:, 4] = friction.viscous * scale
+    rows[:, 5] = friction.coulomb * scale
+    rows[:, 6] = friction.coulomb_vel
+    return rows
+
+
+def plant_friction_torque(model: mujoco.MjModel, data: mujoco.MjData, dofs: Any) -> np.ndarray:
+    """The friction torque tau_f (Nm, (len(dofs),)) MuJoCo's callback applies at the data's velocities: the
+    passive force with the callback minus without, both from ``mj_forward`` on a copy of the data."""
+    d = mujoco.MjData(model)
+    mujoco.mj_copyData(d, model, data)
+    mujoco.mj_forward(model, d)
+    with_cb = d.qfrc_passive.copy()
+    prev = mujoco.get_mjcb_passive()
+    mujoco.set_mjcb_passive(None)
+    try:
+        mujoco.mj_forward(model, d)
+    finally:
+        mujoco.set_mjcb_passive(prev)
+    return -(with_cb - d.qfrc_passive)[np.asarray(dofs)]
+
+
+__all__ = ["NATIVE", "NUSER", "TAG", "friction_rows", "install", "plant_friction_torque", "unavailable_reason"]

@@ -1,0 +1,52 @@
+"""Loose guards on the speed ratios of scripts/bench.py, so that a regression fails CI without making it flaky:
+every figure is a ratio to raw ``mujoco.mj_step`` on the same model, timed in alternating blocks in one run (load
+from other processes slows both sides alike), with bounds well clear of today's values (README, "Speed")."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import mujoco
+import numpy as np
+import pytest
+
+from franka_vs_gym.envs.benchmark import _time_env, bench_batched
+from franka_vs_gym.sim import FORCE_TORQUE, FrankaSim, plant
+
+
+@pytest.mark.parametrize("env_id, kwargs", [("FrankaIBVS-v0", {"observation_type": "features"}),
+                                            ("FrankaTorqueTracking-v0", {})])
+def test_env_step_costs_at_most_twice_its_physics(env_id, kwargs):
+    """Today 1.2x (IBVS, 50 substeps) and 1.5x (torque tracking, 10 substeps); was 1.9x and 2.3x."""
+    r = _time_env(env_id, 100, 0, kwargs, block=20)
+    assert r["ratio"] <= 2.0, r
+
+
+@pytest.mark.skipif(not plant.NATIVE, reason="the compiled plant is not built")
+def test_frankasim_step_costs_little_more_than_mj_step():
+    """Today 1.06x (the friction runs inside MuJoCo's step); was 1.48x with the friction hook in Python."""
+    sim = FrankaSim(camera=False)
+    sim.set_robot_state(FORCE_TORQUE)
+    m, d = sim.world.model, sim.world.data
+    d_raw = mujoco.MjData(m)
+    mujoco.mj_copyData(d_raw, m, d)
+    best_sim = best_raw = math.inf
+    for _ in range(10):
+        t0 = time.perf_counter()
+        for _ in range(200):
+            sim.step()
+        best_sim = min(best_sim, time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        for _ in range(200):
+            mujoco.mj_step(m, d_raw)
+        best_raw = min(best_raw, time.perf_counter() - t0)
+    assert best_sim / best_raw <= 1.5, best_sim / best_raw
+
+
+@pytest.mark.skipif(not plant.NATIVE, reason="the batched vector env needs the compiled plant")
+def test_batched_env_keeps_most_of_the_physics_rate():
+    """8 IBVS robots on one batch thread: today about 0.75 of the raw-physics limit."""
+    r = bench_batched("FrankaIBVS-v0", 8, 1, seconds=0.5)
+    assert r["ratio"] >= 0.4, r
+    assert np.isfinite(r["env_steps_per_s"])

@@ -1,0 +1,125 @@
+"""The batched vector env (gymnasium.make_vec on mujoco.batch): bit for bit the trajectories of N single envs."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.vector import AutoresetMode
+
+import franka_vs_gym  # noqa: F401
+from franka_vs_gym.envs.vector import FrankaVectorEnv
+from franka_vs_gym.sim import plant
+
+pytestmark = pytest.mark.skipif(not plant.NATIVE, reason="the batched vector env needs the compiled plant")
+
+
+def _same_info(a: dict, b: dict, where: str) -> None:
+    assert set(a) == set(b), where
+    for k in a:
+        if isinstance(a[k], dict):
+            _same_info(a[k], b[k], f"{where}/{k}")
+        elif isinstance(a[k], np.ndarray) and a[k].dtype != object:
+            assert np.array_equal(a[k], b[k], equal_nan=True), f"{where}/{k}"
+        else:
+            assert all(x is y or x == y or (np.asarray(x) == np.asarray(y)).all() for x, y in zip(a[k], b[k],
+                                                                                                  strict=True)), k
+
+
+@pytest.mark.parametrize("env_id, kwargs, n_steps", [
+    # randomised dynamics, a camera slower than the control (frames between steps), one autoreset
+    ("FrankaIBVS-v0", dict(observation_type="features", link_mass_range=(0.8, 1.2), friction_scale_range=(0.5, 1.5),
+                           payload_mass_range=(0.0, 0.5), feature_noise=0.5, control_period=0.04,
+                           camera_period=0.03, time_limit=2.0), 60),
+    ("FrankaTorqueTracking-v0", dict(friction_scale_range=(0.5, 1.5), time_limit=0.3), 40),
+])
+def test_batched_vector_env_is_bit_identical_to_single_envs(env_id, kwargs, n_steps):
+    n = 3
+    vec = gym.make_vec(env_id, num_envs=n, nthread=2, **kwargs)
+    assert isinstance(vec, FrankaVectorEnv)
+    ref = gym.make_vec(env_id, num_envs=n, vectorization_mode="sync", **kwargs)
+    o1, i1 = vec.reset(seed=7)
+    o2, i2 = ref.reset(seed=7)
+    _same_info(i1, i2, "reset")
+    rng = np.random.default_rng(0)
+    scale = 0.4 if vec.single_action_space.shape == (7,) and "Torque" not in env_id else 5.0
+    ends = 0
+    for t in range(n_steps):
+        a = (rng.uniform(-1, 1, vec.action_space.shape) * scale).astype(np.float32)
+        r1, r2 = vec.step(a), ref.step(a)
+        for k in r1[0]:
+            assert np.array_equal(r1[0][k], r2[0][k]), (t, k)
+        for j in (1, 2, 3):
+            assert np.array_equal(r1[j], r2[j]), (t, j)
+        _same_info(r1[4], r2[4], f"step {t}")
+        ends += int((r1[2] | r1[3]).sum())
+    assert ends >= n  # every robot's episode ended at least once and was reset (autoreset)
+    vec.close()
+    ref.close()
+
+
+def test_same_step_autoreset_and_partial_reset():
+    kw = dict(time_limit=0.05)  # 5 steps of FrankaTorqueTracking-v0
+    vec = FrankaVectorEnv("FrankaTorqueTracking-v0", 2, autoreset_mode="SameStep", **kw)
+    assert vec.metadata["autoreset_mode"] == AutoresetMode.SAME_STEP
+    single = gym.make("FrankaTorqueTracking-v0", **kw)
+    vec.reset(seed=1)
+    o, _ = single.reset(seed=1)
+    a = np.zeros(vec.action_space.shape, np.float32)
+    for _ in range(5):
+        obs, r, term, trunc, info = vec.step(a)
+        o, *_ = single.step(a[0])
+    assert trunc.all() and "final_obs" in info
+    assert np.array_equal(info["final_obs"][0]["q"], o["q"])  # the last observation of the episode
+    assert obs["time"][0, 0] == 0.0  # and the first of the next one
+    obs, _ = vec.reset(seed=[5, None], options={"reset_mask": np.array([True, False])})
+    o, _ = single.reset(seed=5)
+    assert np.array_equal(obs["q"][0], o["q"])
+    with pytest.raises(ValueError, match="num_envs"):
+        FrankaVectorEnv("FrankaTorqueTracking-v0", 0)
+    with pytest.raises(ValueError, match="unknown environment id"):
+        FrankaVectorEnv("Nope-v0", 2)
+
+
+def test_sb3_vec_env_equals_dummy_vec_env_of_agent_envs():
+    """The SB3 adapter over the batched env gives SB3 what DummyVecEnv over the training wrappers gives it."""
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from franka_vs_gym.envs.sb3 import make_agent_vec_env
+    from franka_vs_gym.envs.wrappers import make_agent_env
+
+    kw = dict(time_limit=0.5, link_mass_range=(0.9, 1.1))
+    ours = make_agent_vec_env("FrankaIBVS-v0", 2, 0.5, nthread=1, **kw)
+    ref = DummyVecEnv([lambda: make_agent_env("FrankaIBVS-v0", 0.5, **kw) for _ in range(2)])
+    ours.seed(11)
+    ref.seed(11)
+    assert np.array_equal(ours.reset(), ref.reset())
+    rng = np.random.default_rng(3)
+    dones = 0
+    for _ in range(14):
+        a = rng.uniform(-1, 1, (2, 7)).astype(np.float32)
+        ours.step_async(a)
+        ref.step_async(a)
+        o1, r1, d1, i1 = ours.step_wait()
+        o2, r2, d2, i2 = ref.step_wait()
+        assert np.array_equal(o1, o2) and np.array_equal(r1, r2) and np.array_equal(d1, d2)
+        for x, y in zip(i1, i2, strict=True):
+            assert x["TimeLimit.truncated"] == y["TimeLimit.truncated"]
+            if "terminal_observation" in y:
+                assert np.array_equal(x["terminal_observation"], y["terminal_observation"])
+        dones += int(d1.sum())
+    assert dones == 2  # both episodes (10 steps) ended and were reset within the step
+    ours.close()
+
+
+def test_ppo_trains_on_the_batched_env(tmp_path):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    r = subprocess.run([sys.executable, str(root / "baselines" / "train_sb3.py"), "--smoke", "--algo", "ppo",
+                        "--batched", "--n-envs", "4", "--out", str(tmp_path / "ppo"), "--tensorboard", "",
+                        "--eval-episodes", "0"], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert (tmp_path / "ppo.zip").is_file() and '"batched": true' in (tmp_path / "ppo.json").read_text()
