@@ -285,6 +285,12 @@ def _mk_fifo(d, good):
     return p
 
 
+def _mk_fifo_mcap(d, good):
+    p = d / "run.mcap"
+    os.mkfifo(p)
+    return p
+
+
 def _mk_dev_zero(d, good):
     p = d / "run.csv"
     p.symlink_to("/dev/zero")
@@ -481,6 +487,7 @@ LOG_CASES = {
     "npz_meta_not_json": (_mk_npz_meta_bad, "not a JSON string"),
     "npz_wrong_shape": (_mk_npz_wrong_shape, "the FER has 7"),
     "fifo": (_mk_fifo, "FIFO"),
+    "fifo_named_mcap": (_mk_fifo_mcap, "FIFO"),
     "dev_zero_link": (_mk_dev_zero, "character device"),
     "directory_named_csv": (_mk_dir_csv, "missing file exciting_traj_time.txt"),
     "missing": (_mk_missing, "not found"),

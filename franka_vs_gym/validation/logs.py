@@ -462,6 +462,8 @@ def load_log(path: str | os.PathLike, topic: str | None = None) -> MeasurementLo
     if not os.path.lexists(p):
         raise FileNotFoundError(f"log not found: {p}")
     if is_rosbag(p):
+        if not p.is_dir():  # a bare .mcap/.db3: a regular file (a FIFO or device would hang the reader)
+            io.check_input_file(p, what="ROS bag")
         arrays, meta = read_rosbag(p, topic)
         meta.update(_read_sidecar(p))
     elif p.is_dir():
