@@ -337,3 +337,15 @@ def test_scripted_policies_servo_and_track_on_every_robot(name):
     np.testing.assert_array_equal(ct.tau_max, lim["tau_max"])
     r = franka_vs_gym.evaluate(ct, "FrankaTorqueTracking-v0", 1, seed=0, env_kwargs={"robot": name, "time_limit": 2.0})
     assert r["success_rate"] == 1.0, r["failures"]
+
+
+def test_command_line_takes_the_robot(tmp_path, capsys):
+    from franka_vs_gym.cli import main
+
+    out = tmp_path / "eval.json"
+    assert main(["evaluate", "zero", "--robot", "fr3", "--episodes", "1", "--quiet", "--json", str(out),
+                 "--env-kwargs", '{"time_limit": 0.2}']) == 0
+    assert json.loads(out.read_text())["env_kwargs"]["robot"] == "fr3"
+    assert main(["evaluate", "zero", "--robot", "ur5", "--episodes", "1"]) == 2
+    assert main(["demo", "torque", "--robot", "ur5", "--out", str(tmp_path / "d")]) == 2
+    assert "unknown robot 'ur5'" in capsys.readouterr().err

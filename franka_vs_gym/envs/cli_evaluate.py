@@ -32,6 +32,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", default=None, help="also write the summary to this JSON file")
     parser.add_argument("--force", action="store_true", help="overwrite the --json file if it exists")
     parser.add_argument("--quiet", action="store_true", help="no per-episode lines")
+    parser.add_argument("--robot", default=None, help="the simulated arm (fer or fr3); the same as --env-kwargs "
+                        "'{\"robot\": ...}'")
     parser.add_argument("--ray", nargs="?", const="", default=None, metavar="ADDRESS",
                         help="spread the episodes over a Ray cluster at ADDRESS ('auto', 'ray://host:10001'), or a "
                         "local Ray instance when no address is given (needs the [scale] extra); same table")
@@ -104,6 +106,10 @@ def main(args: argparse.Namespace) -> int:
         raise ValueError(f"--env-kwargs is not valid JSON: {e}") from None
     if not isinstance(env_kwargs, dict):
         raise ValueError("--env-kwargs must be a JSON object")
+    if getattr(args, "robot", None) is not None:
+        from franka_vs_gym.model.description import robot_description
+
+        env_kwargs["robot"] = robot_description(args.robot).name
     if args.episodes < 1:
         raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
     if args.json and Path(args.json).exists() and not args.force:

@@ -27,6 +27,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--duration", type=float, default=None, help="simulated duration, s")
     p.add_argument("--no-video", action="store_true", help="skip the video")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--robot", default=None, help="the simulated arm: fer (default) or fr3")
     try:
         from franka_vs_gym.experiments import servo
     except ImportError:  # the servo demo's own options are added when its module is available
@@ -35,6 +36,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    from franka_vs_gym.model.description import robot_description
+
+    try:
+        args.robot = robot_description(args.robot)
+    except ValueError as e:
+        from franka_vs_gym.errors import UserError
+
+        raise UserError(f"--robot: {e}") from None
     if args.kind in ("ibvs", "pbvs"):
         from franka_vs_gym.experiments import servo
 
@@ -65,7 +74,7 @@ def run_torque_demo(args: argparse.Namespace) -> int:
     if not (duration > 0 and math.isfinite(duration)):
         raise ValueError(f"--duration must be > 0 s, got {duration}")
     out = make_run_dir("demo-torque", args.out)
-    sim = FrankaSim(camera=False)
+    sim = FrankaSim(camera=False, robot=getattr(args, "robot", None))
     ctrl = ComputedTorque(sim.model)
     q_start = sim.model.robot.neutral()
     waypoints = [q_start,

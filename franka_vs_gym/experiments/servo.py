@@ -22,6 +22,7 @@ import math
 import sys
 import time
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -103,11 +104,12 @@ def _draw(image: np.ndarray, meas, desired_px: np.ndarray, trail: list[np.ndarra
 
 def setup(seed: int, *, tag_size: float = 0.08, desired_distance: float = 0.20, max_offset: float = 0.15,
           max_angle_deg: float = 30.0, intrinsics: CameraIntrinsics | None = None,
-          render: bool = False) -> tuple[FrankaSim, np.ndarray, np.ndarray, float, float]:
-    """A simulated FER with a tag on the table, at a seeded random start. Returns (sim, fMo, cdMo, offset,
-    angle). The start satisfies the study's constraints (tag and quiet zone in view, joints within limits)."""
+          render: bool = False, robot: Any = None) -> tuple[FrankaSim, np.ndarray, np.ndarray, float, float]:
+    """A simulated arm (``robot``, the FER by default) with a tag on the table, at a seeded random start. Returns
+    (sim, fMo, cdMo, offset, angle). The start satisfies the study's constraints (tag and quiet zone in view, joints
+    within limits)."""
     intr = intrinsics or CameraIntrinsics.default()
-    sim = FrankaSim(tags=[TagSpec(tag_id=0, size=tag_size, pos=TAG_POS)], camera=True)
+    sim = FrankaSim(tags=[TagSpec(tag_id=0, size=tag_size, pos=TAG_POS)], camera=True, robot=robot)
     fMo = np.eye(4)
     fMo[:3, 3] = TAG_POS
     cdMo = desired_pose(desired_distance)
@@ -137,22 +139,54 @@ def setup(seed: int, *, tag_size: float = 0.08, desired_distance: float = 0.20, 
     raise RuntimeError(f"seed {seed}: no valid start pose found")
 
 
-def run_servo(kind: str, seed: int, *, features: str = "ideal", duration: float = 10.0, camera_period: float = 0.02,
-              intrinsics: CameraIntrinsics | None = None, tag_size: float = 0.08, desired_distance: float = 0.20,
-              max_offset: float = 0.15, max_angle_deg: float = 30.0, record_frames: bool = False,
-              hold: float = 0.3, show_progress: bool = False, interaction: str = "MEAN") -> ServoResult:
-    """Run IBVS or PBVS from a seeded start; stops ``hold`` s after convergence or at ``duration``."""
-    from franka_vs_gym.policies import IBVSPolicy, PBVSPolicy
-
+def _check_servo_settings(kind: str, features: str, duration: float, camera_period: float) -> None:
     if kind not in ("ibvs", "pbvs"):
         raise ValueError(f"kind must be 'ibvs' or 'pbvs', got {kind!r}")
     if features not in ("ideal", "detect"):
         raise ValueError(f"features must be 'ideal' or 'detect', got {features!r}")
     if not (duration > 0 and camera_period > 0):
         raise ValueError("duration and camera_period must be > 0 s")
+
+
+def _measure_tag(cMo_true: np.ndarray, tag_size: float, intr: CameraIntrinsics, camera: WristCamera | None,
+                 detector: TagDetector | None, record_frames: bool):
+    """One camera frame: (the true projection, the measurement the policy sees, the image or None). With a detector
+    the measurement comes from the rendered image, else it is the true projection ("ideal" features)."""
+    truth = ideal_measurement(cMo_true, tag_size, intr)
+    if detector is not None:
+        assert camera is not None
+        image, _ = camera.image()
+        return truth, detected_measurement(image, detector, 0, tag_size, intr), image
+    image = camera.image()[0] if (record_frames and camera is not None) else None
+    return truth, truth, image
+
+
+def _goal_errors(kind: str, truth, desired, cdMo: np.ndarray, cMo_true: np.ndarray) -> tuple[float, float, float,
+                                                                                              bool]:
+    """(max corner error px, translation error m, rotation error deg, converged) of the true camera pose."""
+    err_px = (float(np.max(np.linalg.norm(truth.corners_px - desired.corners_px, axis=1)))
+              if truth.visible else math.inf)
+    cdMc = cdMo @ inverse_pose(cMo_true)
+    t_err = float(np.linalg.norm(cdMc[:3, 3]))
+    r_err = math.degrees(float(np.linalg.norm(pose_vector(cdMc)[3:])))
+    ok = err_px < PX_TOL if kind == "ibvs" else (t_err < T_TOL and r_err < R_TOL_DEG)
+    return err_px, t_err, r_err, ok
+
+
+def run_servo(kind: str, seed: int, *, features: str = "ideal", duration: float = 10.0, camera_period: float = 0.02,
+              intrinsics: CameraIntrinsics | None = None, tag_size: float = 0.08, desired_distance: float = 0.20,
+              max_offset: float = 0.15, max_angle_deg: float = 30.0, record_frames: bool = False,
+              hold: float = 0.3, show_progress: bool = False, interaction: str = "MEAN",
+              robot: Any = None) -> ServoResult:
+    """Run IBVS or PBVS on ``robot`` (the FER by default) from a seeded start; stops ``hold`` s after convergence or
+    at ``duration``."""
+    from franka_vs_gym.policies import IBVSPolicy, PBVSPolicy
+
+    _check_servo_settings(kind, features, duration, camera_period)
     intr = intrinsics or CameraIntrinsics.default()
     sim, fMo, cdMo, offset, angle = setup(seed, tag_size=tag_size, desired_distance=desired_distance,
-                                          max_offset=max_offset, max_angle_deg=max_angle_deg, intrinsics=intr)
+                                          max_offset=max_offset, max_angle_deg=max_angle_deg, intrinsics=intr,
+                                          robot=robot)
     policy = (IBVSPolicy(interaction=interaction, tag_size=tag_size, eMc=sim.get_eMc(), model=sim.model)
               if kind == "ibvs" else PBVSPolicy(eMc=sim.get_eMc(), model=sim.model))
     camera = WristCamera(sim, intr, camera_period) if (features == "detect" or record_frames) else None
@@ -173,26 +207,13 @@ def run_servo(kind: str, seed: int, *, features: str = "ideal", duration: float 
         for k in range(n_steps):
             if k % n_cam == 0:
                 cMo_true = inverse_pose(sim.get_fMc()) @ fMo
-                truth = ideal_measurement(cMo_true, tag_size, intr)
-                image: np.ndarray | None
-                if features == "detect":
-                    assert camera is not None and detector is not None
-                    image, _ = camera.image()
-                    meas = detected_measurement(image, detector, 0, tag_size, intr)
-                    detections += meas.visible
-                else:
-                    meas = truth
-                    image = camera.image()[0] if (record_frames and camera is not None) else None
+                truth, meas, image = _measure_tag(cMo_true, tag_size, intr, camera, detector, record_frames)
+                detections += features == "detect" and meas.visible
                 obs = {"q": sim.get_position(), "features": meas.corners_xy.ravel(), "feature_depth": meas.depths,
                        "tag_pose": pose_vector(meas.cMo), "visible": np.array([float(meas.visible)]), **obs_const}
                 dq_cmd, _ = policy.predict(obs)
                 sim.set_velocity(JOINT_STATE, dq_cmd.astype(np.float64))
-                err_px = (float(np.max(np.linalg.norm(truth.corners_px - desired.corners_px, axis=1)))
-                          if truth.visible else math.inf)
-                cdMc = cdMo @ inverse_pose(cMo_true)
-                t_err = float(np.linalg.norm(cdMc[:3, 3]))
-                r_err = math.degrees(float(np.linalg.norm(pose_vector(cdMc)[3:])))
-                ok = err_px < PX_TOL if kind == "ibvs" else (t_err < T_TOL and r_err < R_TOL_DEG)
+                err_px, t_err, r_err, ok = _goal_errors(kind, truth, desired, cdMo, cMo_true)
                 if ok and converged_at is None:
                     converged_at = sim.time
                 elif not ok:
@@ -250,7 +271,8 @@ def main(args: argparse.Namespace, kind: str) -> int:
     intr = CameraIntrinsics.default(width, height)
     wall = time.perf_counter()
     res = run_servo(kind, args.seed, features=args.features, duration=duration, camera_period=args.camera_period,
-                    intrinsics=intr, record_frames=not args.no_video, show_progress=not args.quiet)
+                    intrinsics=intr, record_frames=not args.no_video, show_progress=not args.quiet,
+                    robot=getattr(args, "robot", None))
     wall = time.perf_counter() - wall
     fig, ax = plt.subplots(3, 1, figsize=(9, 10), sharex=True)
     if kind == "ibvs":
