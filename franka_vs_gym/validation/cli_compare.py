@@ -19,16 +19,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    verbose = not args.quiet
-    res = compare(load_from(args), args.model, tool=args.tool, robot=args.robot, rigid_body=args.rigid_body,
-                  settings=settings_from(args),
-                  do_replay=not args.no_replay, replay_mode=args.replay_mode, verbose=verbose)
-    if args.report:
-        from franka_vs_gym.validation.report import markdown_report
+    from franka_vs_gym.io import OutputSet
 
-        progress("writing the report and figures", verbose)
-        path = markdown_report(res, args.report, overwrite=args.force)
-        progress(f"report: {path}", verbose)
+    verbose = not args.quiet
+    with OutputSet(force=args.force, inputs=[args.log] + ([args.model] if args.model else [])) as outputs:
+        stage = outputs.folder(args.report, "report folder") if args.report else None
+        res = compare(load_from(args), args.model, tool=args.tool, robot=args.robot, rigid_body=args.rigid_body,
+                      settings=settings_from(args), do_replay=not args.no_replay, replay_mode=args.replay_mode,
+                      verbose=verbose)
+        if stage is not None:
+            from franka_vs_gym.validation.report import markdown_report
+
+            progress("writing the report and figures", verbose)
+            markdown_report(res, stage, overwrite=True)
+    if args.report:
+        progress(f"report: {args.report}/report.md", verbose)
     if args.json:
         print(json.dumps(res.to_dict()))
     else:

@@ -34,16 +34,21 @@ def main(args: argparse.Namespace) -> int:
 
     verbose = not args.quiet
     effects = None if args.effects is None else [e for e in args.effects.split(",") if e.strip()]
-    d = diagnose(load_from(args), args.model, rigid_body=args.rigid_body, effects=effects,
-                 settings=settings_from(args), verbose=verbose, tool=args.tool, robot=args.robot)
-    if args.report:
-        from franka_vs_gym.validation.compare import compare
-        from franka_vs_gym.validation.report import markdown_report
+    from franka_vs_gym.io import OutputSet
 
-        progress("writing the report and figures", verbose)
-        res = compare(d.context.data, d.config, do_replay=False)
-        path = markdown_report(res, args.report, diagnosis=d, overwrite=args.force)
-        progress(f"report: {path}", verbose)
+    with OutputSet(force=args.force, inputs=[args.log]) as outputs:
+        stage = outputs.folder(args.report, "report folder") if args.report else None
+        d = diagnose(load_from(args), args.model, rigid_body=args.rigid_body, effects=effects,
+                     settings=settings_from(args), verbose=verbose, tool=args.tool, robot=args.robot)
+        if stage is not None:
+            from franka_vs_gym.validation.compare import compare
+            from franka_vs_gym.validation.report import markdown_report
+
+            progress("writing the report and figures", verbose)
+            res = compare(d.context.data, d.config, do_replay=False)
+            markdown_report(res, stage, diagnosis=d, overwrite=True)
+    if args.report:
+        progress(f"report: {args.report}/report.md", verbose)
     if args.json:
         print(json.dumps(d.to_dict()))
         return 0

@@ -26,29 +26,32 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    from franka_vs_gym.io import OutputSet
     from franka_vs_gym.validation.diagnose import fit_effects
 
     out = Path(args.output)
-    if out.exists() and not args.force:
-        raise FileExistsError(f"{out} exists; pass --force to replace it")
     effects = [e for e in args.add.split(",") if e.strip()]
     if not effects:
         raise ValueError("--add needs at least one effect")
     verbose = not args.quiet
     if not 0 <= args.holdout < 0.9:
         raise ValueError(f"--holdout must be in [0, 0.9), got {args.holdout}")
-    res = fit_effects(load_from(args), effects, args.model, rigid_body=args.rigid_body, settings=settings_from(args),
-                      verbose=verbose, holdout=args.holdout or None, tool=args.tool, robot=args.robot)
-    res.after.save(out, overwrite=args.force)
-    progress(f"calibrated model written to {out}", verbose)
-    if args.report:
-        from franka_vs_gym.validation.compare import compare
-        from franka_vs_gym.validation.report import markdown_report
+    # the model file and the report appear together or not at all; both are checked before the fit runs
+    with OutputSet(force=args.force, inputs=[args.log] + ([args.model] if args.model else [])) as outputs:
+        model_stage = outputs.file(out, "calibrated model file")
+        report_stage = outputs.folder(args.report, "report folder") if args.report else None
+        res = fit_effects(load_from(args), effects, args.model, rigid_body=args.rigid_body,
+                          settings=settings_from(args), verbose=verbose, holdout=args.holdout or None,
+                          tool=args.tool, robot=args.robot)
+        res.after.save(model_stage, overwrite=True)
+        if report_stage is not None:
+            from franka_vs_gym.validation.compare import compare
+            from franka_vs_gym.validation.report import markdown_report
 
-        progress("writing the report and figures", verbose)
-        cmp_after = compare(res.data, res.after, do_replay=False)
-        path = markdown_report(cmp_after, args.report, fit=res, overwrite=args.force)
-        progress(f"report: {path}", verbose)
+            progress("writing the report and figures", verbose)
+            cmp_after = compare(res.data, res.after, do_replay=False)
+            markdown_report(cmp_after, report_stage, fit=res, overwrite=True)
+    progress(f"calibrated model written to {out}" + (f"; report in {args.report}" if args.report else ""), verbose)
     if args.json:
         print(json.dumps({**res.to_dict(), "model_file": str(out)}))
         return 0
