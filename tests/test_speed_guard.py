@@ -46,7 +46,9 @@ def test_frankasim_step_costs_little_more_than_mj_step():
 
 @pytest.mark.skipif(not plant.NATIVE, reason="the batched vector env needs the compiled plant")
 def test_batched_env_keeps_most_of_the_physics_rate():
-    """8 IBVS robots on one batch thread: today about 0.75 of the raw-physics limit."""
-    r = bench_batched("FrankaIBVS-v0", 8, 1, seconds=0.5)
-    assert r["ratio"] >= 0.4, r
+    """8 IBVS robots on one batch thread: env steps/s today about 0.78 of the same batch's physics alone (0.75 of
+    the raw-physics limit); the bound catches a doubling of the per-robot overhead. Both sides are timed in
+    alternating blocks of the same run, the fastest block of each kept."""
+    r = bench_batched("FrankaIBVS-v0", 8, 1, seconds=1.0)
     assert np.isfinite(r["env_steps_per_s"])
+    assert r["ratio_to_batch_physics"] >= 0.35, r

@@ -139,6 +139,40 @@ def setup(seed: int, *, tag_size: float = 0.08, desired_distance: float = 0.20, 
     raise RuntimeError(f"seed {seed}: no valid start pose found")
 
 
+def _check_servo_settings(kind: str, features: str, duration: float, camera_period: float) -> None:
+    if kind not in ("ibvs", "pbvs"):
+        raise ValueError(f"kind must be 'ibvs' or 'pbvs', got {kind!r}")
+    if features not in ("ideal", "detect"):
+        raise ValueError(f"features must be 'ideal' or 'detect', got {features!r}")
+    if not (duration > 0 and camera_period > 0):
+        raise ValueError("duration and camera_period must be > 0 s")
+
+
+def _measure_tag(cMo_true: np.ndarray, tag_size: float, intr: CameraIntrinsics, camera: WristCamera | None,
+                 detector: TagDetector | None, record_frames: bool):
+    """One camera frame: (the true projection, the measurement the policy sees, the image or None). With a detector
+    the measurement comes from the rendered image, else it is the true projection ("ideal" features)."""
+    truth = ideal_measurement(cMo_true, tag_size, intr)
+    if detector is not None:
+        assert camera is not None
+        image, _ = camera.image()
+        return truth, detected_measurement(image, detector, 0, tag_size, intr), image
+    image = camera.image()[0] if (record_frames and camera is not None) else None
+    return truth, truth, image
+
+
+def _goal_errors(kind: str, truth, desired, cdMo: np.ndarray, cMo_true: np.ndarray) -> tuple[float, float, float,
+                                                                                              bool]:
+    """(max corner error px, translation error m, rotation error deg, converged) of the true camera pose."""
+    err_px = (float(np.max(np.linalg.norm(truth.corners_px - desired.corners_px, axis=1)))
+              if truth.visible else math.inf)
+    cdMc = cdMo @ inverse_pose(cMo_true)
+    t_err = float(np.linalg.norm(cdMc[:3, 3]))
+    r_err = math.degrees(float(np.linalg.norm(pose_vector(cdMc)[3:])))
+    ok = err_px < PX_TOL if kind == "ibvs" else (t_err < T_TOL and r_err < R_TOL_DEG)
+    return err_px, t_err, r_err, ok
+
+
 def run_servo(kind: str, seed: int, *, features: str = "ideal", duration: float = 10.0, camera_period: float = 0.02,
               intrinsics: CameraIntrinsics | None = None, tag_size: float = 0.08, desired_distance: float = 0.20,
               max_offset: float = 0.15, max_angle_deg: float = 30.0, record_frames: bool = False,
@@ -148,12 +182,7 @@ def run_servo(kind: str, seed: int, *, features: str = "ideal", duration: float 
     at ``duration``."""
     from franka_vs_gym.policies import IBVSPolicy, PBVSPolicy
 
-    if kind not in ("ibvs", "pbvs"):
-        raise ValueError(f"kind must be 'ibvs' or 'pbvs', got {kind!r}")
-    if features not in ("ideal", "detect"):
-        raise ValueError(f"features must be 'ideal' or 'detect', got {features!r}")
-    if not (duration > 0 and camera_period > 0):
-        raise ValueError("duration and camera_period must be > 0 s")
+    _check_servo_settings(kind, features, duration, camera_period)
     intr = intrinsics or CameraIntrinsics.default()
     sim, fMo, cdMo, offset, angle = setup(seed, tag_size=tag_size, desired_distance=desired_distance,
                                           max_offset=max_offset, max_angle_deg=max_angle_deg, intrinsics=intr,
@@ -178,26 +207,13 @@ def run_servo(kind: str, seed: int, *, features: str = "ideal", duration: float 
         for k in range(n_steps):
             if k % n_cam == 0:
                 cMo_true = inverse_pose(sim.get_fMc()) @ fMo
-                truth = ideal_measurement(cMo_true, tag_size, intr)
-                image: np.ndarray | None
-                if features == "detect":
-                    assert camera is not None and detector is not None
-                    image, _ = camera.image()
-                    meas = detected_measurement(image, detector, 0, tag_size, intr)
-                    detections += meas.visible
-                else:
-                    meas = truth
-                    image = camera.image()[0] if (record_frames and camera is not None) else None
+                truth, meas, image = _measure_tag(cMo_true, tag_size, intr, camera, detector, record_frames)
+                detections += features == "detect" and meas.visible
                 obs = {"q": sim.get_position(), "features": meas.corners_xy.ravel(), "feature_depth": meas.depths,
                        "tag_pose": pose_vector(meas.cMo), "visible": np.array([float(meas.visible)]), **obs_const}
                 dq_cmd, _ = policy.predict(obs)
                 sim.set_velocity(JOINT_STATE, dq_cmd.astype(np.float64))
-                err_px = (float(np.max(np.linalg.norm(truth.corners_px - desired.corners_px, axis=1)))
-                          if truth.visible else math.inf)
-                cdMc = cdMo @ inverse_pose(cMo_true)
-                t_err = float(np.linalg.norm(cdMc[:3, 3]))
-                r_err = math.degrees(float(np.linalg.norm(pose_vector(cdMc)[3:])))
-                ok = err_px < PX_TOL if kind == "ibvs" else (t_err < T_TOL and r_err < R_TOL_DEG)
+                err_px, t_err, r_err, ok = _goal_errors(kind, truth, desired, cdMo, cMo_true)
                 if ok and converged_at is None:
                     converged_at = sim.time
                 elif not ok:

@@ -48,6 +48,7 @@ def _tau_max(ctx) -> np.ndarray:
 SIG_PHI2 = np.geomspace(2.0, 100.0, 12)  # s/rad
 SIG_PHI3 = np.array([-0.08, -0.04, 0.0, 0.04, 0.08])  # rad/s
 COULOMB_VC = (0.005, 0.01, 0.02, 0.05, 0.1)  # rad/s, Coulomb smoothing velocities tried
+STRIBECK_VS = (0.02, 0.05, 0.1, 0.2)  # rad/s, Stribeck velocities tried
 MAX_PAYLOAD = 3.5  # kg (FER rated payload 3 kg, plus margin)
 MAX_DELAY = 0.1  # s
 MAX_TILT = math.radians(30.0)
@@ -260,14 +261,16 @@ def _joint_coef(fit: Fit, p: int = 1) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------------------------- joint friction
-def _vc_choice(ctx: Context, target: np.ndarray, law) -> float:
-    """The smoothing velocity of COULOMB_VC whose column explains ``target`` best (coarse samples)."""
+def _vc_choice(ctx: Context, target: np.ndarray, law, grid=None) -> float:
+    """The velocity of ``grid`` (default COULOMB_VC, or the model's Coulomb smoothing when it has Coulomb friction)
+    whose column ``law(dq, v)`` explains ``target`` best (coarse samples)."""
     fr = ctx.config.friction
-    if fr.coulomb.any():
+    if grid is None and fr.coulomb.any():
         return fr.coulomb_vel
+    grid = COULOMB_VC if grid is None else grid
     dq, y = ctx.data.dq[ctx.coarse], target[ctx.coarse]
-    best, best_sse = COULOMB_VC[0], np.inf
-    for vc in COULOMB_VC:
+    best, best_sse = grid[0], np.inf
+    for vc in grid:
         X = law(dq, vc)
         th = _lstsq_joints(X, y)
         sse = float(np.sum((y - X * th) ** 2))
@@ -409,7 +412,7 @@ class SigmoidFriction(Effect):
     phi1 0.03-0.55 Nm, phi2 5-40 s/rad, phi3 -0.03-0.06 rad/s).
     """
 
-    name, aliases = "sigmoid_friction", ("gaz_friction", "stribeck_friction")
+    name, aliases = "sigmoid_friction", ("gaz_friction",)
     n_params = 3
     description = "Gaz et al. sigmoid friction (a Stribeck-like rounded, possibly off-centre step)"
     signature = "a rounded step in residual vs dq whose width is phi2's inverse, possibly off-centre (phi3)"
@@ -659,6 +662,45 @@ class LoadDependentFriction(Effect):
     def public(self, fit):
         return {"mu": np.round(_joint_coef(fit)[:, 0], 6).tolist(),
                 "coulomb_vel_rad_per_s": float(fit.theta["coulomb_vel"])}
+
+
+class StribeckFriction(Effect):
+    """The Stribeck effect: friction higher at breakaway than in sliding, decaying with speed,
+    ``tau_f = F_s exp(-(dq / v_s)^2) sign(dq)`` on top of the model's friction (the classical Stribeck curve of
+    Armstrong-Helouvry; reported for harmonic drives by Tjahjowidodo et al. and for Franka joints by Gaz et al.
+    2019, who found it small). ``v_s`` (common to all joints) is chosen on the residual from STRIBECK_VS.
+
+    Signature: a hump in residual vs dq right after each velocity reversal, vanishing above a few v_s.
+    Plausible: 0 <= F_s < 0.25 tau_max Nm (static friction exceeds sliding friction). Diagnose-only: the model's
+    friction law has no Stribeck term, so ``apply`` raises NotApplicable and ``fit`` says so.
+    """
+
+    name, aliases = "stribeck_friction", ("stribeck_hump",)
+    n_params = 1
+    description = "Stribeck hump: extra friction near zero velocity, decaying with speed"
+    signature = "a hump of friction right after velocity reversals, gone above a few v_s"
+    plausible = "0 <= F_s < 0.25 tau_max (Nm)"
+    injectable = False
+
+    def shape(self, ctx, target):
+        def law(dq, vs):
+            return coulomb_friction(dq, 1.0, 0.01) * np.exp(-(dq / vs) ** 2)
+        return {"v_s": _vc_choice(ctx, target, law, STRIBECK_VS)}
+
+    def design(self, ctx, shape):
+        vs = float(shape["v_s"])
+        return ctx.cached(("stribeck", vs), lambda: (coulomb_friction(ctx.data.dq, 1.0, 0.01)
+                                                     * np.exp(-(ctx.data.dq / vs) ** 2))[:, :, None])
+
+    def problems(self, ctx, fit):
+        c = _joint_coef(fit)[:, 0]
+        tm = _tau_max(ctx)
+        return {j: f"negative Stribeck height {c[j]:.3g} Nm (friction lower at breakaway)" for j in fit.joints
+                if c[j] < 0} | {j: f"Stribeck height {c[j]:.3g} Nm is implausibly large" for j in fit.joints
+                                if c[j] >= 0.25 * tm[j]}
+
+    def public(self, fit):
+        return {"F_s_Nm": np.round(_joint_coef(fit)[:, 0], 6).tolist(), "v_s_rad_per_s": float(fit.theta["v_s"])}
 
 
 class TorqueOffset(Effect):
@@ -1030,13 +1072,13 @@ class EffectRegistry:
 
 
 REGISTRY = EffectRegistry()
-for _cls in (ViscousFriction, CoulombFriction, SigmoidFriction, AsymmetricFriction, LoadDependentFriction,
-             TorqueOffset, Armature, Payload, LinkMass, GravityTilt, Delay):
+for _cls in (ViscousFriction, CoulombFriction, SigmoidFriction, AsymmetricFriction, StribeckFriction,
+             LoadDependentFriction, TorqueOffset, Armature, Payload, LinkMass, GravityTilt, Delay):
     REGISTRY.register(_cls)
 LIBRARY = REGISTRY  # the historical name
 COMMAND_DELAY = CommandDelay()
 FRICTION_EFFECTS = ("viscous_friction", "coulomb_friction", "sigmoid_friction", "asymmetric_friction",
-                    "load_dependent_friction")
+                    "stribeck_friction", "load_dependent_friction")
 ENTRY_POINT_GROUP = "franka_vs_gym.effects"
 
 

@@ -12,13 +12,19 @@ group             features
 ``velocity``      16 quantile bins of dq_j (friction-like laws of any shape: dead zones, Stribeck, asymmetry)
 ``acceleration``  16 quantile bins of ddq_j (inertia-like)
 ``load``          16 quantile bins of the model's torque on the joint (load-dependent effects, saturation)
-``time``          12 equal time segments (drift: temperature, sensor creep)
+``time``          Legendre polynomials of time up to degree 4 (drift: temperature, sensor creep)
 ``periodic_t``    sin/cos(2 pi f t) at the 3 strongest spectral peaks below the filter cutoff (disturbances)
+``step_drift``    a velocity-sign step whose height is a degree-4 polynomial of time (friction drifting with
+                  temperature)
+``step_pose``     a velocity-sign step whose height changes over 8 position bins (pose-dependent friction,
+                  backlash against gravity)
 ================  ==========================================================================================
 
-A group is *significant* on a joint when its held-out evidence ``N_eff ln(MSE0/MSE1) - k ln N_eff`` exceeds
-``SCORE_MIN + ln(m)`` (``m`` the number of tests, a Bonferroni-like correction for testing 8 groups on 7 joints
-and scanning frequencies; ``N_eff`` the effective sample size of the residual under its autocorrelation) **and**
+The cross-validation uses interleaved 1 s blocks (every fifth block held out in turn), so that time-dependent groups
+are judged by interpolation, not extrapolation. A group is *significant* on a joint when its held-out evidence
+``N_eff ln(MSE0/MSE1) - k ln N_eff`` exceeds ``SCORE_MIN + ln(m)`` (``m`` the number of tests, a Bonferroni-like
+correction for testing 10 groups on 7 joints and scanning frequencies; ``N_eff`` the effective sample size of the
+residual, with or without the group, whichever is larger, under its autocorrelation) **and**
 it removes an RMS of at least ``PRACTICAL`` times the joint's noise floor. ``explained`` is false when any group is
 significant on any joint; the description says which joints, how large, and what the residual follows.
 The tests run on the residual decimated to about 250 Hz (the motion is low-passed at 10 Hz).
@@ -39,12 +45,17 @@ from franka_vs_gym.validation.signals import ProcessedLog
 SCORE_MIN = 10.0
 PRACTICAL = 0.2
 N_BINS = 16
-N_TIME_BINS = 12
+T_DEGREE = 4
 K_MAX = 60
-GROUPS = ("constant", "position", "periodic_q", "velocity", "acceleration", "load", "time", "periodic_t")
+BLOCK_S = 1.0  # s, length of the interleaved cross-validation blocks
+GROUPS = ("constant", "position", "periodic_q", "velocity", "acceleration", "load", "time", "periodic_t",
+          "step_drift", "step_pose")
+STEP_VEL = 0.02  # rad/s, smoothing of the velocity sign in the step groups
 FOLLOWS = {"constant": "a constant offset", "position": "the joint position q", "periodic_q": "a periodic function "
            "of the joint position", "velocity": "the joint velocity dq", "acceleration": "the joint acceleration ddq",
-           "load": "the joint's load torque", "time": "time (a drift)", "periodic_t": "a periodic disturbance in time"}
+           "load": "the joint's load torque", "time": "time (a drift)", "periodic_t": "a periodic disturbance in time",
+           "step_drift": "a friction-like step whose height drifts over time",
+           "step_pose": "a friction-like step whose height depends on the position"}
 
 
 @dataclass
@@ -146,11 +157,10 @@ def test_structure(ctx: Context, residual: np.ndarray, noise: np.ndarray, folds:
     idx = np.arange(0, data.n, step)
     n = len(idx)
     F = len(folds)
-    fold_full = np.empty(data.n, dtype=int)
-    for f, blk in enumerate(folds):
-        fold_full[blk] = f
-    fold = fold_full[idx]
     t = data.time[idx]
+    # interleaved 1 s blocks (not contiguous fifths): a held-out block then has training data on both sides in
+    # time, which the time-dependent groups need
+    fold = (np.floor((t - t[0]) / BLOCK_S).astype(int)) % F
     rate = data.settings.rate / step
     ks_q = np.arange(1, K_MAX + 1) / (2 * math.pi)  # cycles per rad: k cycles per turn ... up to 60 per turn
     n_tests = 7 * (len(GROUPS) + len(ks_q) + 3)
@@ -158,7 +168,8 @@ def test_structure(ctx: Context, residual: np.ndarray, noise: np.ndarray, folds:
     rm = np.sqrt(np.mean(residual ** 2, axis=0))
     findings: list[Finding] = []
     plot: dict[int, tuple[str, np.ndarray, np.ndarray, np.ndarray]] = {}
-    time_bins = np.minimum((np.arange(n) * N_TIME_BINS) // n, N_TIME_BINS - 1)
+    tn = 2 * (t - t[0]) / max(t[-1] - t[0], 1e-9) - 1
+    T = np.polynomial.legendre.legvander(tn, T_DEGREE)  # (n, 5), smooth in time: interpolates held-out blocks
     for j in range(7):
         r = residual[idx, j]
         ne = max(float(n_eff(r)), 2.0)
@@ -171,7 +182,12 @@ def test_structure(ctx: Context, residual: np.ndarray, noise: np.ndarray, folds:
                      ("acceleration", data.ddq[idx, j]), ("load", ctx.ev.predicted[idx, j])):
             b = _bins(x, N_BINS)
             cand.append((g, _cv_bins(r, b, fold, F, N_BINS), N_BINS, "", x))
-        cand.append(("time", _cv_bins(r, time_bins, fold, F, N_TIME_BINS), N_TIME_BINS, "", t))
+        cand.append(("time", _cv_lin(r, T, fold, F), T_DEGREE + 1, "", t))
+        sgn = np.tanh(data.dq[idx, j] / STEP_VEL)
+        cand.append(("step_drift", _cv_lin(r, sgn[:, None] * T, fold, F), T_DEGREE + 1, "", t))
+        qb = _bins(data.q[idx, j], 8)
+        X = sgn[:, None] * (qb[:, None] == np.arange(8)[None, :])
+        cand.append(("step_pose", _cv_lin(r, X, fold, F), 8, "", data.q[idx, j]))
         q = data.q[idx, j]
         if np.ptp(q) > 0.05:
             k, _ = _best_periodic(r, q, ks_q)

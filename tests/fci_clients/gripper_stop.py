@@ -8,7 +8,7 @@ from franky import Gripper
 gripper = Gripper(sys.argv[1])
 gripper.homing()
 out = {"width_start": gripper.width}
-future = gripper.move_async(0.0, 0.02)  # 4 s of closing at 0.02 m/s from 0.08 m
+future = gripper.move_async(0.0, 0.005)  # 16 s of closing at 5 mm/s from 0.08 m
 time.sleep(0.05)
 out["stop"] = gripper.stop()
 try:
