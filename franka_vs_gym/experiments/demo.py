@@ -117,7 +117,7 @@ def run_torque_demo(args: argparse.Namespace) -> int:
     axes[0, 1].legend(fontsize=8)
     axes[-1, 0].set_xlabel("time (s)")
     axes[-1, 1].set_xlabel("time (s)")
-    fig.suptitle("Computed-torque motion of the simulated FER (eq. 2, 1 kHz)")
+    fig.suptitle(f"Computed-torque motion of the simulated {sim.model.robot.name.upper()} (eq. 2, 1 kHz)")
     fig.tight_layout()
     fig.savefig(out / "joints_and_torques.png", dpi=90)
     plt.close(fig)

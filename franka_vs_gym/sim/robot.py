@@ -21,7 +21,7 @@ from franka_vs_gym.model.config import ModelConfig, RigidBody, Tool, resolve_con
 from franka_vs_gym.model.description import RobotDescription
 from franka_vs_gym.model.franka_model import FrankaModel
 from franka_vs_gym.model.friction import make_plant_friction
-from franka_vs_gym.model.geometry import combine_inertials, pose_vector, twist_transform
+from franka_vs_gym.model.geometry import CAMERA_VISP_TO_MUJOCO, combine_inertials, pose_vector, twist_transform
 from franka_vs_gym.sim import plant
 from franka_vs_gym.sim.world import SimulationDiverged, SimWorld
 from franka_vs_gym.sim.world import no_op as _no_op
@@ -60,7 +60,6 @@ JOINT_STATE, END_EFFECTOR_FRAME, CAMERA_FRAME, REFERENCE_FRAME = (
 DEFAULT_eMc = np.array([[1.0, 0.0, 0.0, 0.09], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, -0.05], [0.0, 0.0, 0.0, 1.0]])
 # Gains of the joint velocity servo (Nm s/rad) used in velocity and position control.
 VELOCITY_GAINS = np.array([120.0, 120.0, 80.0, 80.0, 15.0, 15.0, 6.0])
-_R_CV = np.diag([1.0, -1.0, -1.0])  # ViSP camera (z forward, y down) -> MuJoCo camera (-z forward, y up)
 
 
 class FrankaSim:
@@ -536,7 +535,7 @@ class FrankaSim:
         if self._cam >= 0:
             flMc = self.spec.config.tool.flMe @ eMc
             self._m.cam_pos[self._cam] = flMc[:3, 3]
-            self._m.cam_quat[self._cam] = mat2quat(flMc[:3, :3] @ _R_CV)
+            self._m.cam_quat[self._cam] = mat2quat(flMc[:3, :3] @ CAMERA_VISP_TO_MUJOCO)
 
     def get_wMf(self) -> np.ndarray:
         """Pose of the robot base in the world (4, 4)."""
