@@ -123,3 +123,22 @@ def test_ppo_trains_on_the_batched_env(tmp_path):
                         "--eval-episodes", "0"], capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-2000:]
     assert (tmp_path / "ppo.zip").is_file() and '"batched": true' in (tmp_path / "ppo.json").read_text()
+
+
+def test_image_observations_equal_single_envs():
+    """Image observations: each robot's wrist image rendered from its scene as a single env renders it."""
+    kw = dict(observation_type="features+image", time_limit=0.3, link_mass_range=(0.9, 1.1))
+    vec = gym.make_vec("FrankaIBVS-v0", num_envs=2, **kw)
+    ref = gym.make_vec("FrankaIBVS-v0", num_envs=2, vectorization_mode="sync", **kw)
+    o1, _ = vec.reset(seed=4)
+    o2, _ = ref.reset(seed=4)
+    assert np.array_equal(o1["image"], o2["image"])
+    a = np.full(vec.action_space.shape, 0.2, dtype=np.float32)
+    for _ in range(7):  # through the end of the 6-step episodes and the autoreset
+        r1, r2 = vec.step(a), ref.step(a)
+        for k in r1[0]:
+            assert np.array_equal(r1[0][k], r2[0][k]), k
+        assert np.array_equal(r1[1], r2[1])
+    assert o1["image"].std() > 1.0  # a real image
+    vec.close()
+    ref.close()

@@ -164,10 +164,12 @@ def bench_batched(env_id: str, num_envs: int, nthread: int, seconds: float = 1.0
         venv.step(actions)
         env0 = venv.envs[0]
         raw = _raw_us(env0)
-        per_block = max(1, int(round(0.2 / (raw * 1e-6 * num_envs / nthread))))
+        per_block = max(1, int(round(0.05 / (raw * 1e-6 * num_envs / nthread))))
         best, best_phys, t_end = math.inf, math.inf, time.perf_counter() + seconds
         b, n_sub = venv.batch, env0.n_substeps
+        blocks = 0
         while True:
+            blocks += 1
             t0 = time.perf_counter()
             for _ in range(per_block):
                 venv.step(actions)
@@ -178,7 +180,7 @@ def bench_batched(env_id: str, num_envs: int, nthread: int, seconds: float = 1.0
             for _ in range(per_block):
                 b.step(nstep=n_sub)
             best_phys = min(best_phys, (time.perf_counter() - t0) / (per_block * num_envs))
-            if time.perf_counter() > t_end:
+            if time.perf_counter() > t_end and blocks >= 5:
                 break
     finally:
         venv.close()

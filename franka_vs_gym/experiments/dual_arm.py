@@ -42,7 +42,7 @@ import numpy as np
 
 from franka_vs_gym.model.config import ModelConfig, RigidBody
 from franka_vs_gym.model.franka_model import FrankaModel
-from franka_vs_gym.model.geometry import desired_tag_pose, homogeneous
+from franka_vs_gym.model.geometry import CAMERA_VISP_TO_MUJOCO, desired_tag_pose, homogeneous
 
 if TYPE_CHECKING:
     from franka_vs_gym.sim.world import SimWorld
@@ -215,7 +215,7 @@ class _TagMeasurement:
     def true_cMo(self) -> np.ndarray:
         d = self.world.data
         wMo = homogeneous(d.xmat[self.tag_body].reshape(3, 3), d.xpos[self.tag_body])
-        wMc = homogeneous(d.cam_xmat[self.cam].reshape(3, 3) @ np.diag([1.0, -1.0, -1.0]), d.cam_xpos[self.cam])
+        wMc = homogeneous(d.cam_xmat[self.cam].reshape(3, 3) @ CAMERA_VISP_TO_MUJOCO, d.cam_xpos[self.cam])
         return np.linalg.inv(wMc) @ wMo
 
     def measure(self) -> tuple[np.ndarray | None, np.ndarray | None]:

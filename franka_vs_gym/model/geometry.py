@@ -10,6 +10,10 @@ import math
 import numpy as np
 import pinocchio as pin
 
+# ViSP's camera frame (z forward, x right, y down) and MuJoCo's (looking along -z, y up) differ by a half turn about
+# x: R_mujoco = R_visp @ CAMERA_VISP_TO_MUJOCO and back (the matrix is its own inverse).
+CAMERA_VISP_TO_MUJOCO = np.diag([1.0, -1.0, -1.0])
+
 
 def homogeneous(R: np.ndarray, t: np.ndarray | tuple | list) -> np.ndarray:
     """4x4 pose from a rotation matrix (3, 3) and a translation (3,)."""
