@@ -173,7 +173,8 @@ def add_arguments(parser: Any) -> None:
     parser.add_argument("--ray", nargs="?", const="", default=None, metavar="ADDRESS",
                         help="Ray cluster address; without one (or without --ray) a local Ray instance")
     parser.add_argument("--ray-cpus", type=int, default=None, help="CPUs of the local Ray instance (default: all)")
-    parser.add_argument("--json", default=None, help="write every log's result to this JSON file (must not exist)")
+    parser.add_argument("--json", default=None, help="write every log's result to this JSON file")
+    parser.add_argument("--force", action="store_true", help="replace the --json file if it exists")
     parser.add_argument("--quiet", action="store_true", help="no progress lines")
 
 
@@ -183,7 +184,7 @@ def main(args: Any) -> int:
     from franka_vs_gym.io import atomic_write, check_output
 
     if args.json:
-        check_output(args.json)  # refuse an existing file before the work, not after
+        check_output(args.json, force=args.force)  # refuse an existing file before the work, not after
     res = diagnose_folder(args.folder, args.model, fit=args.fit, rigid_body=args.rigid_body,
                           address=args.ray or None, num_cpus=args.ray_cpus, progress=not args.quiet)
     for r in res:
@@ -194,6 +195,6 @@ def main(args: Any) -> int:
                      f"{','.join(r['fit']['effects']) or 'nothing'}")
         print(line)
     if args.json:
-        atomic_write(args.json, json.dumps(res, indent=2))
+        atomic_write(args.json, json.dumps(res, indent=2), force=args.force)
         print(f"wrote {args.json}")
     return 0
