@@ -67,9 +67,13 @@ def main(argv: list[str] | None = None) -> int:
                   file=sys.stderr)
             return 130
         except Exception as e:
+            notes = io.abandon_runs()  # an unfinished run folder is renamed ...-incomplete, never left as if done
             if not is_user_error(e):
+                if notes:
+                    print(f"franka-vs {args.command}: {'; '.join(notes)}", file=sys.stderr)
                 raise
-            print(f"franka-vs {args.command}: error: {one_line(e)}", file=sys.stderr)
+            print(f"franka-vs {args.command}: error: {one_line(e)}" + (f" ({'; '.join(notes)})" if notes else ""),
+                  file=sys.stderr)
             return 2
 
 

@@ -196,7 +196,7 @@ def _npy_header(fh: IO[bytes], name: str, where: str) -> tuple[tuple[int, ...], 
             shape, fortran, dtype = fmt.read_array_header_2_0(fh)
         else:
             raise ValueError(f"unsupported .npy version {version}")
-    except (ValueError, EOFError, OSError, SyntaxError) as e:
+    except Exception as e:  # numpy parses the header with ast/tokenize: any failure means a malformed header
         raise UserError(f"{where}: array {name!r} has a malformed header ({' '.join(str(e).split())})") from None
     if dtype.hasobject:
         raise UserError(f"{where}: array {name!r} holds Python objects; only numeric arrays are read")

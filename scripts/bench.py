@@ -4,7 +4,7 @@
 Absolute times on shared machines are noisy, so every simulator figure is given next to a reference measured in
 the same run (raw ``mujoco.mj_step`` on the same model) as a ratio. Each timing is the best of several repeats.
 
-    python scripts/bench.py [--quick] [--only core,vision,envs,throughput,validation] [--json FILE|-]
+    python scripts/bench.py [--quick] [--only core,vision,envs,throughput,validation,fci,large_log] [--json FILE|-]
 
 ``--json`` writes every figure (one object per section) to FILE, or to stdout with ``-`` (the tables then go to
 stderr).
@@ -207,8 +207,63 @@ def bench_fci(quick: bool) -> dict | None:
     return res
 
 
+def _time_v(cmd: list[str]) -> tuple[float, float, int]:
+    """(wall s, max resident MB, exit status) of a command under /usr/bin/time -v."""
+    import re
+    import subprocess
+
+    r = subprocess.run(["/usr/bin/time", "-v", *cmd], capture_output=True, text=True)
+    wall = re.search(r"Elapsed \(wall clock\) time.*: (?:(\d+):)?(\d+):([\d.]+)", r.stderr)
+    rss = re.search(r"Maximum resident set size \(kbytes\): (\d+)", r.stderr)
+    h, m, sec = (float(x) if x else 0.0 for x in wall.groups()) if wall else (0.0, 0.0, float("nan"))
+    return 3600 * h + 60 * m + sec, (int(rss.group(1)) / 1024 if rss else float("nan")), r.returncode
+
+
+def bench_large_log(quick: bool) -> dict:
+    """A 200 MB CSV log (20 MB with --quick): load, compare and diagnose, each in its own process under
+    /usr/bin/time -v (wall time and peak memory). Targets: compare within 60 s and under 1 GB."""
+    import os
+    import sys
+    import tempfile
+    from pathlib import Path
+
+    from franka_vs_gym.validation.hidden import make_hidden_effect_log
+    from franka_vs_gym.validation.logs import MeasurementLog, save_log
+
+    target_mb = 20 if quick else 200
+    base, _ = make_hidden_effect_log("viscous_friction", 3, duration=60.0)
+    with tempfile.TemporaryDirectory() as d:
+        # tile the minute of data (time continued) until the file has the target size
+        row_bytes = save_log(base, Path(d) / "base.csv").stat().st_size / base.n
+        reps = max(1, int(round(target_mb * 1e6 / row_bytes / base.n)))
+        dt = float(np.median(np.diff(base.time)))
+        kw = {f: np.tile(getattr(base, f), (reps, 1)) for f in base.fields()}
+        t = np.concatenate([base.time + k * (base.time[-1] - base.time[0] + dt) for k in range(reps)])
+        big = MeasurementLog(t, **kw, tool=base.tool, gravity=base.gravity, controller=base.controller)
+        p = save_log(big, Path(d) / "big.csv")
+        mb = p.stat().st_size / 1e6
+        env_py = [sys.executable]
+        rows = []
+        for what, cmd in [
+            ("load_log", env_py + ["-c", f"from franka_vs_gym.validation.logs import load_log; load_log({str(p)!r})"]),
+            ("franka-vs compare --no-replay", env_py + ["-m", "franka_vs_gym.cli", "compare", str(p), "--json",
+                                                        "--quiet", "--no-replay"]),
+            ("franka-vs compare (with replay)", env_py + ["-m", "franka_vs_gym.cli", "compare", str(p), "--json",
+                                                          "--quiet"]),
+            ("franka-vs fit --add viscous_friction", env_py + ["-m", "franka_vs_gym.cli", "fit", str(p), "--add",
+                                                               "viscous_friction", "-o", os.path.join(d, "m.json"),
+                                                               "--quiet"]),
+        ]:
+            wall, rss, rc = _time_v(cmd)
+            rows.append((what, wall, rss, "ok" if rc == 0 else f"exit {rc}"))
+        table(f"Large log: {mb:.0f} MB CSV, {big.n} samples ({big.duration / 60:.1f} min at 1 kHz); one process "
+              "each, /usr/bin/time -v", rows, ("command", "wall s", "peak MB", "status"))
+        return {"log_mb": mb, "samples": big.n,
+                **{r[0]: {"wall_s": r[1], "peak_mb": r[2], "status": r[3]} for r in rows}}
+
+
 SECTIONS = {"core": bench_core, "vision": bench_vision, "envs": bench_envs, "throughput": bench_throughput,
-            "validation": bench_validation, "fci": bench_fci}
+            "validation": bench_validation, "fci": bench_fci, "large_log": bench_large_log}
 
 
 def main() -> None:

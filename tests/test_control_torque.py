@@ -85,7 +85,8 @@ def test_pid_gains_place_the_poles():
 # ---------------------------------------------------------------------------------------------- gravity compensation
 def test_gravity_compensation_holds_an_undeclared_payload():
     payload = RigidBody(1.0, (0.0, 0.0, 0.1), np.eye(3) * 1e-3)
-    sim = FrankaSim(camera=False, q0=Q0, undeclared_payload=payload)
+    # the uncompensated payload makes the arm fall past the velocity limit: plant physics, reflexes off
+    sim = FrankaSim(camera=False, q0=Q0, undeclared_payload=payload, reflexes=False)
     knows = FrankaModel(sim.model.config.copy(payload=payload))
     for ctrl, should_hold in ((GravityCompensation(sim.model, internal=sim.model), False),
                               (GravityCompensation(knows, internal=sim.model), True)):
@@ -388,7 +389,8 @@ def test_joint_impedance_natural_frequency_and_fixed_stiffness_at_100_hz():
 
     def hold(policy) -> tuple[float, float]:
         """(final position error, max joint speed over the last half second), holding Q0 from Q0 + 0.05 rad."""
-        sim = FrankaSim(camera=False, q0=Q0 + 0.05, friction=False)
+        # the chattering wrist passes its velocity limit: plant physics, reflexes off
+        sim = FrankaSim(camera=False, q0=Q0 + 0.05, friction=False, reflexes=False)
         sim.set_robot_state(FORCE_TORQUE)
         z = np.zeros(7, np.float32)
         speed = 0.0

@@ -37,8 +37,10 @@ def test_zero_torque_holds_still_gravity_added_by_robot(sim):
     assert sim.time == pytest.approx(0.5)
 
 
-def test_measured_torque_follows_the_model_equation(sim, rng):
-    """tau_J = B ddq + C dq + g + tau_f(dq) along a torque-driven motion with friction on (plant vs model)."""
+def test_measured_torque_follows_the_model_equation(rng):
+    """tau_J = B ddq + C dq + g + tau_f(dq) along a torque-driven motion with friction on (plant vs model).
+    The motion takes joint 4 past its velocity limit: the plant's physics, with the reflexes off."""
+    sim = FrankaSim(camera=False, reflexes=False)
     sim.set_robot_state(FORCE_TORQUE)
     m = sim.model
     for k in range(300):
@@ -53,7 +55,8 @@ def test_measured_torque_follows_the_model_equation(sim, rng):
 
 
 def test_friction_switch(rng):
-    a, b = FrankaSim(camera=False), FrankaSim(camera=False, friction=False)
+    # without friction the wrist passes its velocity limit: plant physics, reflexes off
+    a, b = FrankaSim(camera=False, reflexes=False), FrankaSim(camera=False, friction=False, reflexes=False)
     for s in (a, b):
         s.set_robot_state(FORCE_TORQUE)
         for _ in range(200):
@@ -268,7 +271,7 @@ def test_headless_rendering_even_when_mujoco_is_imported_first():
 
 def test_friction_switch_at_run_time_matches_construction():
     """Toggling friction_enabled after construction gives the same motion as building the robot that way."""
-    a, b = FrankaSim(camera=False), FrankaSim(camera=False, friction=False)
+    a, b = FrankaSim(camera=False, reflexes=False), FrankaSim(camera=False, friction=False, reflexes=False)
     a.friction_enabled = False
     for s in (a, b):
         s.set_robot_state(FORCE_TORQUE)
@@ -277,7 +280,7 @@ def test_friction_switch_at_run_time_matches_construction():
             s.step()
     np.testing.assert_array_equal(a.get_position(), b.get_position())
     a.friction_enabled = True
-    c = FrankaSim(camera=False)
+    c = FrankaSim(camera=False, reflexes=False)
     for s in (a, c):
         s.reset(Q0)
         s.set_robot_state(FORCE_TORQUE)

@@ -24,9 +24,11 @@ def test_env_step_costs_at_most_twice_its_physics(env_id, kwargs):
 
 
 @pytest.mark.skipif(not plant.NATIVE, reason="the compiled plant is not built")
-def test_frankasim_step_costs_little_more_than_mj_step():
-    """Today 1.06x (the friction runs inside MuJoCo's step); was 1.48x with the friction hook in Python."""
-    sim = FrankaSim(camera=False)
+@pytest.mark.parametrize("reflexes, bound", [(False, 1.5), (True, 2.0)])
+def test_frankasim_step_costs_little_more_than_mj_step(reflexes, bound):
+    """The plant: today 1.06x (the friction runs inside MuJoCo's step); was 1.48x with the friction hook in Python.
+    With the reflexes (the default), checked after every step: about 1.5x (a few numpy comparisons, ~2.5 us)."""
+    sim = FrankaSim(camera=False, reflexes=reflexes)
     sim.set_robot_state(FORCE_TORQUE)
     m, d = sim.world.model, sim.world.data
     d_raw = mujoco.MjData(m)
@@ -41,7 +43,7 @@ def test_frankasim_step_costs_little_more_than_mj_step():
         for _ in range(200):
             mujoco.mj_step(m, d_raw)
         best_raw = min(best_raw, time.perf_counter() - t0)
-    assert best_sim / best_raw <= 1.5, best_sim / best_raw
+    assert best_sim / best_raw <= bound, best_sim / best_raw
 
 
 @pytest.mark.skipif(not plant.NATIVE, reason="the batched vector env needs the compiled plant")

@@ -21,6 +21,7 @@ from gymnasium import spaces
 
 from franka_vs_gym.model.config import ModelConfig, RigidBody, resolve_config
 from franka_vs_gym.sim import CAMERA_FRAME, FORCE_TORQUE, JOINT_STATE, VELOCITY, FrankaSim, SimulationDiverged
+from franka_vs_gym.sim.reflexes import ControlException
 
 ACTION_TYPES = ("torque", "joint_velocity", "cartesian_velocity")
 OBSERVATION_TYPES = ("features", "image", "features+image", "state")
@@ -393,9 +394,12 @@ class FrankaEnv(gym.Env):
     def step(self, action: Any):
         self._step_begin(action)
         try:
-            self._advance()
+            if self._reflex is None:
+                self._advance()
         except SimulationDiverged as e:
             return self._step_diverged(e)
+        except ControlException as e:  # a reflex stopped the robot during the period
+            self._reflex = e
         return self._step_end()
 
     # the three parts of a step, run by the batched vector env around its batched physics
@@ -405,8 +409,21 @@ class FrankaEnv(gym.Env):
         if self._last_obs is None:
             raise RuntimeError("call reset() before step()")
         a = self._check_action(action)
-        self._apply_action(a)
+        self._reflex: ControlException | None = None
+        try:
+            self._apply_action(a)
+        except ControlException as e:  # the robot is still in a reflex (held by its brakes)
+            self._reflex = e
         self._action = a
+
+    def _step_reflex(self, e: ControlException):
+        """A reflex stopped the robot (held by its brakes): the episode ends with the reason in info."""
+        self._steps += 1
+        obs = self._get_obs()
+        self._last_obs = obs
+        info = {"time": self.episode_time, "is_success": False, "failure": ",".join(e.reasons), "reflex": e.detail,
+                **self._episode_params}
+        return obs, -self._failure_cost(), True, False, info
 
     def _step_diverged(self, e: SimulationDiverged):
         self._diverged = str(e)
@@ -415,6 +432,13 @@ class FrankaEnv(gym.Env):
         return obs, -self._failure_cost(), True, False, info
 
     def _step_end(self):
+        if self._reflex is None:
+            try:  # the state at the end of the period (the batched vector env steps the physics itself)
+                self.sim.check_reflexes()
+            except ControlException as e:
+                self._reflex = e
+        if self._reflex is not None:
+            return self._step_reflex(self._reflex)
         a = self._action
         self._steps += 1
         obs = self._get_obs()

@@ -18,6 +18,8 @@ import math
 from pathlib import Path
 from typing import Any
 
+from franka_vs_gym.errors import UserError
+
 SCRIPTED = ("ibvs", "pbvs", "computed-torque", "impedance", "zero")
 
 
@@ -68,6 +70,41 @@ def _zero_policy(env_id: str, env_kwargs: dict[str, Any]):
     return lambda obs: np.zeros(shape, dtype=dtype)
 
 
+def check_env_kwargs(env_id: str, kwargs: dict[str, Any]) -> None:
+    """Refuse (one line) an unknown environment id or a keyword its constructor does not take."""
+    import inspect
+
+    import gymnasium as gym
+
+    import franka_vs_gym.envs  # noqa: F401  (registers the environments)
+
+    try:
+        spec = gym.spec(env_id)
+    except gym.error.Error as e:
+        raise UserError(f"unknown environment {env_id!r} ({' '.join(str(e).split())})") from None
+    ep = spec.entry_point
+    if isinstance(ep, str):
+        mod, _, attr = ep.partition(":")
+        import importlib
+
+        ep = getattr(importlib.import_module(mod), attr)
+    known: set[str] = set()
+    for cls in (ep.__mro__ if inspect.isclass(ep) else ()):
+        init = cls.__dict__.get("__init__")
+        if init is None:
+            continue
+        params = inspect.signature(init).parameters.values()
+        known |= {p.name for p in params if p.kind in (p.KEYWORD_ONLY, p.POSITIONAL_OR_KEYWORD) and p.name != "self"}
+        if not any(p.kind == p.VAR_KEYWORD for p in params):
+            break
+    if not known:
+        return
+    unknown = sorted(set(kwargs) - known - {"render_mode"})
+    if unknown:
+        raise UserError(f"--env-kwargs: {env_id} takes no keyword {', '.join(map(repr, unknown))} (it takes "
+                        f"{', '.join(sorted(known))})")
+
+
 def resolve_policy(name: str, env: str | None, env_kwargs: dict[str, Any]) -> tuple[Any, str, dict[str, Any]]:
     """(policy, env id, env kwargs) for a policy name of the command line (see the module docstring)."""
     from franka_vs_gym.policies import load_agent, shipped_agents
@@ -80,6 +117,7 @@ def resolve_policy(name: str, env: str | None, env_kwargs: dict[str, Any]) -> tu
     elif name == "zero":
         env_id = env or "FrankaIBVS-v0"
         kw = env_kwargs
+        check_env_kwargs(env_id, kw)
         policy = _zero_policy(env_id, kw)
     elif name in SCRIPTED:
         policy, default_env, kw = _scripted(name, env_kwargs)
@@ -87,6 +125,7 @@ def resolve_policy(name: str, env: str | None, env_kwargs: dict[str, Any]) -> tu
     else:
         raise ValueError(f"unknown policy {name!r}: use one of {', '.join(SCRIPTED + tuple(shipped_agents()))} "
                          "or an agent .zip path")
+    check_env_kwargs(env_id, kw)  # one line for an unknown environment or keyword, before anything runs
     return policy, env_id, kw
 
 
@@ -99,6 +138,7 @@ def _policy_only(name: str, env: str | None, env_kwargs: dict[str, Any]) -> Any:
 
 def main(args: argparse.Namespace) -> int:
     import franka_vs_gym
+    from franka_vs_gym.io import atomic_write, check_output
 
     try:
         env_kwargs = json.loads(args.env_kwargs)
@@ -112,8 +152,8 @@ def main(args: argparse.Namespace) -> int:
         env_kwargs["robot"] = robot_description(args.robot).name
     if args.episodes < 1:
         raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
-    if args.json and Path(args.json).exists() and not args.force:
-        raise FileExistsError(f"{args.json} exists; pass --force to overwrite it")
+    if args.json:
+        check_output(args.json, args.force, what="--json file")
     name = args.policy
     policy, env_id, kw = resolve_policy(name, args.env, env_kwargs)
     if args.ray is not None:
@@ -142,8 +182,7 @@ def main(args: argparse.Namespace) -> int:
                 return [clean(v) for v in x]
             return x
 
-        p = Path(args.json)
-        p.parent.mkdir(parents=True, exist_ok=True)
-        p.write_text(json.dumps(clean({"policy": name, "env_id": env_id, "env_kwargs": kw, **r}), indent=2))
+        p = atomic_write(args.json, json.dumps(clean({"policy": name, "env_id": env_id, "env_kwargs": kw, **r}),
+                                               indent=2), force=args.force, what="--json file")
         print(f"wrote {p}")
     return 0

@@ -68,12 +68,14 @@ def run_torque_demo(args: argparse.Namespace) -> int:
     import matplotlib.pyplot as plt
 
     from franka_vs_gym.control import ComputedTorque
+    from franka_vs_gym.errors import UserError
     from franka_vs_gym.sim import FORCE_TORQUE, JOINT_STATE, FrankaSim
+    from franka_vs_gym.sim.reflexes import position_profile_time
 
     duration = 3.0 if args.duration is None else float(args.duration)
     if not (duration > 0 and math.isfinite(duration)):
         raise ValueError(f"--duration must be > 0 s, got {duration}")
-    out = make_run_dir("demo-torque", args.out)
+    out = make_run_dir("demo-torque", args.out)  # (an unfinished run folder is removed or renamed by the CLI)
     sim = FrankaSim(camera=False, robot=getattr(args, "robot", None))
     ctrl = ComputedTorque(sim.model)
     q_start = sim.model.robot.neutral()
@@ -82,6 +84,14 @@ def run_torque_demo(args: argparse.Namespace) -> int:
                  q_start + np.array([-0.4, -0.2, 0.3, -0.3, -0.4, 0.3, -0.5]),
                  q_start]
     seg = duration / (len(waypoints) - 1)
+    # the FER's reflexes stop a faster motion: refuse a duration whose quintic segments need more than 90 % of
+    # the joint velocity, acceleration or jerk limits
+    lim = sim.model.robot.limit_arrays()
+    seg_min = max(position_profile_time(b - a, 0.9 * lim["dq_max"], 0.9 * lim["ddq_max"], 0.9 * lim["dddq_max"])
+                  for a, b in zip(waypoints[:-1], waypoints[1:], strict=True))
+    if seg < seg_min:
+        raise UserError(f"--duration {duration:g} s is too fast for the FER: the demo trajectory would exceed its "
+                        f"joint velocity/acceleration limits; use --duration >= {seg_min * (len(waypoints) - 1):.2f}")
     n = int(round(duration / sim.dt))
     fps, frames, video_every = 25, [], int(round(1 / 25 / sim.dt))
     log = {k: np.zeros((n, 7)) for k in ("q", "q_d", "tau", "tau_J")}

@@ -130,6 +130,11 @@ class FCIServer:
             kwargs["robot"] = self.description
         elif self.description.name != "fer":
             raise ValueError(f"robot {self.description.name!r}: this simulator builds the FER only")
+        if "reflexes" in inspect.signature(FrankaSim).parameters:
+            # FCIRobot enforces the FER's reflexes at the protocol level (motion-generator checks on the commands
+            # first, as libfranka does, then its own plant checks); the simulator's would pre-empt them when the
+            # internal controller overshoots a command at the limit
+            kwargs["reflexes"] = False
         self.sim = FrankaSim(model, **kwargs)
         self.robot = FCIRobot(self.sim, self.description)
         self.hand = SimulatedHand(self.sim)

@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from franka_vs_gym.model import checks
 from franka_vs_gym.model.checks import as_vector
 from franka_vs_gym.model.description import FER, FRANKA_HAND, GRAVITY, RobotDescription, robot_description
 from franka_vs_gym.model.friction import compile_friction, joint_friction
@@ -43,12 +44,7 @@ ROBOT_DEFAULT: Any = _RobotDefault()
 
 
 def _mat(x: Any, shape: tuple[int, int], name: str) -> np.ndarray:
-    a = np.asarray(x, dtype=np.float64)
-    if a.shape != shape:
-        raise ValueError(f"{name} must have shape {shape}, got {a.shape}")
-    if not np.all(np.isfinite(a)):
-        raise ValueError(f"{name} contains NaN or inf")
-    return a
+    return checks.as_matrix(x, shape, name)
 
 
 @dataclass
@@ -61,26 +57,32 @@ class RigidBody:
     inertia: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
 
     def __post_init__(self) -> None:
-        self.mass = float(self.mass)
-        if not math.isfinite(self.mass) or self.mass < 0:
-            raise ValueError(f"mass must be a finite number >= 0 kg, got {self.mass}")
+        self.mass = checks.as_scalar(self.mass, "mass", 0.0, checks.MAX_BODY_MASS, "kg")
         self.com = as_vector(self.com, 3, "com")
-        inertia = np.asarray(self.inertia, dtype=np.float64)
+        try:
+            inertia = np.asarray(self.inertia, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError(f"inertia must be a numeric (3, 3) or (3,) array, got {type(self.inertia).__name__}") \
+                from None
         if inertia.shape == (3,):
             inertia = np.diag(inertia)
         self.inertia = _mat(inertia, (3, 3), "inertia")
-        if not np.allclose(self.inertia, self.inertia.T, atol=1e-12):
-            raise ValueError("inertia must be symmetric")
-        ev = np.linalg.eigvalsh(self.inertia)
-        if ev.min() < -1e-12:
-            raise ValueError(f"inertia must be positive semi-definite, eigenvalues {ev}")
+        checks.check_inertia(self.inertia, self.mass, "rigid body")
 
     def to_dict(self) -> dict[str, Any]:
         return {"mass": self.mass, "com": self.com.tolist(), "inertia": self.inertia.tolist()}
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> RigidBody:
-        return cls(d["mass"], d["com"], d["inertia"])
+    def from_dict(cls, d: dict[str, Any], name: str = "payload") -> RigidBody:
+        if not isinstance(d, dict):
+            raise ValueError(f"{name} must be an object with mass, com, inertia")
+        missing = {"mass", "com", "inertia"} - set(d)
+        if missing:
+            raise ValueError(f"{name} lacks {sorted(missing)}")
+        try:
+            return cls(d["mass"], d["com"], d["inertia"])
+        except ValueError as e:
+            raise ValueError(f"{name}: {e}") from None
 
 
 @dataclass
@@ -122,8 +124,14 @@ class Tool:
             return cls.franka_hand()
         if isinstance(d, str):
             raise ValueError(f"unknown tool {d!r}: use 'franka_hand', null, or a mass/com/inertia object")
+        if not isinstance(d, dict):
+            raise ValueError(f"tool must be 'franka_hand', null, or an object with mass, com, inertia; got "
+                             f"{type(d).__name__}")
         flMe = d.get("flMe", np.eye(4))
-        return cls(d.get("name", "custom"), flMe, RigidBody(d["mass"], d["com"], d["inertia"]))
+        name = d.get("name", "custom")
+        if not isinstance(name, str):
+            raise ValueError(f"tool name must be a string, got {type(name).__name__}")
+        return cls(name, flMe, RigidBody.from_dict(d, "tool"))
 
 
 def franka_hand_body() -> RigidBody:
@@ -154,8 +162,13 @@ class Friction:
     def __post_init__(self) -> None:
         for name in ("phi1", "phi2", "phi3", "viscous", "coulomb"):
             setattr(self, name, as_vector(getattr(self, name), 7, f"friction.{name}"))
+        self.coulomb_vel = checks.as_scalar(self.coulomb_vel, "friction.coulomb_vel", unit="rad/s")
         if self.coulomb_vel <= 0:
-            raise ValueError("friction.coulomb_vel must be > 0 rad/s")
+            raise ValueError(f"friction.coulomb_vel must be > 0 rad/s, got {self.coulomb_vel}")
+        if (self.phi2 < 0).any():
+            j = int(np.argmin(self.phi2))
+            raise ValueError(f"friction.phi2[{j}] = {self.phi2[j]:g} s/rad: the sigmoid's slope must be >= 0 "
+                             "(a negative slope would push the joint)")
 
     @classmethod
     def none(cls) -> Friction:
@@ -186,11 +199,20 @@ class Friction:
         return {k: getattr(self, k).tolist() for k in ("phi1", "phi2", "phi3", "viscous", "coulomb")} | {
             "coulomb_vel": self.coulomb_vel}
 
+    def check_dissipative(self, dq_max: Any = None) -> None:
+        """Raise ValueError unless the law opposes motion at every velocity up to ``dq_max`` (7,) rad/s (default
+        the FER's limits)."""
+        dq_max = np.array(FER.limits.dq_max if dq_max is None else dq_max, dtype=np.float64)
+        checks.check_dissipative(self.compile(), dq_max)
+
     @classmethod
     def from_dict(cls, d: dict[str, Any] | None, robot: RobotDescription | str | None = None) -> Friction:
         """Read a friction law; sigmoid parameters missing from ``d`` are the robot's identified ones."""
         if d is None:
             return cls.none()
+        if not isinstance(d, dict):
+            raise ValueError(f"friction must be an object (phi1, phi2, phi3, viscous, coulomb) or null, got "
+                             f"{type(d).__name__}")
         base = cls.of(robot)
         kw = {k: d.get(k, getattr(base, k)) for k in ("phi1", "phi2", "phi3")}
         kw.update({k: d.get(k, np.zeros(7)) for k in ("viscous", "coulomb")})
@@ -242,6 +264,7 @@ class ModelConfig:
     link_mass_scale: np.ndarray = field(default_factory=lambda: np.ones(7))
     notes: dict[str, Any] = field(default_factory=dict)
     robot: RobotDescription = FER
+    check_gravity: bool = True
 
     def __post_init__(self) -> None:
         self.robot = robot_description(self.robot)
@@ -254,6 +277,8 @@ class ModelConfig:
         elif self.friction is None:
             self.friction = Friction.none()
         self.gravity = as_vector(self.gravity, 3, "gravity")
+        if self.check_gravity:
+            checks.check_gravity(self.gravity)
         self.armature = as_vector(self.armature, 7, "armature")
         if (self.armature < 0).any():
             raise ValueError(f"armature must be >= 0 kg m^2, got {self.armature}")
@@ -261,11 +286,47 @@ class ModelConfig:
         self.link_mass_scale = as_vector(self.link_mass_scale, 7, "link_mass_scale")
         if (self.link_mass_scale <= 0).any():
             raise ValueError("link_mass_scale must be > 0")
-        self.delay = float(self.delay)
+        self.delay = checks.as_scalar(self.delay, "delay", unit="s")
         if not math.isfinite(self.delay) or self.delay < 0:
             raise ValueError(f"delay must be a finite number >= 0 s, got {self.delay}")
         if self.delay_channel not in ("command", "measurement"):
             raise ValueError(f"delay_channel must be 'command' or 'measurement', got {self.delay_channel!r}")
+        self._check_plausible()
+
+    def _check_plausible(self) -> None:
+        """Refuse values no FER can have (see :mod:`franka_vs_gym.model.checks`)."""
+        if self.delay > 1.0:
+            raise ValueError(f"delay = {self.delay:g} s is not plausible for a 1 kHz torque loop (> 1 s); units (ms)?")
+        if (self.armature > 10.0).any():
+            raise ValueError(f"armature {self.armature.tolist()} kg m^2: over 10 kg m^2 is not plausible")
+        if (self.link_mass_scale > 100).any():
+            raise ValueError(f"link_mass_scale {self.link_mass_scale.tolist()}: over 100 is not plausible")
+        load = self.flange_body()
+        if load.mass > checks.MAX_FLANGE_LOAD:
+            raise ValueError(f"tool + payload mass {load.mass:.4g} kg is not plausible for the FER (rated payload "
+                             f"3 kg; refused above {checks.MAX_FLANGE_LOAD:g} kg); grams?")
+        if load.mass > 0 and np.linalg.norm(load.com) > checks.MAX_LOAD_COM:
+            raise ValueError(f"tool + payload centre of mass {np.round(load.com, 4).tolist()} m is over "
+                             f"{checks.MAX_LOAD_COM:g} m from the flange; mm?")
+
+    def plausibility_warnings(self) -> list[str]:
+        """Values a user may mean but that are outside the FER's specification (reported with results)."""
+        out = []
+        load = self.flange_body()
+        if load.mass > checks.RATED_FLANGE_LOAD + 1e-9:
+            out.append(f"tool + payload {load.mass:.3g} kg exceeds the FER's rated payload (3 kg plus the 0.73 kg "
+                       "hand)")
+        if not self.check_gravity:
+            out.append(f"gravity check disabled: |g| = {np.linalg.norm(self.gravity):.4g} m/s^2")
+        if np.abs(self.torque_offset).max() > 5.0:
+            out.append(f"torque offset up to {np.abs(self.torque_offset).max():.3g} Nm (FER sensors: < 1 Nm)")
+        if self.delay > 0.02:
+            out.append(f"delay {self.delay * 1e3:.3g} ms is long for the FER (a few ms expected)")
+        try:
+            self.friction.check_dissipative(self.robot.limits.dq_max)
+        except ValueError as e:
+            out.append(str(e))
+        return out
 
     def copy(self, **changes: Any) -> ModelConfig:
         """A deep copy with some fields replaced (validated like a new configuration)."""
@@ -300,6 +361,7 @@ class ModelConfig:
             "delay_channel": self.delay_channel,
             "link_mass_scale": self.link_mass_scale.tolist(),
             "notes": self.notes,
+            **({} if self.check_gravity else {"check_gravity": False}),
         }
 
     @classmethod
@@ -313,11 +375,17 @@ class ModelConfig:
             raise ValueError(f"unsupported model file format {fmt!r} (expected {FORMAT!r})")
         desc = _file_robot(d, robot)
         known = {"format", "robot", "tool", "payload", "gravity", "friction", "armature", "torque_offset", "delay",
-                 "delay_channel", "link_mass_scale", "notes"}
+                 "delay_channel", "link_mass_scale", "notes", "check_gravity"}
         unknown = set(d) - known
         if unknown:
             raise ValueError(f"unknown keys in model file: {sorted(unknown)}")
-        return cls(
+        if not isinstance(d.get("notes", {}), dict):
+            raise ValueError("notes in a model file must be an object")
+        if not isinstance(d.get("check_gravity", True), bool):
+            raise ValueError("check_gravity in a model file must be true or false")
+        if not isinstance(d.get("delay_channel", "command"), str):
+            raise ValueError("delay_channel must be 'command' or 'measurement'")
+        cfg = cls(
             tool=Tool.from_dict(d.get("tool", "franka_hand")),
             payload=None if d.get("payload") is None else RigidBody.from_dict(d["payload"]),
             gravity=d.get("gravity", GRAVITY),
@@ -329,33 +397,35 @@ class ModelConfig:
             link_mass_scale=d.get("link_mass_scale", np.ones(7)),
             notes=dict(d.get("notes", {})),
             robot=desc,
+            check_gravity=d.get("check_gravity", True),
         )
+        if d.get("friction") is not None:  # a file's friction law must oppose motion
+            cfg.friction.check_dissipative(cfg.robot.limits.dq_max)
+        return cfg
 
     def save(self, path: str | os.PathLike, overwrite: bool = False) -> Path:
-        """Write the model file; refuses to overwrite an existing file unless ``overwrite``."""
-        p = Path(path)
-        if p.exists() and not overwrite:
-            raise FileExistsError(f"{p} exists; pass overwrite=True (or --force) to replace it")
-        p.parent.mkdir(parents=True, exist_ok=True)
-        tmp = p.with_suffix(p.suffix + ".tmp")
-        tmp.write_text(json.dumps(self.to_dict(), indent=2))
-        tmp.replace(p)
-        return p
+        """Write the model file atomically (a unique temporary in the target folder, then a rename); refuses to
+        overwrite an existing file unless ``overwrite``, and never writes over an input of the running command."""
+        from franka_vs_gym.io import atomic_write
+
+        return atomic_write(path, json.dumps(self.to_dict(), indent=2), force=overwrite, what="model file")
 
     @classmethod
     def load(cls, path: str | os.PathLike, robot: RobotDescription | str | None = None) -> ModelConfig:
-        """Read a calibrated-model file; ``robot`` (optional) is the robot the caller expects."""
+        """Read a calibrated-model file; ``robot`` (optional) is the robot the caller expects. ValueError naming
+        the file and the problem if it is not one."""
+        from franka_vs_gym.io import read_text
+
         p = Path(path)
-        if not p.is_file():
-            raise FileNotFoundError(f"model file not found: {p}")
+        text = read_text(p, what="model file")
         try:
-            d = json.loads(p.read_text())
+            d = json.loads(text)
         except json.JSONDecodeError as e:
-            raise ValueError(f"{p} is not valid JSON: {e}") from None
+            raise ValueError(f"model file {p} is not valid JSON: {e}") from None
         try:
             return cls.from_dict(d, robot)
         except ValueError as e:
-            raise ValueError(f"{p}: {e}") from None
+            raise ValueError(f"model file {p}: {e}") from None
 
 
 def _file_robot(d: dict[str, Any], expected: RobotDescription | str | None) -> RobotDescription:

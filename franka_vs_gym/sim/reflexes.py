@@ -1,16 +1,67 @@
 """The robot's reflexes: limits the simulated FER enforces as the real one does, and the error they raise.
 
 A violated limit stops the robot (brakes engaged: joints held) and raises :class:`ControlException`, the
-counterpart of libfranka's ``franka::ControlException``; its ``reasons`` are libfranka's error names (the fields of
-``franka::Errors``, e.g. ``"joint_position_limits_violation"``), so the FCI server can report them to a client bit
-for bit and user code can branch on them. ``FrankaSim.automatic_error_recovery()`` clears the error, as on the real
-robot.
+counterpart of libfranka's ``franka::ControlException``; its ``reasons`` are libfranka's error names (the names
+libfranka prints, ``getErrorName`` of the research interface, e.g. ``"joint_position_limits_violation"``; they are
+the ``franka::Errors`` field names except ``tau_J_range_violation``, field ``tau_j_range_violation``), so the FCI
+server can report them to a client bit for bit and user code can branch on them.
+``FrankaSim.automatic_error_recovery()`` clears the error, as on the real robot, after which moving back out of a
+violated position limit is allowed (moving further out is not).
+
+Limits (a :class:`~franka_vs_gym.model.description.JointLimits`, from the robot description; sources in
+docs/reliability.md), what is checked, and the reason raised:
+
+================  ==========================================  ===================================================
+limit             checked against                             reason
+================  ==========================================  ===================================================
+``q_min, q_max``  measured q, after every step (see below)     ``joint_position_limits_violation``
+``dq_max``        measured dq, after every step               ``joint_velocity_violation``
+``tau_max``       measured tau_J (sensor torque incl. offset) ``tau_J_range_violation``
+``dtau_max``      commanded torque, change per 1 ms cycle     ``controller_torque_discontinuity``
+``ddq_max``       commanded joint velocity, change per 1 ms   ``joint_motion_generator_velocity_discontinuity``
+``dddq_max``      commanded acceleration, change per 1 ms     ``joint_motion_generator_acceleration_discontinuity``
+================  ==========================================  ===================================================
+
+The measured state is checked after every ``SimWorld.step(n)`` call: after each physics step for
+``FrankaSim.step``, ``wait`` and ``set_position`` (which step one at a time while the reflexes are on), after each
+control period in the environments (the compiled plant runs a period in one call; the joints' hard stops hold in
+between).
+
+The last three are limits on what a controller sends (libfranka's motion-generator and torque-command checks);
+``command_rates`` chooses how FrankaSim treats them:
+
+- ``"pass"`` (default): commands reach the joints as given and their rates are not checked. FrankaSim's commands
+  are ViSP-level (vpRobotFranka smooths velocity commands with its own generator) and the environments hold an
+  action for a whole control period (10-50 ms), which on the real robot would need an interpolating controller in
+  between; the measured-state reflexes above still apply.
+- ``"limit"``: commands are rate-limited at every physics step to respect the limits, as libfranka's
+  ``franka::limitRate`` does (torque rate; velocity acceleration and jerk, without overshoot); nothing trips.
+- ``"check"``: libfranka's own semantics with ``limit_rate = false``: a command that jumps by more than the limit
+  allows within one 1 ms cycle raises the named ControlException.
 """
 
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Iterable
+from typing import Any
+
+import numpy as np
+
+JOINT_POSITION = "joint_position_limits_violation"
+JOINT_VELOCITY = "joint_velocity_violation"
+TAU_J_RANGE = "tau_J_range_violation"
+TORQUE_DISCONTINUITY = "controller_torque_discontinuity"
+VELOCITY_DISCONTINUITY = "joint_motion_generator_velocity_discontinuity"
+ACCELERATION_DISCONTINUITY = "joint_motion_generator_acceleration_discontinuity"
+#: libfranka cycle: command rates are measured per 1 ms, whatever the physics step.
+CYCLE = 1e-3
+COMMAND_RATE_MODES = ("pass", "limit", "check")
+#: A state this far beyond the limits is not a reflex but a diverged simulation (the hard stops hold within
+#: 0.03 rad at 60 rad/s impacts; a reflex fires within one step of the velocity limit).
+DIVERGED_POSITION = 0.5  # rad beyond a hard stop
+DIVERGED_VELOCITY = 50.0  # times dq_max
 
 
 class ControlException(RuntimeError):
@@ -31,4 +82,333 @@ class ControlException(RuntimeError):
         super().__init__(f"{msg}: {detail}" if detail else msg)
 
 
-__all__ = ["ControlException"]
+def _limit(limits: Any, name: str) -> np.ndarray:
+    v = limits[name] if isinstance(limits, dict) else getattr(limits, name)
+    a = np.array(v, dtype=np.float64)
+    if a.shape != (7,) or not np.isfinite(a).all():
+        raise ValueError(f"reflex limit {name} must be 7 finite values, got {v}")
+    return a
+
+
+class Reflexes:
+    """The reflexes of one simulated FER (see the module docstring). ``FrankaSim`` owns one and calls it.
+
+    Parameters
+    ----------
+    sim : the FrankaSim whose joints are watched (its MuJoCo views ``_qpos``, ``_qvel``, ``_qfrc_actuator``,
+        ``_ctrl_tau``, ``_ctrl_vel`` are read and, for rate limiting and the brakes, written).
+    limits : JointLimits (or the dict of ``FrankaModel.limits()``): q_min, q_max, dq_max, ddq_max, dddq_max,
+        tau_max, dtau_max (7,) each, SI units.
+    enabled : check the limits (the brakes and ``current_errors`` work either way).
+    command_rates : "pass", "limit" or "check" (see the module docstring).
+    """
+
+    def __init__(self, sim: Any, limits: Any, *, enabled: bool = True, command_rates: str = "pass") -> None:
+        self.sim = sim
+        self.q_min, self.q_max = _limit(limits, "q_min"), _limit(limits, "q_max")
+        self.dq_max, self.ddq_max = _limit(limits, "dq_max"), _limit(limits, "ddq_max")
+        self.dddq_max = _limit(limits, "dddq_max")
+        self.tau_max, self.dtau_max = _limit(limits, "tau_max"), _limit(limits, "dtau_max")
+        self._enabled = bool(enabled)
+        self.command_rates = command_rates
+        self.dt = float(sim.dt)
+        self.errors: tuple[str, ...] = ()
+        self.detail = ""
+        self._lo, self._hi = self.q_min.copy(), self.q_max.copy()  # relaxed after a recovery outside the range
+        self._relaxed = False
+        self._hold: np.ndarray | None = None
+        # command state: what the plant currently gets, and the target of the rate limiter
+        self._tau_applied = np.zeros(7)
+        self._v_target = np.zeros(7)
+        self._v_ref = np.zeros(7)
+        self._a_ref = np.zeros(7)
+        self._ramp_tau = False
+        self._ramp_vel = False
+        self._check_tau = False
+        self._t_command = -1.0
+
+    @property
+    def command_rates(self) -> str:
+        return self._mode
+
+    @command_rates.setter
+    def command_rates(self, mode: str) -> None:
+        if mode not in COMMAND_RATE_MODES:
+            raise ValueError(f"command_rates must be one of {COMMAND_RATE_MODES}, got {mode!r}")
+        self._mode = mode
+
+    @property
+    def limit_rate(self) -> bool:
+        return self._mode == "limit"
+
+    # ------------------------------------------------------------------ public surface (via FrankaSim)
+    def raise_if_error(self) -> None:
+        """Raise the current ControlException if the robot is in error (commands are refused until recovery)."""
+        if self.errors:
+            raise ControlException(self.errors, f"{self.detail} (robot in reflex: call automatic_error_recovery())")
+
+    def recover(self) -> None:
+        """Clear the errors and release the brakes (``automatic_error_recovery``)."""
+        q = self.sim._qpos
+        self.errors, self.detail, self._hold = (), "", None
+        # a joint left beyond its limit may move back in, not further out
+        self._lo = np.minimum(self.q_min, q)
+        self._hi = np.maximum(self.q_max, q)
+        self._relaxed = bool((self._lo < self.q_min).any() or (self._hi > self.q_max).any())
+        self.reset_commands()
+
+    def reset(self) -> None:
+        """Simulation reset: no error, no brakes, limits as specified."""
+        self.errors, self.detail, self._hold = (), "", None
+        self._lo, self._hi, self._relaxed = self.q_min.copy(), self.q_max.copy(), False
+        self.reset_commands()
+
+    def reset_commands(self, torque_from: np.ndarray | None = None) -> None:
+        """A new control state: the rate limiters start from rest, or, entering torque control, from the torque
+        the joints were producing (``torque_from``), so that the hand-over is bumpless."""
+        self._tau_applied[:] = 0.0 if torque_from is None else torque_from
+        self._v_target[:] = 0.0
+        self._v_ref[:] = 0.0
+        self._a_ref[:] = 0.0
+        self._ramp_tau = bool(self.limit_rate and self._tau_applied.any())
+        self._ramp_vel = False
+        self._check_tau = bool(np.any(self.sim._offset)) or bool(self.sim._torque_noise)
+        self._update_mode()
+
+    # ------------------------------------------------------------------ commands
+    def command_torque(self, tau: np.ndarray) -> None:
+        """A new gravity-free torque command (7,), already saturated at tau_max. Without rate limiting, a change
+        beyond dtau_max per 1 ms cycle is a torque discontinuity."""
+        self.raise_if_error()
+        if self._mode == "limit":
+            self._ramp_tau = bool((tau != self._tau_applied).any())
+            self._update_mode()
+            return
+        if self.enabled and self._mode == "check":
+            rate = np.abs(tau - self._tau_applied) / CYCLE
+            bad = rate > self.dtau_max
+            if bad.any():
+                j = int(np.argmax(rate / self.dtau_max))
+                self._trip((TORQUE_DISCONTINUITY,), f"joint {j}: commanded torque changes at {rate[j]:.4g} Nm/s, "
+                                                    f"limit {self.dtau_max[j]:.4g} Nm/s")
+        self._tau_applied[:] = tau
+
+    def command_velocity(self, dq: np.ndarray) -> None:
+        """A new joint velocity command (7,) (already within dq_max): without rate limiting, a jump beyond
+        ddq_max (acceleration) or dddq_max (jerk) per 1 ms cycle is a motion-generator discontinuity. Writes the
+        plant's velocity reference."""
+        self.raise_if_error()
+        self._v_target[:] = dq
+        if self._mode == "limit":
+            self._ramp_vel = bool((dq != self._v_ref).any() or self._a_ref.any())
+            self._update_mode()
+            return
+        if self.enabled and self._mode == "check":
+            if self.sim.time - self._t_command > 1.5 * CYCLE:  # held since: no acceleration any more
+                self._a_ref[:] = 0.0
+            acc = (dq - self._v_ref) / CYCLE
+            jerk = (acc - self._a_ref) / CYCLE
+            reasons, details = [], []
+            ra, rj = np.abs(acc) / self.ddq_max, np.abs(jerk) / self.dddq_max
+            if ra.max() > 1.0:
+                j = int(np.argmax(ra))
+                reasons.append(VELOCITY_DISCONTINUITY)
+                details.append(f"joint {j}: commanded acceleration {acc[j]:.4g} rad/s^2, limit {self.ddq_max[j]}")
+            if rj.max() > 1.0:
+                j = int(np.argmax(rj))
+                reasons.append(ACCELERATION_DISCONTINUITY)
+                details.append(f"joint {j}: commanded jerk {jerk[j]:.4g} rad/s^3, limit {self.dddq_max[j]}")
+            if reasons:
+                self._trip(tuple(reasons), "; ".join(details))
+            self._a_ref[:] = acc
+            self._t_command = self.sim.time
+        self._v_ref[:] = dq
+        self.sim._ctrl_vel[:] = dq
+
+    # ------------------------------------------------------------------ every physics step
+    def install(self, world: Any) -> None:
+        """Register with the world: a check after every ``world.step(n)`` call, and a per-physics-step hook that
+        does nothing (so the compiled plant keeps stepping a whole period in one call) except while the brakes
+        hold the joints, a command is being rate-limited or a recovered joint is coming back inside its limits."""
+        from franka_vs_gym.sim.world import no_op
+
+        self._world = world
+        self._hook = no_op
+        world.add_pre_step(self._hook)
+        world.add_check(self._make_check())
+        self._update_mode()
+
+    def _make_check(self):
+        """The check run after every ``world.step(n)``: a closure over preallocated buffers testing
+        |q - centre| <= half range and |dq| <= dq_max in one comparison (about 1.5 us); only a violation (or a
+        relaxed range, a torque offset) goes on to :meth:`check_state`, which names it."""
+        sim = self.sim
+        q, dq = sim._qpos, sim._qvel
+        center = (self.q_min + self.q_max) / 2
+        lim = np.concatenate([(self.q_max - self.q_min) / 2, self.dq_max])
+        buf = np.empty(14)
+        bq, bd = buf[:7], buf[7:]
+        sub, absolute = np.subtract, np.abs
+
+        def after_steps() -> None:
+            if not self._enabled or self._hold is not None:
+                return
+            if self._relaxed or self._check_tau:
+                self.check_state()
+                return
+            sub(q, center, out=bq)
+            bd[:] = dq
+            absolute(buf, out=buf)
+            if (buf > lim).any():
+                self.check_state()
+
+        return after_steps
+
+    def after_steps(self) -> None:
+        """After physics steps: check the measured state (the brakes already hold a robot in error)."""
+        if self._enabled and self._hold is None:
+            self.check_state()
+
+    def _update_mode(self) -> None:
+        slow = self._hold is not None or self._ramp_tau or self._ramp_vel or self._relaxed
+        world = getattr(self, "_world", None)
+        if world is None:
+            return
+        from franka_vs_gym.sim.world import no_op
+
+        hook = self.pre_step if slow else no_op
+        if hook is not self._hook:
+            world.replace_pre_step(self._hook, hook)
+            self._hook = hook
+
+    @property
+    def enabled(self) -> bool:
+        return self._enabled
+
+    @enabled.setter
+    def enabled(self, on: bool) -> None:
+        self._enabled = bool(on)
+
+    def pre_step(self) -> None:
+        """Before each physics step: hold the brakes, advance the rate limiters, check the measured state."""
+        if self._hold is not None:
+            self.sim._qpos[:] = self._hold
+            self.sim._qvel[:] = 0.0
+            return
+        if self._ramp_tau:
+            self._ramp_torque()
+        elif self._ramp_vel:
+            self._ramp_velocity()
+        if self.enabled:
+            self.check_state()
+
+    def check_state(self) -> None:
+        """Check the measured joint state against the position, velocity and torque limits; trip on a violation."""
+        sim = self.sim
+        q, dq = sim._qpos, sim._qvel
+        if (q < self._lo).any() or (q > self._hi).any():
+            self._position_violation(q)
+        elif self._relaxed:
+            self._tighten(q)
+        if (np.abs(dq) > self.dq_max).any():
+            r = np.abs(dq) / self.dq_max
+            j = int(np.argmax(r))
+            if not r[j] < DIVERGED_VELOCITY:
+                self._diverged(f"joint {j} at {dq[j]:.4g} rad/s")
+            self._trip((JOINT_VELOCITY,), f"joint {j} at {dq[j]:.4g} rad/s, limit {self.dq_max[j]} rad/s")
+        if self._check_tau and self._hold is None:
+            tau = sim._qfrc_actuator + sim._offset
+            r = np.abs(tau) / self.tau_max
+            if r.max() > 1.0:
+                j = int(np.argmax(r))
+                self._trip((TAU_J_RANGE,), f"joint {j}: measured torque {tau[j]:.4g} Nm, limit {self.tau_max[j]} Nm")
+
+    def _diverged(self, what: str) -> None:
+        from franka_vs_gym.sim.world import SimulationDiverged
+
+        world = self.sim.world
+        world.diverged = what
+        raise SimulationDiverged(f"simulation diverged at t={world.time:.4f}s: {what}")
+
+    def _position_violation(self, q: np.ndarray) -> None:
+        bad = (q < self._lo) | (q > self._hi)
+        j = int(np.flatnonzero(bad)[0])
+        if not (self._lo[j] - DIVERGED_POSITION < q[j] < self._hi[j] + DIVERGED_POSITION):
+            self._diverged(f"joint {j} at {q[j]:.4g} rad, far beyond its hard stop")
+        self._trip((JOINT_POSITION,), f"joint {j} at {q[j]:.4f} rad, limits [{self.q_min[j]}, {self.q_max[j]}] rad")
+
+    def _tighten(self, q: np.ndarray) -> None:
+        np.minimum(self.q_min, np.maximum(self._lo, q), out=self._lo)
+        np.maximum(self.q_max, np.minimum(self._hi, q), out=self._hi)
+        self._relaxed = bool((self._lo < self.q_min).any() or (self._hi > self.q_max).any())
+        if not self._relaxed:
+            self._update_mode()
+
+    def _ramp_torque(self) -> None:
+        sim = self.sim
+        target = sim._ctrl_tau if sim._delay_steps else sim._tau_cmd
+        step = self.dtau_max * self.dt
+        d = np.clip(target - self._tau_applied, -step, step)
+        self._tau_applied += d
+        sim._ctrl_tau[:] = self._tau_applied
+        if not sim._delay_steps and not d.any():
+            self._ramp_tau = False
+            self._update_mode()
+
+    def _ramp_velocity(self) -> None:
+        """Jerk- and acceleration-limited tracking of the velocity target, per joint, without overshoot: the
+        acceleration heads for the most that can still be ramped back to zero at the jerk limit before the target
+        is reached (at most ddq_max) and moves there at the jerk limit; the reference lands on the target (a
+        discrete stop may overshoot it by at most dddq_max dt^2, 0.01 rad/s, and comes back)."""
+        dt, J, A = self.dt, self.dddq_max, self.ddq_max
+        v, a, vt = self._v_ref, self._a_ref, self._v_target
+        e = vt - v
+        # the most acceleration from which the jerk limit still brings it to zero (one step at a time) in |e|:
+        # a^2 / (2 J) + a dt / 2 = |e|
+        a_des = np.sign(e) * np.minimum(A, J * (np.sqrt(0.25 * dt * dt + 2.0 * np.abs(e) / J) - 0.5 * dt))
+        a_new = np.clip(np.clip(a_des, a - J * dt, a + J * dt), -A, A)
+        v_new = v + a_new * dt
+        past = (vt - v_new) * e <= 0.0  # would reach or cross the target: land on it if the jerk limit allows
+        if past.any():
+            a_land = np.clip(e / dt, a - J * dt, a + J * dt)
+            a_new[past] = a_land[past]
+            v_new[past] = v[past] + a_land[past] * dt
+        done = (np.abs(vt - v_new) < 1e-12) & (np.abs(a_new) <= J * dt)
+        v_new[done] = vt[done]
+        v[:] = v_new
+        a[:] = a_new
+        self.sim._ctrl_vel[:] = v
+        if done.all():
+            a[:] = 0.0
+            self._ramp_vel = False
+            self._update_mode()
+
+    # ------------------------------------------------------------------ tripping
+    def _trip(self, reasons: tuple[str, ...], detail: str) -> None:
+        """Engage the brakes (hold the current position), record the error, raise ControlException."""
+        sim = self.sim
+        self.errors, self.detail = reasons, detail
+        self._hold = sim._qpos.copy()
+        sim._qvel[:] = 0.0
+        sim._ctrl_tau[:] = 0.0
+        sim._ctrl_vel[:] = 0.0
+        sim._tau_cmd[:] = 0.0
+        self._tau_applied[:] = 0.0
+        self._v_ref[:] = 0.0
+        self._a_ref[:] = 0.0
+        self._ramp_tau = self._ramp_vel = False
+        self._update_mode()
+        raise ControlException(reasons, detail)
+
+
+def position_profile_time(delta: np.ndarray, v_max: np.ndarray, a_max: np.ndarray, j_max: np.ndarray) -> float:
+    """Duration (s) of a quintic (minimum-jerk) joint motion over ``delta`` (7,) rad whose peak velocity,
+    acceleration and jerk stay within ``v_max``, ``a_max``, ``j_max`` (peaks of the quintic: 15/8 d/T,
+    10/sqrt(3) d/T^2, 60 d/T^3)."""
+    d = np.abs(delta)
+    return float(max(np.max(15 / 8 * d / v_max), np.max(np.sqrt(10 / math.sqrt(3) * d / a_max)),
+                     np.max(np.cbrt(60 * d / j_max))))
+
+
+__all__ = ["ACCELERATION_DISCONTINUITY", "CYCLE", "ControlException", "JOINT_POSITION", "JOINT_VELOCITY",
+           "Reflexes", "TAU_J_RANGE", "TORQUE_DISCONTINUITY", "VELOCITY_DISCONTINUITY", "position_profile_time"]

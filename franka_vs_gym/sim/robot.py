@@ -23,6 +23,7 @@ from franka_vs_gym.model.franka_model import FrankaModel
 from franka_vs_gym.model.friction import make_plant_friction
 from franka_vs_gym.model.geometry import CAMERA_VISP_TO_MUJOCO, combine_inertials, pose_vector, twist_transform
 from franka_vs_gym.sim import plant
+from franka_vs_gym.sim.reflexes import ControlException, Reflexes, position_profile_time
 from franka_vs_gym.sim.world import SimulationDiverged, SimWorld
 from franka_vs_gym.sim.world import no_op as _no_op
 
@@ -60,6 +61,9 @@ JOINT_STATE, END_EFFECTOR_FRAME, CAMERA_FRAME, REFERENCE_FRAME = (
 DEFAULT_eMc = np.array([[1.0, 0.0, 0.0, 0.09], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, -0.05], [0.0, 0.0, 0.0, 1.0]])
 # Gains of the joint velocity servo (Nm s/rad) used in velocity and position control.
 VELOCITY_GAINS = np.array([120.0, 120.0, 80.0, 80.0, 15.0, 15.0, 6.0])
+# Velocity commands are scaled to 98 % of the limits at most, so that the joint servo's small overshoot does not trip
+# the velocity reflex (libfranka's rate limiter likewise keeps commands a margin below the limits).
+VELOCITY_COMMAND_SCALE = 0.98
 
 
 class FrankaSim:
@@ -97,13 +101,22 @@ class FrankaSim:
     q0 : (7,) initial joint position (default the neutral pose).
     torque_noise : standard deviation (Nm) of white noise added to measured torques.
     seed : seed of the measurement-noise generator.
+    reflexes : enforce the robot's limits as the real FER does (default True): a measured joint position,
+        velocity or torque beyond its limit holds the joints (brakes) and raises
+        :class:`~franka_vs_gym.sim.reflexes.ControlException` with libfranka's reason name; ``current_errors``
+        lists them and ``automatic_error_recovery()`` clears them. See :mod:`franka_vs_gym.sim.reflexes`.
+    command_rates : "pass" (default: commands reach the joints as given), "limit" (rate-limited to the torque-rate,
+        acceleration and jerk limits, as libfranka's ``limitRate``) or "check" (a command that jumps beyond those
+        limits within one 1 ms cycle trips ``controller_torque_discontinuity`` or the joint motion generator's
+        discontinuity reflexes, as a raw libfranka loop does).
     """
 
     def __init__(self, model: Any = None, *, robot: RobotDescription | str | None = None, friction: bool = True,
                  camera: bool = True, tags: list[TagSpec] | None = None, table: bool = True, timestep: float = 0.001,
                  world: SimWorld | None = None, prefix: str = "r0_", q0: Any = None, ft_sensor: bool = False,
                  undeclared_payload: RigidBody | None = None, torque_noise: float = 0.0, seed: int | None = None,
-                 extra_worldbody: str = "", extra_assets: str = "") -> None:
+                 extra_worldbody: str = "", extra_assets: str = "", reflexes: bool = True,
+                 command_rates: str = "pass") -> None:
         if world is None:
             cfg = resolve_config(model, robot)
             spec = RobotSpec(prefix=prefix, config=cfg, camera=camera, ft_sensor=ft_sensor,
@@ -183,6 +196,9 @@ class FrankaSim:
         self._positioning_velocity = 20.0
         self._hook = self._make_pre_step()
         world.add_pre_step(self._hook)
+        # the reflexes' limits come from the robot description (config.robot)
+        self._reflexes = Reflexes(self, cfg.robot.limits, enabled=reflexes, command_rates=command_rates)
+        self._reflexes.install(world)
         if self._cam >= 0:
             self.set_eMc(self._eMc)
         self.reset(cfg.robot.neutral() if q0 is None else q0)
@@ -250,14 +266,60 @@ class FrankaSim:
         self._meas_fifo.append(self._qfrc_actuator.copy())  # type: ignore[union-attr]
 
     def step(self) -> None:
-        """Advance the simulation by one physics step (``dt``, 1 ms by default); all robots of the world move."""
-        self.world.step()
+        """Advance the simulation by one physics step (``dt``, 1 ms by default); all robots of the world move.
+        Raises ControlException when a reflex fires (the robot is then held until ``automatic_error_recovery``)."""
+        self.world.step()  # the world runs the reflex check after the step
 
     def wait(self, duration: float) -> None:
-        """Advance the simulation by ``duration`` seconds (rounded to whole physics steps)."""
+        """Advance the simulation by ``duration`` seconds (rounded to whole physics steps); ControlException as
+        ``step``."""
         if not (duration >= 0 and math.isfinite(duration)):
             raise ValueError(f"duration must be a finite number >= 0 s, got {duration}")
-        self.world.step(int(round(duration / self.dt)))
+        n = int(round(duration / self.dt))
+        if self._reflexes.enabled:  # the reflexes watch every physics step, as the robot's do
+            step = self.world.step
+            for _ in range(n):
+                step()
+        else:
+            self.world.step(n)
+        self.check_reflexes()
+
+    # ------------------------------------------------------------------ reflexes
+    @property
+    def reflexes(self) -> bool:
+        """Whether the robot's limits are enforced (see :mod:`franka_vs_gym.sim.reflexes`)."""
+        return self._reflexes.enabled
+
+    @reflexes.setter
+    def reflexes(self, on: bool) -> None:
+        self._reflexes.enabled = bool(on)
+
+    @property
+    def command_rates(self) -> str:
+        """How command rates are treated: "pass", "limit" or "check" (see the constructor)."""
+        return self._reflexes.command_rates
+
+    @command_rates.setter
+    def command_rates(self, mode: str) -> None:
+        self._reflexes.command_rates = mode
+        self._reflexes.reset_commands()
+
+    @property
+    def current_errors(self) -> tuple[str, ...]:
+        """libfranka names of the active errors (empty when the robot is fine)."""
+        return self._reflexes.errors
+
+    def check_reflexes(self) -> None:
+        """Check the current state against the limits now (the simulator also does it before every physics
+        step); raises ControlException on a violation."""
+        if self._reflexes.enabled and not self._reflexes.errors:
+            self._reflexes.check_state()
+
+    def automatic_error_recovery(self) -> None:
+        """Clear the reflex errors and release the brakes (libfranka's ``automaticErrorRecovery``). The robot is
+        then stopped; a joint beyond a position limit may be moved back inside, not further out."""
+        self._reflexes.recover()
+        self.set_robot_state(RobotState.STATE_STOP)
 
     def get_time(self) -> float:
         """Simulated time, s."""
@@ -270,6 +332,7 @@ class FrankaSim:
         q = as_vector(q, 7, "q")
         if (q < self.q_min - 1e-9).any() or (q > self.q_max + 1e-9).any():
             raise ValueError(f"q is outside the joint limits: {q}")
+        self._reflexes.reset()
         self._qpos[:] = q
         self._qvel[:] = 0.0 if dq is None else as_vector(dq, 7, "dq")
         self._ctrl_tau[:] = 0.0
@@ -278,6 +341,7 @@ class FrankaSim:
         self._tau_fifo.clear()
         if self._meas_fifo is not None:
             self._meas_fifo.clear()
+        self._reflexes.reset()
         self.set_robot_state(RobotState.STATE_STOP)
         self.world.diverged = None
         mujoco.mj_forward(self._m, self._d)
@@ -289,6 +353,8 @@ class FrankaSim:
         if state == RobotState.STATE_ACCELERATION_CONTROL:
             raise ValueError("acceleration control is not available on the FER")
         m = self._m
+        # the joints' current servo torque: torque control takes over from it without a jump
+        servo = self._d.actuator_force[self._vel].copy() if state == RobotState.STATE_FORCE_TORQUE_CONTROL else None
         kv = 0.0 if state == RobotState.STATE_FORCE_TORQUE_CONTROL else VELOCITY_GAINS
         m.actuator_gainprm[self._vel, 0] = kv
         m.actuator_biasprm[self._vel, 2] = -np.asarray(kv)
@@ -297,6 +363,7 @@ class FrankaSim:
         self._tau_cmd[:] = 0.0
         self._tau_fifo.clear()
         self._state = state
+        self._reflexes.reset_commands(servo)
         return state
 
     def get_robot_state(self) -> RobotState:
@@ -317,6 +384,7 @@ class FrankaSim:
         tau_max = self.tau_max
         np.minimum(t, tau_max, out=self._tau_cmd)
         np.maximum(self._tau_cmd, -tau_max, out=self._tau_cmd)
+        self._reflexes.command_torque(self._tau_cmd)
         if not self._delay_steps:
             self._ctrl_tau[:] = self._tau_cmd
 
@@ -349,16 +417,16 @@ class FrankaSim:
         self._apply_joint_velocity(dq)
 
     def _apply_joint_velocity(self, dq: np.ndarray) -> None:
-        ratio = np.max(np.abs(dq) / self.dq_max)
+        ratio = np.max(np.abs(dq) / (self.dq_max * VELOCITY_COMMAND_SCALE))
         if ratio > 1.0:
             dq = dq / ratio
-        self._ctrl_vel[:] = dq
+        self._reflexes.command_velocity(dq)
         # feed-forward friction compensation, as the FER's internal joint controller does
         self._ctrl_tau[:] = self.model.friction(dq) if self.friction_enabled else 0.0
 
     def set_positioning_velocity(self, percent: float) -> None:
         """Speed of ``set_position`` motions, in percent of the joint velocity limits (as ViSP)."""
-        if not 0 < percent <= 100:
+        if not (isinstance(percent, (int, float, np.floating, np.integer)) and 0 < percent <= 100):
             raise ValueError(f"positioning velocity must be in (0, 100] %, got {percent}")
         self._positioning_velocity = float(percent)
 
@@ -368,6 +436,10 @@ class FrankaSim:
         positioning velocity. Blocks (in simulated time) until the motion is done; needs POSITION state."""
         if self._state != RobotState.STATE_POSITION_CONTROL:
             raise RuntimeError("set_position needs the robot in STATE_POSITION_CONTROL")
+        if not (isinstance(timeout, (int, float, np.floating, np.integer)) and math.isfinite(timeout)
+                and timeout > 0):
+            raise ValueError(f"timeout must be a finite number of seconds > 0, got {timeout!r}")
+        self._reflexes.raise_if_error()
         frame = ControlFrame(frame)
         if frame == ControlFrame.JOINT_STATE:
             qd = as_vector(position, 7, "joint position")
@@ -378,9 +450,13 @@ class FrankaSim:
         if (qd < self.q_min).any() or (qd > self.q_max).any():
             raise ValueError(f"target joint position outside the joint limits: {qd}")
         q0 = self.get_position()
-        vmax = self.dq_max * self._positioning_velocity / 100
-        # quintic: peak velocity 15/8 * delta / T
-        T = max(float(np.max(15 / 8 * np.abs(qd - q0) / vmax)), 0.05)
+        scale = self._positioning_velocity / 100
+        r = self._reflexes
+        # quintic whose peak velocity, acceleration and jerk stay within the scaled limits
+        T = max(position_profile_time(qd - q0, r.dq_max * scale, r.ddq_max * scale, r.dddq_max * scale), 0.05)
+        if T > timeout:
+            raise ValueError(f"set_position: the motion would take {T:.3g} s at {self._positioning_velocity:g} % "
+                             f"positioning velocity, more than timeout={timeout:g} s")
         n = int(math.ceil(T / self.dt))
         # joint velocity servo along the trajectory, plus a position correction
         m = self._m
@@ -393,7 +469,8 @@ class FrankaSim:
             v = (qd - q0) * dsdt + 20.0 * (pos - self._qpos)
             self._ctrl_vel[:] = np.clip(v, -self.dq_max, self.dq_max)
             self.world.step()
-        for _ in range(int(timeout / self.dt)):
+        err = qd - self._qpos
+        for _ in range(max(int((timeout - T) / self.dt), 1)):
             err = qd - self._qpos
             if np.max(np.abs(err)) < 1e-4 and np.max(np.abs(self._qvel)) < 1e-3:
                 break
@@ -402,6 +479,7 @@ class FrankaSim:
         else:
             raise RuntimeError(f"set_position: target not reached within {timeout} s (error {err})")
         self._ctrl_vel[:] = 0.0
+        self.check_reflexes()
 
     # ------------------------------------------------------------------ measurements
     @property
@@ -701,4 +779,4 @@ class FrankaSim:
 
 __all__ = ["CAMERA_FRAME", "ControlFrame", "DEFAULT_eMc", "END_EFFECTOR_FRAME", "FORCE_TORQUE", "FrankaSim",
            "JOINT_STATE", "POSITION", "REFERENCE_FRAME", "RobotState", "STOP", "SimulationDiverged", "VELOCITY",
-           "Tool", "ModelConfig", "twist_transform", "pose_vector"]
+           "Tool", "ModelConfig", "twist_transform", "pose_vector", "ControlException"]

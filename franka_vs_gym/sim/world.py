@@ -47,6 +47,7 @@ class SimWorld:
         self._hooks: list[Callable[[], None]] = []
         self._active: list[Callable[[], None]] = []  # the hooks that do something
         self._post_hooks: list[Callable[[], None]] = []
+        self._checks: list[Callable[[], None]] = []  # run after every step(n) call (the robots' reflexes)
         self._renderers: dict[tuple[int, int], mujoco.Renderer] = {}
         self.diverged: str | None = None
         self._wn = self.data.warning.number  # live view of MuJoCo's warning counters
@@ -65,6 +66,11 @@ class SimWorld:
     def add_post_step(self, hook: Callable[[], None]) -> None:
         self._post_hooks.append(hook)
 
+    def add_check(self, check: Callable[[], None]) -> None:
+        """A check run after every ``step(n)`` call (not between its physics steps: the compiled plant runs them
+        in one call), e.g. a robot's reflexes; it may raise to stop the caller."""
+        self._checks.append(check)
+
     @property
     def time(self) -> float:
         """Simulated time, s."""
@@ -79,6 +85,8 @@ class SimWorld:
             step(m, d, n)
             if wn[a] or wn[b] or wn[c]:
                 self._diverge()
+            for check in self._checks:
+                check()
             return
         if len(self._active) == 1 and not post:  # one robot, no post-step work: the 1 kHz fast path
             h = self._active[0]
@@ -87,6 +95,8 @@ class SimWorld:
                 step(m, d)
                 if wn[a] or wn[b] or wn[c]:  # MuJoCo found NaN/inf/huge values (and auto-reset the state)
                     self._diverge()
+            for check in self._checks:
+                check()
             return
         hooks = self._active
         for _ in range(n):
@@ -97,6 +107,8 @@ class SimWorld:
                 self._diverge()
             for h in post:
                 h()
+        for check in self._checks:
+            check()
 
     def _diverge(self) -> None:
         reasons = [msg for w, msg in _BAD_WARNINGS.items() if self._wn[w] > 0]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from franka_vs_gym.validation.signals import GAP_FACTOR, CleanSettings
 
@@ -46,3 +47,17 @@ def load_from(args: argparse.Namespace):
     from franka_vs_gym.validation.logs import load_log
 
     return load_log(args.log, topic=args.topic)
+
+
+def input_paths(args: argparse.Namespace) -> list[Path]:
+    """Every file the command reads (the log, its sidecars, the files of a log folder, --model): no output may be
+    one of them, whatever --force says."""
+    from franka_vs_gym.validation.logs import sidecar_path
+
+    log = Path(args.log)
+    paths = [log, sidecar_path(log), log.with_suffix(".json")]
+    if log.is_dir():
+        paths += [p for p in log.rglob("*") if p.is_file()]
+    if getattr(args, "model", None):
+        paths.append(Path(args.model))
+    return paths

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 
-from franka_vs_gym.validation.cli_common import add_common, load_from, settings_from
+from franka_vs_gym.validation.cli_common import add_common, input_paths, load_from, settings_from
 from franka_vs_gym.validation.compare import compare, format_compare, progress
 
 
@@ -22,18 +23,20 @@ def main(args: argparse.Namespace) -> int:
     from franka_vs_gym.io import OutputSet
 
     verbose = not args.quiet
-    with OutputSet(force=args.force, inputs=[args.log] + ([args.model] if args.model else [])) as outputs:
-        stage = outputs.folder(args.report, "report folder") if args.report else None
+    # the report folder is refused (exists without --force, is an input...) before the comparison runs, and
+    # appears complete or not at all
+    with OutputSet(force=args.force, inputs=input_paths(args)) as outputs:
+        report_tmp = outputs.folder(args.report, what="report folder") if args.report else None
         res = compare(load_from(args), args.model, tool=args.tool, robot=args.robot, rigid_body=args.rigid_body,
-                      settings=settings_from(args), do_replay=not args.no_replay, replay_mode=args.replay_mode,
-                      verbose=verbose)
-        if stage is not None:
+                      settings=settings_from(args),
+                      do_replay=not args.no_replay, replay_mode=args.replay_mode, verbose=verbose)
+        if report_tmp is not None:
             from franka_vs_gym.validation.report import markdown_report
 
             progress("writing the report and figures", verbose)
-            markdown_report(res, stage, overwrite=True)
+            markdown_report(res, report_tmp, overwrite=True)
     if args.report:
-        progress(f"report: {args.report}/report.md", verbose)
+        progress(f"report: {Path(args.report) / 'report.md'}", verbose)
     if args.json:
         print(json.dumps(res.to_dict()))
     else:

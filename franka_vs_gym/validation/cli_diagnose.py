@@ -17,7 +17,7 @@ import json
 
 import numpy as np
 
-from franka_vs_gym.validation.cli_common import add_common, load_from, settings_from
+from franka_vs_gym.validation.cli_common import add_common, input_paths, load_from, settings_from
 from franka_vs_gym.validation.compare import progress
 
 
@@ -36,17 +36,17 @@ def main(args: argparse.Namespace) -> int:
     effects = None if args.effects is None else [e for e in args.effects.split(",") if e.strip()]
     from franka_vs_gym.io import OutputSet
 
-    with OutputSet(force=args.force, inputs=[args.log]) as outputs:
-        stage = outputs.folder(args.report, "report folder") if args.report else None
+    with OutputSet(force=args.force, inputs=input_paths(args)) as outputs:
+        report_tmp = outputs.folder(args.report, what="report folder") if args.report else None
         d = diagnose(load_from(args), args.model, rigid_body=args.rigid_body, effects=effects,
                      settings=settings_from(args), verbose=verbose, tool=args.tool, robot=args.robot)
-        if stage is not None:
+        if report_tmp is not None:
             from franka_vs_gym.validation.compare import compare
             from franka_vs_gym.validation.report import markdown_report
 
             progress("writing the report and figures", verbose)
             res = compare(d.context.data, d.config, do_replay=False)
-            markdown_report(res, stage, diagnosis=d, overwrite=True)
+            markdown_report(res, report_tmp, diagnosis=d, overwrite=True)
     if args.report:
         progress(f"report: {args.report}/report.md", verbose)
     if args.json:

@@ -5,11 +5,12 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
 
-from franka_vs_gym.validation.cli_common import add_common, load_from, settings_from
+from franka_vs_gym.validation.cli_common import add_common, input_paths, load_from, settings_from
 from franka_vs_gym.validation.compare import progress
 
 
@@ -36,24 +37,30 @@ def main(args: argparse.Namespace) -> int:
     verbose = not args.quiet
     if not 0 <= args.holdout < 0.9:
         raise ValueError(f"--holdout must be in [0, 0.9), got {args.holdout}")
-    # the model file and the report appear together or not at all; both are checked before the fit runs
-    with OutputSet(force=args.force, inputs=[args.log] + ([args.model] if args.model else [])) as outputs:
-        model_stage = outputs.file(out, "calibrated model file")
-        report_stage = outputs.folder(args.report, "report folder") if args.report else None
+    # the model and the report appear together or not at all; outputs are refused before the fit runs, and no
+    # output may be one of the inputs (the log, its sidecar, --model), whatever --force says
+    with OutputSet(force=args.force, inputs=input_paths(args)) as outputs:
+        model_tmp = outputs.file(out, what="calibrated model file")
+        report_tmp = outputs.folder(args.report, what="report folder") if args.report else None
         res = fit_effects(load_from(args), effects, args.model, rigid_body=args.rigid_body,
                           settings=settings_from(args), verbose=verbose, holdout=args.holdout or None,
                           tool=args.tool, robot=args.robot)
-        res.after.save(model_stage, overwrite=True)
-        if report_stage is not None:
+        res.after.save(model_tmp, overwrite=True)
+        if report_tmp is not None:
             from franka_vs_gym.validation.compare import compare
             from franka_vs_gym.validation.report import markdown_report
 
             progress("writing the report and figures", verbose)
             cmp_after = compare(res.data, res.after, do_replay=False)
-            markdown_report(cmp_after, report_stage, fit=res, overwrite=True)
-    progress(f"calibrated model written to {out}" + (f"; report in {args.report}" if args.report else ""), verbose)
+            markdown_report(cmp_after, report_tmp, fit=res, overwrite=True)
+    progress(f"calibrated model written to {out}", verbose)
+    if args.report:
+        progress(f"report: {Path(args.report) / 'report.md'}", verbose)
+    model_warnings = res.after.plausibility_warnings()  # values a user may mean but outside the FER's specification
+    for w in model_warnings:
+        print(f"franka-vs fit: warning: {w}", file=sys.stderr)
     if args.json:
-        print(json.dumps({**res.to_dict(), "model_file": str(out)}))
+        print(json.dumps({**res.to_dict(), "model_file": str(out), "model_warnings": model_warnings}))
         return 0
     a = res.assumptions
     print(f"assumptions: tool {a['tool']} ({a['tool_source']}), gravity {a['gravity_m_per_s2']} m/s^2, log rate "

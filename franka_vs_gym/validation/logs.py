@@ -48,6 +48,7 @@ from typing import Any
 
 import numpy as np
 
+from franka_vs_gym import io
 from franka_vs_gym.model.description import FER, GRAVITY
 
 REQUIRED = ("q", "dq", "tau_J")
@@ -199,9 +200,9 @@ def sidecar_path(path: str | os.PathLike) -> Path:
 
 def _read_sidecar(path: Path) -> dict[str, Any]:
     for s in (sidecar_path(path), path.with_suffix(".json")):
-        if s.is_file() and s != path:
+        if os.path.lexists(s) and s != path:
             try:
-                d = json.loads(s.read_text())
+                d = json.loads(io.read_text(s, what="sidecar"))
             except json.JSONDecodeError as e:
                 raise ValueError(f"sidecar {s} is not valid JSON: {e}") from None
             if not isinstance(d, dict):
@@ -211,6 +212,9 @@ def _read_sidecar(path: Path) -> dict[str, Any]:
 
 
 def _meta_kwargs(meta: dict[str, Any]) -> dict[str, Any]:
+    from franka_vs_gym.model import checks
+    from franka_vs_gym.model.config import RigidBody
+
     meta = dict(meta)
     kw: dict[str, Any] = {}
     kw["tool_declared"] = "tool" in meta
@@ -220,13 +224,32 @@ def _meta_kwargs(meta: dict[str, Any]) -> dict[str, Any]:
                          "with mass, com, inertia")
     if kw["tool"] == "none":
         kw["tool"] = None
+    if kw["tool"] is not None and not isinstance(kw["tool"], (str, dict)):
+        raise ValueError(f"tool in the log metadata must be 'franka_hand', null, or an object with mass, com, "
+                         f"inertia; got {type(kw['tool']).__name__}")
     if isinstance(kw["tool"], dict):
         missing = {"mass", "com", "inertia"} - set(kw["tool"])
         if missing:
             raise ValueError(f"tool in the log metadata lacks {sorted(missing)}")
+        try:  # physical plausibility where the numbers enter (mass range, inertia, com)
+            body = RigidBody(kw["tool"]["mass"], kw["tool"]["com"], kw["tool"]["inertia"])
+        except ValueError as e:
+            raise ValueError(f"tool in the log metadata: {e}") from None
+        if body.mass > checks.MAX_FLANGE_LOAD:
+            raise ValueError(f"tool in the log metadata: mass {body.mass:.4g} kg is not plausible for the FER "
+                             f"(rated payload 3 kg; refused above {checks.MAX_FLANGE_LOAD:g} kg); grams?")
+        if np.linalg.norm(body.com) > checks.MAX_LOAD_COM:
+            raise ValueError(f"tool in the log metadata: com {body.com.tolist()} m is over {checks.MAX_LOAD_COM:g} m "
+                             "from the flange; mm?")
     if "gravity" in meta:
-        kw["gravity"] = meta.pop("gravity")
+        g = checks.as_vector(meta.pop("gravity"), 3, "gravity in the log metadata")
+        if meta.get("check_gravity", True) is not False:
+            checks.check_gravity(g, "gravity in the log metadata")
+        kw["gravity"] = g
     kw["controller"] = meta.pop("controller", None)
+    if kw["controller"] is not None and not isinstance(kw["controller"], dict):
+        raise ValueError(f"controller in the log metadata must be an object or null, got "
+                         f"{type(kw['controller']).__name__}")
     kw["extra"] = meta
     return kw
 
@@ -265,31 +288,42 @@ def _columns_to_fields(header: list[str], data: np.ndarray, where: str) -> dict[
     return out
 
 
+_LOADTXT_ROW = re.compile(r"at row (\d+)")
+_LOADTXT_COLS = re.compile(r"number of columns changed from (\d+) to (\d+) at row (\d+)")
+_LOADTXT_BAD = re.compile(r"could not convert string '(.*)' to float64 at row (\d+), column (\d+)")
+
+
 def _load_csv(path: Path) -> dict[str, np.ndarray]:
-    with open(path, newline="") as fh:
-        reader = csv.reader(fh)
+    """Header with csv, values with numpy's C parser, straight into one float64 array (no per-value Python
+    objects: a 200 MB log needs about its array's size in memory)."""
+    with io.open_input(path, "r", what="log", newline="") as fh:
+        first = fh.readline()
+        if not first.strip():
+            raise ValueError(f"{path}: empty file" if not first else f"{path}: the first line must be a header")
+        header = next(csv.reader([first]))
+        if all(_isfloat(h) for h in header):
+            raise ValueError(f"{path}: the first line must be a header with column names (time, q[0], ...)")
+        delimiter = "," if len(header) > 1 or "," in first else None
         try:
-            header = next(reader)
-        except StopIteration:
-            raise ValueError(f"{path}: empty file") from None
-        rows = []
-        for lineno, row in enumerate(reader, start=2):
-            if not row or all(not c.strip() for c in row):
-                continue
-            if len(row) != len(header):
-                raise ValueError(f"{path}: line {lineno} has {len(row)} values, the header has {len(header)} columns")
-            try:
-                rows.append([float(c) if c.strip() != "" else math.nan for c in row])
-            except ValueError:
-                bad = next(c for c in row if not _isfloat(c))
-                raise ValueError(f"{path}: line {lineno}: {bad!r} is not a number") from None
-    if not rows:
+            data = np.loadtxt(fh, dtype=np.float64, delimiter=delimiter, ndmin=2, comments=None, encoding=None)
+        except ValueError as e:
+            msg = " ".join(str(e).split())
+            m = _LOADTXT_BAD.search(msg)
+            if m:  # numpy counts data rows from 0; the file's line numbers start at 1 with the header
+                msg = (f"line {int(m.group(2)) + 2}: {m.group(1)!r} is not a number (column "
+                       f"{header[int(m.group(3))].strip() if int(m.group(3)) < len(header) else m.group(3)})")
+            elif (m := _LOADTXT_COLS.search(msg)) is not None:  # here numpy counts data rows from 1
+                msg = (f"line {int(m.group(3)) + 1} has {m.group(2)} values, the header has {len(header)} "
+                       "columns")
+            elif (m := _LOADTXT_ROW.search(msg)) is not None:
+                msg = _LOADTXT_ROW.sub(f"at line {int(m.group(1)) + 2}", msg)
+            raise ValueError(f"{path}: {msg}") from None
+    if data.size == 0:
         raise ValueError(f"{path}: no data rows")
-    if all(_isfloat(h) for h in header):
-        raise ValueError(f"{path}: the first line must be a header with column names (time, q[0], ...)")
+    if data.shape[1] != len(header):
+        raise ValueError(f"{path}: rows have {data.shape[1]} values, the header has {len(header)} columns")
     from franka_vs_gym.validation.readers import is_libfranka_csv, libfranka_columns
 
-    data = np.array(rows, dtype=np.float64)
     if is_libfranka_csv(header):  # libfranka's logToCSV: state./cmd. prefixes, time in ms
         header, to_s = libfranka_columns(header)
         data[:, [h.strip() for h in header].index("time")] *= to_s
@@ -305,43 +339,112 @@ def _isfloat(s: str) -> bool:
 
 
 def _load_npz(path: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-    with np.load(path, allow_pickle=False) as z:
-        keys = set(z.files)
-        meta: dict[str, Any] = {}
-        if "meta" in keys:
-            meta = json.loads(str(z["meta"]))
-        if "time" not in keys:
-            raise ValueError(f"{path}: missing array 'time' (s)")
-        out = {"time": np.array(z["time"], dtype=np.float64).ravel()}
-        for f in JOINT_FIELDS:
-            if f in keys:
-                out[f] = np.array(z[f], dtype=np.float64)
-            elif f in REQUIRED:
-                # accept per-joint arrays q[0]..q[6] / q_0..q_6 as well
-                cols = [next((k for k in (f"{f}[{i}]", f"{f}_{i}") if k in keys), None) for i in range(7)]
-                if all(c is not None for c in cols):
-                    out[f] = np.stack([np.asarray(z[c], dtype=np.float64) for c in cols], axis=1)
-                else:
-                    raise ValueError(f"{path}: missing array {f!r} (shape (N, 7))")
+    z = io.load_npz(path, what="log")  # headers checked before reading; uncompressed arrays memory-mapped
+    keys = set(z)
+
+    def floats(name: str) -> np.ndarray:
+        try:
+            return np.array(z[name], dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError(f"{path}: array {name!r} is not numeric (dtype {z[name].dtype})") from None
+
+    meta: dict[str, Any] = {}
+    if "meta" in keys:
+        try:
+            meta = json.loads(str(np.asarray(z["meta"])))
+        except json.JSONDecodeError as e:
+            raise ValueError(f"{path}: array 'meta' is not a JSON string: {e}") from None
+        if not isinstance(meta, dict):
+            raise ValueError(f"{path}: array 'meta' must hold a JSON object")
+    if "time" not in keys:
+        raise ValueError(f"{path}: missing array 'time' (s)")
+    out = {"time": floats("time").ravel()}
+    for f in JOINT_FIELDS:
+        if f in keys:
+            out[f] = floats(f)
+        elif f in REQUIRED:
+            # accept per-joint arrays q[0]..q[6] / q_0..q_6 as well
+            cols = [next((k for k in (f"{f}[{i}]", f"{f}_{i}") if k in keys), None) for i in range(7)]
+            if all(c is not None for c in cols):
+                parts = [floats(c) for c in cols]  # type: ignore[arg-type]
+                if len({p.shape for p in parts}) != 1 or parts[0].ndim != 1:
+                    raise ValueError(f"{path}: per-joint arrays of {f!r} must be 1-D of equal length")
+                out[f] = np.stack(parts, axis=1)
+            else:
+                raise ValueError(f"{path}: missing array {f!r} (shape (N, 7))")
     return out, meta
 
 
+def _layout_score(x: np.ndarray) -> float:
+    """How much (n, 7) samples look like 7 joints sampled in time: the typical difference between neighbouring
+    columns (different joints) over the typical step in time (one sample). A misread layout puts consecutive
+    samples of one joint side by side (ratio near 1) or interleaves joints along time (large steps)."""
+    step = float(np.median(np.abs(np.diff(x, axis=0))))
+    across = float(np.median(np.abs(np.diff(x, axis=1))))
+    scale = float(np.abs(x).max()) + 1e-300
+    return (across + 1e-12 * scale) / (step + 1e-12 * scale)
+
+
+def _gaz_layout(files: dict[str, np.ndarray], lines: dict[str, list[int]], n: int, folder: Path) -> str:
+    """"sample" (7 values per sample, in time order) or "joint" (all n samples of joint 0, then joint 1...) for
+    the joint files of a Gaz folder. The line structure decides when it can (n lines of 7 values, or 7 lines of n
+    values); otherwise the layout in which the columns look like 7 joints sampled in time wins, judged on the
+    positions first (then velocities, torques); a folder where neither layout is clearly better is refused."""
+    for f in ("q", "dq", "tau_J"):
+        counts = lines[f]
+        if len(counts) == n and all(k == 7 for k in counts):
+            return "sample"
+        if len(counts) == 7 and all(k == n for k in counts) and n != 7:
+            return "joint"
+    if n < 3:
+        return "sample"
+    for f in ("q", "dq", "tau_J"):
+        v = files[f]
+        if not np.isfinite(v).all() or np.ptp(v) == 0:
+            continue
+        s, j = _layout_score(v.reshape(n, 7)), _layout_score(v.reshape(7, n).T)
+        if s >= 3 * j:
+            return "sample"
+        if j >= 3 * s:
+            return "joint"
+    raise ValueError(f"{folder}: cannot tell whether the values are sample-major (7 per sample) or joint-major (all "
+                     "samples of joint 0 first): neither layout looks like 7 joints sampled in time")
+
+
+def _read_gaz_file(p: Path) -> tuple[np.ndarray, list[int]]:
+    with io.open_input(p, "r", what="Gaz log file") as fh:
+        counts: list[int] = []
+        chunks: list[np.ndarray] = []
+        for lineno, line in enumerate(fh, start=1):
+            parts = line.replace(",", " ").split()
+            if not parts:
+                continue
+            try:
+                chunks.append(np.array(parts, dtype=np.float64))
+            except ValueError:
+                bad = next(x for x in parts if not _isfloat(x))
+                raise ValueError(f"{p}: line {lineno}: {bad!r} is not a number") from None
+            counts.append(len(parts))
+    if not chunks:
+        raise ValueError(f"{p}: no values")
+    return np.concatenate(chunks), counts
+
+
 def _load_gaz(folder: Path) -> dict[str, np.ndarray]:
-    out = {}
+    out, lines = {}, {}
     for f, name in GAZ_FILES.items():
         p = folder / name
-        if not p.is_file():
+        if not os.path.lexists(p):
             raise ValueError(f"{folder}: missing file {name} (Gaz et al. 2019 log folder)")
-        try:
-            out[f] = np.loadtxt(p, dtype=np.float64, ndmin=1).ravel()
-        except ValueError as e:
-            raise ValueError(f"{p}: {e}") from None
+        out[f], lines[f] = _read_gaz_file(p)
     n = len(out["time"])
     for f in ("q", "dq", "tau_J"):
         if out[f].size != 7 * n:
             raise ValueError(f"{folder / GAZ_FILES[f]}: {out[f].size} values for {n} timestamps; expected 7 per "
                              f"sample ({7 * n})")
-        out[f] = out[f].reshape(n, 7)
+    layout = _gaz_layout(out, lines, n, folder)
+    for f in ("q", "dq", "tau_J"):
+        out[f] = out[f].reshape(n, 7) if layout == "sample" else out[f].reshape(7, n).T.copy()
     return out
 
 
@@ -356,23 +459,25 @@ def load_log(path: str | os.PathLike, topic: str | None = None) -> MeasurementLo
     from franka_vs_gym.validation.readers import is_rosbag, read_rosbag
 
     p = Path(path)
-    if not p.exists():
+    if not os.path.lexists(p):
         raise FileNotFoundError(f"log not found: {p}")
     if is_rosbag(p):
+        if not p.is_dir():  # a bare .mcap/.db3: a regular file (a FIFO or device would hang the reader)
+            io.check_input_file(p, what="ROS bag")
         arrays, meta = read_rosbag(p, topic)
         meta.update(_read_sidecar(p))
     elif p.is_dir():
         arrays = _load_gaz(p)
         meta: dict[str, Any] = {"tool": None, "source_format": "gaz2019"}
         meta.update(_read_sidecar(p / "log"))
+    elif p.suffix.lower() not in (".npz", ".csv", ".txt", ".tsv", ""):
+        raise ValueError(f"{p}: unknown log format {p.suffix!r} (use .csv, .npz or a Gaz text folder)")
     elif p.suffix.lower() == ".npz":
         arrays, meta = _load_npz(p)
         meta = {**meta, **_read_sidecar(p)}
     elif p.suffix.lower() in (".csv", ".txt", ".tsv") or p.suffix == "":
         arrays = _load_csv(p)
         meta = _read_sidecar(p)
-    else:
-        raise ValueError(f"{p}: unknown log format {p.suffix!r} (use .csv, .npz or a Gaz text folder)")
     kw = _meta_kwargs(meta)
     t = arrays.pop("time")
     return MeasurementLog(t, **arrays, **kw, source=str(p))
@@ -382,30 +487,28 @@ def load_log(path: str | os.PathLike, topic: str | None = None) -> MeasurementLo
 def save_log(log: MeasurementLog, path: str | os.PathLike, overwrite: bool = False) -> Path:
     """Write ``log`` as CSV (``.csv``) or NPZ (``.npz``) plus the JSON sidecar ``<path>.json``.
 
-    Refuses to overwrite an existing log or sidecar unless ``overwrite``. Returns the path written.
+    Both files appear together or not at all (:class:`franka_vs_gym.io.OutputSet`: staged next to their targets,
+    then renamed). Refuses to overwrite an existing log or sidecar unless ``overwrite``, and never writes over an
+    input of the running command. Returns the path written.
     """
     p = Path(path)
-    side = sidecar_path(p)
-    for target in (p, side):
-        if target.exists() and not overwrite:
-            raise FileExistsError(f"{target} exists; pass overwrite=True (or --force) to replace it")
     suffix = p.suffix.lower()
     if suffix not in (".csv", ".npz"):
         raise ValueError(f"{p}: unknown log format {p.suffix!r} (use .csv or .npz)")
-    p.parent.mkdir(parents=True, exist_ok=True)
-    tmp = p.with_name(p.name + ".tmp" + p.suffix)
-    if suffix == ".csv":
-        cols = ["time"] + [f"{f}[{i}]" for f in log.fields() for i in range(7)]
-        data = np.column_stack([log.time] + [getattr(log, f) for f in log.fields()])
-        with open(tmp, "w", newline="") as fh:
-            fh.write(",".join(cols) + "\n")
-            np.savetxt(fh, data, delimiter=",", fmt="%.10g")
-    else:
-        arrays = {f: getattr(log, f) for f in log.fields()}
-        with open(tmp, "wb") as fh:
-            np.savez_compressed(fh, time=log.time, **arrays)
-    tmp.replace(p)
-    side.write_text(json.dumps(log.metadata(), indent=2))
+    with io.OutputSet(force=overwrite) as out:
+        tmp = out.file(p, what="log")
+        side = out.file(sidecar_path(p), what="sidecar")
+        if suffix == ".csv":
+            cols = ["time"] + [f"{f}[{i}]" for f in log.fields() for i in range(7)]
+            data = np.column_stack([log.time] + [getattr(log, f) for f in log.fields()])
+            with open(tmp, "w", newline="") as fh:
+                fh.write(",".join(cols) + "\n")
+                np.savetxt(fh, data, delimiter=",", fmt="%.10g")
+        else:
+            arrays = {f: getattr(log, f) for f in log.fields()}
+            with open(tmp, "wb") as fh:
+                np.savez_compressed(fh, time=log.time, **arrays)
+        side.write_text(json.dumps(log.metadata(), indent=2))
     return p
 
 
