@@ -150,6 +150,8 @@ class FCIRobot:
         # the plant's joint velocity servos (views): the internal controllers' damping, integrated implicitly
         self._servo_gain, self._servo_bias, self._servo_ctrl = sim.velocity_servo_views()
         self._q_view, self._dq_view = sim.joint_views()
+        self._servo_on = True  # (unknown: switched off at the first step)
+        self._contact_fields_zero = False
         self.state = RobotStateBuffer()
         self._settings_changed = True
         self.robot_mode = RobotMode.IDLE
@@ -448,18 +450,26 @@ class FCIRobot:
             tau += B @ ddq_d + self.dt * D * ddq_d
         return tau
 
-    def _set_servo(self, D: np.ndarray | float, dq_d: np.ndarray | float) -> None:
+    def _set_servo(self, D: np.ndarray, dq_d: np.ndarray) -> None:
         """Gains (Nm s/rad) and set point (rad/s) of the plant's joint velocity servos."""
         self._servo_gain[:] = D
-        self._servo_bias[:] = -np.asarray(D)
+        np.negative(D, out=self._servo_bias)
         self._servo_ctrl[:] = dq_d
+        self._servo_on = True
+
+    def _servo_off(self) -> None:
+        if self._servo_on:
+            self._servo_gain[:] = 0.0
+            self._servo_bias[:] = 0.0
+            self._servo_ctrl[:] = 0.0
+            self._servo_on = False
 
     def step(self, cmd: RobotCommand | None) -> tuple[str, ...]:
         """Apply ``cmd`` (or hold), step the plant 1 ms, check the reflexes. Returns the reflex reasons (empty if
         none fired); on a reflex the robot is already in REFLEX mode."""
         sim = self.sim
         try:
-            self._set_servo(0.0, 0.0)
+            self._servo_off()
             if self.robot_mode == RobotMode.REFLEX and getattr(sim, "current_errors", ()):
                 sim.step()  # the simulator's brakes hold the arm until automatic_error_recovery
                 return ()
@@ -597,10 +607,12 @@ class FCIRobot:
             f["joint_collision"][:] = np.abs(tau_ext) > self.torque_thresholds
             f["cartesian_contact"][:] = np.abs(F) > self.lower_force_thresholds
             f["cartesian_collision"][:] = np.abs(F) > self.force_thresholds
-        else:
+            self._contact_fields_zero = False
+        elif not self._contact_fields_zero:
             for k in ("O_F_ext_hat_K", "K_F_ext_hat_K", "joint_contact", "joint_collision", "cartesian_contact",
                       "cartesian_collision"):
                 f[k][:] = 0.0
+            self._contact_fields_zero = True
         st.motion_generator_mode = self.mg_mode
         st.controller_mode = self.ctrl_mode
         st.robot_mode = self.robot_mode
