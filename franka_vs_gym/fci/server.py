@@ -59,6 +59,7 @@ _TICK = 0.001  # s of wall time between idle states (and the real-time control p
 _START_PHASE_PERIOD = 0.05
 _MAX_LATE = 0.002  # s: real-time cycles later than this are dropped (plant time falls behind wall time)
 _HAND_STEPS_PER_TICK = 25  # lock-step physics steps per wall-time tick while only the hand moves
+_CHUNK = 60000  # rows per block of a --record buffer (1 min at 1 kHz, 27 MB)
 
 
 class _Conn:
@@ -93,7 +94,7 @@ class FCIServer:
     table : put the table in the scene.
     extra_worldbody : raw MJCF added to the world (objects to grasp, obstacles).
     record : path of a workbench log (``.csv`` or ``.npz`` + ``.json`` sidecar) written at :meth:`stop` with one
-        row per physics step of the session.
+        row per physics step while a robot client is connected (the values the client received).
     port, gripper_port : 1337 and 1338 as libfranka fixes them (change only for tests of the server itself).
     verbose : print the ready line and connection events.
 
@@ -154,7 +155,9 @@ class FCIServer:
         self.commanded = False  # lockstep: a motion's first command has arrived
         self._next_start_state = 0.0
         self.steps = 0
-        self._rows: list[np.ndarray] = []
+        self._rows: list[np.ndarray] = []  # full (_CHUNK, 57) blocks of the record, then the current one
+        self._chunk = np.empty((_CHUNK, 57))
+        self._n_in_chunk = 0
         self.deadlines_met = 0
         self.deadlines_total = 0
         self.late_cycles = 0  # real-time cycles the server itself could not run in time (dropped)
@@ -206,9 +209,9 @@ class FCIServer:
         for r in self._renderers.values():
             r.close()
         self._renderers.clear()
-        if self.record_path is not None and self._rows:
+        if self.record_path is not None and (self._rows or self._n_in_chunk):
             self._write_log()
-            self._rows = []
+            self._rows, self._n_in_chunk = [], 0
         if self._error is not None:
             err, self._error = self._error, None
             raise RuntimeError(f"FCI server thread failed: {err}") from err
@@ -403,16 +406,24 @@ class FCIServer:
                     pass
 
     def _record(self) -> None:
-        if self.record_path is None:
+        """One row per physics step while a robot client is connected: what the client received (float32 on the
+        wire), the simulated time."""
+        if self.record_path is None or self.robot_conn is None:
             return
         f = self.robot.state.f
-        self._rows.append(np.concatenate([[self.sim.get_time()], f["q"], f["dq"], f["tau_J"], f["tau_J_d"],
-                                          f["q_d"], f["dq_d"], f["ddq_d"], f["tau_ext_hat_filtered"]]))
+        row = self._chunk[self._n_in_chunk]
+        row[0] = self.sim.get_time()
+        for k, name in enumerate(("q", "dq", "tau_J", "tau_J_d", "q_d", "dq_d", "ddq_d", "tau_ext_hat_filtered")):
+            row[1 + 7 * k:8 + 7 * k] = f[name]
+        self._n_in_chunk += 1
+        if self._n_in_chunk == _CHUNK:
+            self._rows.append(self._chunk)
+            self._chunk, self._n_in_chunk = np.empty((_CHUNK, 57)), 0
 
     def _write_log(self) -> None:
         from franka_vs_gym.validation.logs import MeasurementLog, save_log
 
-        a = np.array(self._rows, dtype=np.float64)
+        a = np.concatenate([*self._rows, self._chunk[:self._n_in_chunk]])
         cols = [a[:, 1 + 7 * k:8 + 7 * k] for k in range(8)]
         cfg = self.sim.model.config
         tool = cfg.tool.to_dict() if cfg.tool.name != "franka_hand" else "franka_hand"
