@@ -1001,3 +1001,13 @@ def test_same_seed_same_trajectory_across_processes():
 def test_user_error_is_a_value_error():
     assert issubclass(UserError, ValueError)
     assert math.isfinite(1.0)
+
+
+def test_heavy_tool_is_warned_about_not_refused(good, tmp_path, capsys):
+    """5 kg is beyond the FER's rated payload but a user may mean it: the result says so (JSON included)."""
+    p = _sidecar(tmp_path, good, _tool(mass=5.0, inertia=[[0.02, 0, 0], [0, 0.02, 0], [0, 0, 0.02]]))
+    assert cli(["compare", str(p), "--json", "--quiet", "--no-replay"]) == 0
+    out, err = capsys.readouterr()
+    d = json.loads(out)
+    assert any("rated payload" in w for w in d["model_warnings"]), d["model_warnings"]
+    assert "warning: tool + payload 5.73 kg" in err or "warning: tool + payload 5 kg" in err

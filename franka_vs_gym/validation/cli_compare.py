@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 from franka_vs_gym.validation.cli_common import add_common, input_paths, load_from, settings_from
@@ -37,8 +38,12 @@ def main(args: argparse.Namespace) -> int:
             markdown_report(res, report_tmp, overwrite=True)
     if args.report:
         progress(f"report: {Path(args.report) / 'report.md'}", verbose)
+    # values a user may mean but outside the FER's specification (e.g. a 5 kg tool): said, not refused
+    model_warnings = res.config.plausibility_warnings()
+    for w in model_warnings:
+        print(f"franka-vs compare: warning: {w}", file=sys.stderr)
     if args.json:
-        print(json.dumps(res.to_dict()))
+        print(json.dumps({**res.to_dict(), "model_warnings": model_warnings}))
     else:
         print(format_compare(res))
     return 0

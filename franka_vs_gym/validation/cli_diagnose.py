@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 
 import numpy as np
 
@@ -49,8 +50,12 @@ def main(args: argparse.Namespace) -> int:
             markdown_report(res, report_tmp, diagnosis=d, overwrite=True)
     if args.report:
         progress(f"report: {args.report}/report.md", verbose)
+    # values a user may mean but outside the FER's specification (e.g. a 5 kg tool): said, not refused
+    model_warnings = d.config.plausibility_warnings()
+    for w in model_warnings:
+        print(f"franka-vs diagnose: warning: {w}", file=sys.stderr)
     if args.json:
-        print(json.dumps(d.to_dict()))
+        print(json.dumps({**d.to_dict(), "model_warnings": model_warnings}))
         return 0
     a = d.assumptions
     print(f"assumptions: tool {a['tool']} ({a['tool_source']}), gravity {a['gravity_m_per_s2']} m/s^2, log rate "
