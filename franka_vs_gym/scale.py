@@ -143,11 +143,19 @@ def _diagnose_one(path: str, model: Any, fit: bool, rigid_body: bool) -> dict[st
 
 
 def diagnose_folder(folder: str | os.PathLike, model: Any = None, *, fit: bool = False, rigid_body: bool = False,
-                    address: str | None = None, num_cpus: int | None = None,
+                    address: str | None = None, num_cpus: int | None = None, use_ray: bool = True,
                     progress: bool = False) -> list[dict[str, Any]]:
-    """Diagnose (and with ``fit`` also fit) every log of ``folder`` in parallel on Ray; one result per log, in
-    file-name order: ``{"log", "diagnosis": Diagnosis.to_dict(), "fit": {...}}``."""
+    """Diagnose (and with ``fit`` also fit) every log of ``folder`` in parallel on Ray (``use_ray=False``: one after
+    the other in this process, the same results); one result per log, in file-name order:
+    ``{"log", "diagnosis": Diagnosis.to_dict(), "fit": FitResult.to_dict() + {"config"}}``."""
     logs = [str(p) for p in find_logs(folder)]
+    if not use_ray:
+        out = []
+        for n, p in enumerate(logs):
+            out.append(_diagnose_one(p, model, fit, rigid_body))
+            if progress:
+                print(f"diagnose: {n + 1}/{len(logs)} logs done", flush=True)
+        return out
     with ray_session(address, num_cpus) as ray:
         task = ray.remote(num_cpus=1)(_diagnose_one)
         refs = [task.remote(p, model, fit, rigid_body) for p in logs]
@@ -171,9 +179,11 @@ def add_arguments(parser: Any) -> None:
     parser.add_argument("--fit", action="store_true", help="also fit the diagnosed effects (fit --add auto)")
     parser.add_argument("--rigid-body", action="store_true", help="start from the rigid-body model (no friction)")
     parser.add_argument("--ray", nargs="?", const="", default=None, metavar="ADDRESS",
-                        help="Ray cluster address; without one (or without --ray) a local Ray instance")
+                        help="Ray cluster address; without one (or without --ray when Ray is installed) a local Ray "
+                        "instance; without --ray and without Ray, the logs one after the other")
     parser.add_argument("--ray-cpus", type=int, default=None, help="CPUs of the local Ray instance (default: all)")
-    parser.add_argument("--json", default=None, help="write every log's result to this JSON file (must not exist)")
+    parser.add_argument("--json", default=None, help="write every log's result to this JSON file")
+    parser.add_argument("--force", action="store_true", help="replace the --json file if it exists")
     parser.add_argument("--quiet", action="store_true", help="no progress lines")
 
 
@@ -183,9 +193,13 @@ def main(args: Any) -> int:
     from franka_vs_gym.io import atomic_write, check_output
 
     if args.json:
-        check_output(args.json)  # refuse an existing file before the work, not after
+        check_output(args.json, force=args.force)  # refuse an existing file before the work, not after
+    import importlib.util
+
+    use_ray = args.ray is not None or importlib.util.find_spec("ray") is not None
     res = diagnose_folder(args.folder, args.model, fit=args.fit, rigid_body=args.rigid_body,
-                          address=args.ray or None, num_cpus=args.ray_cpus, progress=not args.quiet)
+                          address=args.ray or None, num_cpus=args.ray_cpus, use_ray=use_ray,
+                          progress=not args.quiet)
     for r in res:
         d = r["diagnosis"]
         line = f"{Path(r['log']).name}: verdict {d['verdict']}, RMSE {d['rmse_tau_total']:.3f} Nm"
@@ -194,6 +208,6 @@ def main(args: Any) -> int:
                      f"{','.join(r['fit']['effects']) or 'nothing'}")
         print(line)
     if args.json:
-        atomic_write(args.json, json.dumps(res, indent=2))
+        atomic_write(args.json, json.dumps(res, indent=2), force=args.force)
         print(f"wrote {args.json}")
     return 0

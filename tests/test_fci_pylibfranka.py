@@ -78,6 +78,13 @@ def test_incompatible_version_gets_an_answer(server):
     status, version = codec.CONNECT_RESPONSE.unpack_from(data, codec.ROBOT_HEADER.size)
     assert (command, cid, size) == (codec.Command.CONNECT, 1, len(data))
     assert status == codec.ConnectStatus.INCOMPATIBLE_LIBRARY_VERSION and version == 10
+    with socket.create_connection((server.host, codec.GRIPPER_PORT), timeout=5) as s:  # the gripper likewise
+        s.sendall(codec.gripper_message(codec.GripperCommand.CONNECT, 3, codec.GRIPPER_CONNECT_REQUEST.pack(2, 40001)))
+        data = s.recv(64)
+    command, cid, size = codec.GRIPPER_HEADER.unpack_from(data)
+    status, version = codec.GRIPPER_CONNECT_RESPONSE.unpack_from(data, codec.GRIPPER_HEADER.size)
+    assert (command, cid, size) == (codec.GripperCommand.CONNECT, 3, len(data))
+    assert status == codec.ConnectStatus.INCOMPATIBLE_LIBRARY_VERSION and version == 3
 
 
 def test_gravity_free_torque_control_holds_still(server):

@@ -64,6 +64,7 @@ def test_diagnose_folder_in_parallel_equals_serial_diagnose(local_ray, tmp_path)
     for r in res:
         assert _same(r["diagnosis"], json.loads(json.dumps(diagnose(r["log"]).to_dict())))
     assert res[0]["diagnosis"]["verdict"] == "gravity_tilt"
+    assert _same(json.loads(json.dumps(scale.diagnose_folder(tmp_path, use_ray=False))), json.loads(json.dumps(res)))
     (tmp_path / "empty").mkdir()
     with pytest.raises(FileNotFoundError, match="no measurement logs"):
         scale.find_logs(tmp_path / "empty")

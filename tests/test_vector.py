@@ -32,9 +32,15 @@ def _same_info(a: dict, b: dict, where: str) -> None:
                            payload_mass_range=(0.0, 0.5), feature_noise=0.5, control_period=0.04,
                            camera_period=0.03, time_limit=2.0), 60),
     ("FrankaTorqueTracking-v0", dict(friction_scale_range=(0.5, 1.5), time_limit=0.3), 40),
+    # the default visual periods (a camera frame at the end of every period, in the batch) with payload randomised
+    ("FrankaIBVS-v0", dict(observation_type="features", payload_mass_range=(0.0, 1.0), time_limit=1.0), 30),
+    # large random torques: reflexes stop robots (ControlException -> info["failure"]), then autoreset
+    ("FrankaTorqueTracking-v0", dict(time_limit=1.0, clip_actions=True, torque_scale=80.0), 40),
 ])
 def test_batched_vector_env_is_bit_identical_to_single_envs(env_id, kwargs, n_steps):
     n = 3
+    kwargs = dict(kwargs)
+    torque_scale = kwargs.pop("torque_scale", 5.0)
     vec = gym.make_vec(env_id, num_envs=n, nthread=2, **kwargs)
     assert isinstance(vec, FrankaVectorEnv)
     ref = gym.make_vec(env_id, num_envs=n, vectorization_mode="sync", **kwargs)
@@ -42,8 +48,8 @@ def test_batched_vector_env_is_bit_identical_to_single_envs(env_id, kwargs, n_st
     o2, i2 = ref.reset(seed=7)
     _same_info(i1, i2, "reset")
     rng = np.random.default_rng(0)
-    scale = 0.4 if vec.single_action_space.shape == (7,) and "Torque" not in env_id else 5.0
-    ends = 0
+    scale = 0.4 if vec.single_action_space.shape == (7,) and "Torque" not in env_id else torque_scale
+    ends, failures = 0, set()
     for t in range(n_steps):
         a = (rng.uniform(-1, 1, vec.action_space.shape) * scale).astype(np.float32)
         r1, r2 = vec.step(a), ref.step(a)
@@ -53,7 +59,10 @@ def test_batched_vector_env_is_bit_identical_to_single_envs(env_id, kwargs, n_st
             assert np.array_equal(r1[j], r2[j]), (t, j)
         _same_info(r1[4], r2[4], f"step {t}")
         ends += int((r1[2] | r1[3]).sum())
+        failures |= {f for f, m in zip(r1[4].get("failure", []), r1[4].get("_failure", []), strict=False) if m and f}
     assert ends >= n  # every robot's episode ended at least once and was reset (autoreset)
+    if torque_scale > 50:
+        assert failures, "the large torques should have tripped a reflex"
     vec.close()
     ref.close()
 

@@ -9,8 +9,11 @@ step (the compiled plant, :mod:`franka_vs_gym.sim.plant`), so a control period i
 Results are bit for bit those of N single environments (``gymnasium.make``) reset with the same seeds: a batch step
 of a simulation loads its state into MuJoCo, runs the same ``mj_step`` calls on the same model and saves the
 state back. Derived quantities an environment reads after its physics (contacts, or the whole scene for a camera
-image) are copied from the batch's persistent per-simulation data. A simulation that diverges is re-run alone by
-its environment, which then reports the divergence exactly as a single environment does.
+image) are copied from the batch's persistent per-simulation data, and the robots' reflex checks run after the
+batch call as ``SimWorld.step`` runs them. A simulation that diverges is re-run alone by its environment, which then
+reports the divergence exactly as a single environment does; so is a robot that needs Python between its physics
+steps (brakes holding it after a reflex, rate-limited commands, a command or measurement delay, a camera frame in
+the middle of the period).
 
 Autoreset follows Gymnasium 1.x: ``autoreset_mode=AutoresetMode.NEXT_STEP`` (default: the step after an episode
 ends resets that environment, ignoring its action) or ``SAME_STEP`` (reset within the step; the last observation
@@ -31,6 +34,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space, create_empty_array
 
 from franka_vs_gym.sim import SimulationDiverged, plant
+from franka_vs_gym.sim.reflexes import ControlException
 
 _STATE = mujoco.mjtState.mjSTATE_INTEGRATION
 _BAD = [int(mujoco.mjtWarning.mjWARN_BADQPOS), int(mujoco.mjtWarning.mjWARN_BADQVEL),
@@ -129,7 +133,6 @@ class FrankaVectorEnv(VectorEnv):
         self._terminated = np.zeros(self.num_envs, dtype=np.bool_)
         self._truncated = np.zeros(self.num_envs, dtype=np.bool_)
         self._autoreset = np.zeros(self.num_envs, dtype=np.bool_)
-        self._synced: set[int] = set()
 
     # ------------------------------------------------------------------ Gymnasium API
     def reset(self, *, seed: int | list[int | None] | None = None, options: dict[str, Any] | None = None):
@@ -246,62 +249,67 @@ class FrankaVectorEnv(VectorEnv):
         return out
 
     def _step_groups(self, ids: list[int], actions: np.ndarray, results: list[Any]) -> None:
-        """Step the environments ``ids``: actions, batched physics, observations and rewards."""
+        """Step the environments ``ids``: actions, physics, observations and rewards. Robots whose period is one
+        run of MuJoCo's step (the common case) share one batch call; a robot with Python work between its physics
+        steps (brakes holding it after a reflex, rate-limited commands, a command or measurement delay, a camera
+        frame in the middle of the period) or already stopped by a reflex steps alone, exactly as a single env."""
+        envs = self.envs
+        batched = []
         for i in ids:
-            self.envs[i]._step_begin(actions[i])
-        self._finish(ids, *self._physics(ids), results)
+            env = envs[i]
+            env._step_begin(actions[i])
+            w = env.world
+            if env._reflex is None and not w._active and not w._post_hooks and len(env._segments()) == 1:
+                batched.append(i)
+            else:
+                results[i] = self._step_alone(i)
+        if batched:
+            self._physics(batched, results)
 
-    def _physics(self, ids: list[int]) -> tuple[tuple[np.ndarray, list[Any]], np.ndarray]:
-        """One control period of the environments ``ids`` on the batch (camera frames taken between segments).
-        Returns their states before the period and which of them diverged."""
+    def _step_alone(self, i: int):
+        """The rest of a single env's ``step`` after ``_step_begin`` (its own physics)."""
+        env = self.envs[i]
+        try:
+            if env._reflex is None:
+                env._advance()
+        except SimulationDiverged as e:
+            return env._step_diverged(e)
+        except ControlException as e:
+            env._reflex = e
+        return env._step_end()
+
+    def _physics(self, ids: list[int], results: list[Any]) -> None:
+        """One control period of the environments ``ids`` (one physics segment each) in one batch call, then what
+        ``SimWorld.step`` does after its physics (divergence, the robots' reflex checks) and the step results."""
         envs, models, datas, state = self.envs, self._models, self._datas, self._state
         for i in ids:
             mujoco.mj_getState(models[i], datas[i], state[i], _STATE)
-        plans = {i: list(envs[i]._segments()) for i in ids}
-        before = (state.copy(), [getattr(env, "_k", None) for env in envs])
+        before = state.copy()
         warn0 = self._warning[:, _BAD, 1].sum(axis=1)
-        first = {p[0] for p in plans.values()}
-        self._synced = synced = set()
-        if len(first) == 1 and all(len(p) == 1 for p in plans.values()):  # the common case: one call
-            nstep, capture = first.pop()
-            self.batch.step(None if len(ids) == self.num_envs else np.array(ids, dtype=np.int32), nstep=nstep)
-            for i in ids:
-                if capture:
-                    self._sync(i)
-                    synced.add(i)  # the final state of this period: _finish need not copy it again
-                envs[i]._segment_done(nstep, capture)
-            return before, self._warning[:, _BAD, 1].sum(axis=1) > warn0
-        live = list(ids)
-        while live:
-            groups: dict[int, list[int]] = defaultdict(list)
-            for i in live:
-                groups[plans[i][0][0]].append(i)
-            for nstep, group in groups.items():
-                self.batch.step(np.array(group, dtype=np.int32), nstep=nstep)
-            nxt = []
-            for i in live:
-                nstep, capture = plans[i].pop(0)
-                if capture:  # the camera sees the state after this segment
-                    self._sync(i)
-                envs[i]._segment_done(nstep, capture)
-                if plans[i]:
-                    nxt.append(i)
-            live = nxt
-        bad = self._warning[:, _BAD, 1].sum(axis=1) > warn0
-        return before, bad
-
-    def _finish(self, ids: list[int], before: tuple[np.ndarray, list[Any]], bad: np.ndarray,
-                results: list[Any]) -> None:
-        """The step results (observation, reward, ...) of the environments ``ids`` after their physics."""
-        envs = self.envs
+        groups: dict[tuple[int, bool], list[int]] = defaultdict(list)
         for i in ids:
-            env = envs[i]
-            if bad[i]:
-                results[i] = self._rerun_alone(i, before[0][i], before[1][i])
-                continue
-            if i not in self._synced:
+            groups[envs[i]._segments()[0]].append(i)
+        for (nstep, _), group in groups.items():
+            self.batch.step(None if len(group) == self.num_envs else np.array(group, dtype=np.int32), nstep=nstep)
+        bad = self._warning[:, _BAD, 1].sum(axis=1) > warn0
+        for (nstep, capture), group in groups.items():
+            for i in group:
+                env = envs[i]
+                if bad[i]:  # diverged: run the period alone from the state before it, as a single env does
+                    mujoco.mj_setState(models[i], datas[i], before[i], _STATE)
+                    results[i] = self._step_alone(i)
+                    continue
                 self._sync(i)
-            results[i] = env._step_end()
+                try:
+                    for check in env.world._checks:  # as SimWorld.step after its physics (reflexes)
+                        check()
+                    env._segment_done(nstep, capture)
+                except SimulationDiverged as e:
+                    results[i] = env._step_diverged(e)
+                    continue
+                except ControlException as e:
+                    env._reflex = e
+                results[i] = env._step_end()
 
     def _sync(self, i: int) -> None:
         """Simulation i's state (and, when the environment reads them, its contacts or whole scene) into its
@@ -310,19 +318,6 @@ class FrankaVectorEnv(VectorEnv):
             self.batch.get_data(i, self._datas[i])
         else:
             mujoco.mj_setState(self._models[i], self._datas[i], self._state[i], _STATE)
-
-    def _rerun_alone(self, i: int, state: np.ndarray, k: int | None):
-        """A simulation that diverged in the batch: the environment runs its period itself from the state before
-        the step, so that the divergence is reported as a single environment reports it."""
-        env = self.envs[i]
-        mujoco.mj_setState(self._models[i], self._datas[i], state, _STATE)
-        if k is not None:
-            env._k = k
-        try:
-            env._advance()
-        except SimulationDiverged as e:
-            return env._step_diverged(e)
-        return env._step_end()
 
     def _copy(self, obs: Any) -> Any:
         if not self.copy:

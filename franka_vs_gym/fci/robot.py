@@ -43,6 +43,7 @@ from franka_vs_gym.fci.codec import (
     RobotStateBuffer,
 )
 from franka_vs_gym.fci.errors import error_flags
+from franka_vs_gym.fci.urdf import POSITION_BASED_VELOCITY_LIMITS, velocity_bounds, velocity_envelope
 from franka_vs_gym.model.description import RobotDescription, robot_description
 from franka_vs_gym.sim import FORCE_TORQUE, JOINT_STATE, FrankaSim, SimulationDiverged
 from franka_vs_gym.sim.reflexes import ControlException
@@ -121,7 +122,7 @@ class FCIRobot:
 
     def __init__(self, sim: FrankaSim, robot: RobotDescription | str | None = None) -> None:
         self.sim = sim
-        self.desc = robot_description(robot)
+        self.desc = robot_description(robot if robot is not None else sim.model.config.robot)
         self.model = sim.model
         lim = self.desc.limits
         self.q_min, self.q_max = np.array(lim.q_min), np.array(lim.q_max)
@@ -129,6 +130,8 @@ class FCIRobot:
         self.dddq_max, self.tau_max = np.array(lim.dddq_max), np.array(lim.tau_max)
         self.dtau_max = np.array(lim.dtau_max)
         self.cart = self.desc.cartesian_limits
+        self._envelope = (velocity_envelope(self.desc) if self.desc.name in POSITION_BASED_VELOCITY_LIMITS
+                          else None)
         self.dt = sim.dt
         tool = self.model.config.tool
         self.F_T_NE = tool.flMe.copy()
@@ -300,11 +303,16 @@ class FCIRobot:
             j = int(np.argmax(np.maximum(q_d - self.q_max, self.q_min - q_d)))
             raise Reflex([f"{prefix}position_limits_violation"],
                          f"commanded joint {j} at {q_d[j]:.4f} rad, limits [{self.q_min[j]}, {self.q_max[j]}]")
-        r = np.abs(dq_d) / self.dq_max
-        if r.max() > 1.0 + 1e-9:
-            j = int(np.argmax(r))
+        if self._envelope is not None:  # position-based velocity limits (FR3)
+            lo, up = velocity_bounds(q_d, self.desc, self._envelope)
+        else:
+            lo, up = -self.dq_max, self.dq_max
+        over = np.maximum(dq_d - up, lo - dq_d)
+        if over.max() > 1e-9:
+            j = int(np.argmax(over))
             raise Reflex([f"{prefix}velocity_limits_violation"],
-                         f"commanded joint {j} velocity {dq_d[j]:.3f} rad/s, limit {self.dq_max[j]}")
+                         f"commanded joint {j} velocity {dq_d[j]:.3f} rad/s at {q_d[j]:.3f} rad, "
+                         f"limits [{lo[j]:.3f}, {up[j]:.3f}]")
         r = np.abs(ddq_d) / self.ddq_max
         if r.max() > tol:
             j = int(np.argmax(r))

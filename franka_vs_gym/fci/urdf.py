@@ -35,15 +35,45 @@ def _origin(M: np.ndarray) -> str:
     return f'<origin xyz="{x} {y} {z}" rpy="{r} {p} {yw}"/>'
 
 
-def robot_urdf(robot: RobotDescription | str | None = None) -> str:
-    """The URDF text (str) of the arm without tool, from the description's DH rows, link inertials and limits.
+# Position-based joint velocity limits published for the Franka Research 3 (Franka Control Interface documentation,
+# "limits for Franka Research 3"; the same curves libfranka's rate limiter used before reading them from the URDF):
+# dq_max(q) = min(dq_max, max(0, -velocity_offset + sqrt(2 deceleration_limit (q_max - q)))), and symmetrically
+# towards q_min.
+POSITION_BASED_VELOCITY_LIMITS: dict[str, tuple[tuple[float, ...], tuple[float, ...]]] = {
+    "fr3": ((0.30, 0.20, 0.20, 0.30, 0.35, 0.35, 0.35),  # velocity_offset, rad/s
+            (6.0, 2.585, 3.5, 4.0, 17.0, 5.5, 17.0)),  # deceleration_limit, rad/s^2
+}
 
-    ``<position_based_velocity_limits>`` uses ``velocity_offset = 0`` and the joint acceleration limit as
-    ``deceleration_limit``: the velocity bound towards a position limit is then the speed from which the joint can
-    still brake before it, ``sqrt(2 ddq_max (q_max - q))``, capped by ``dq_max``.
-    """
+
+def velocity_envelope(robot: RobotDescription | str | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(velocity_offset (7,) rad/s, deceleration_limit (7,) rad/s^2) of the robot's position-based velocity limits:
+    the published FR3 values, else ``0`` and the joint acceleration limit (the speed from which a joint can still
+    brake before its position limit, ``sqrt(2 ddq_max (q_max - q))``, capped by ``dq_max``)."""
+    desc = robot_description(robot)
+    if desc.name in POSITION_BASED_VELOCITY_LIMITS:
+        off, dec = POSITION_BASED_VELOCITY_LIMITS[desc.name]
+        return np.array(off), np.array(dec)
+    return np.zeros(7), np.array(desc.limits.ddq_max)
+
+
+def velocity_bounds(q: np.ndarray, robot: RobotDescription, envelope: tuple[np.ndarray, np.ndarray]
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """(lower (7,), upper (7,)) joint velocity bounds at joint position q (rad/s), as libfranka computes them
+    from the URDF's ``<limit>`` and ``<position_based_velocity_limits>``."""
+    lim = robot.limits
+    off, dec = envelope
+    vmax = np.array(lim.dq_max)
+    up = np.minimum(vmax, np.maximum(0.0, -off + np.sqrt(np.maximum(0.0, 2 * dec * (np.array(lim.q_max) - q)))))
+    lo = np.maximum(-vmax, np.minimum(0.0, off - np.sqrt(np.maximum(0.0, 2 * dec * (q - np.array(lim.q_min))))))
+    return lo, up
+
+
+def robot_urdf(robot: RobotDescription | str | None = None) -> str:
+    """The URDF text (str) of the arm without tool, from the description's DH rows, link inertials and limits, with
+    the position-based velocity limits of :func:`velocity_envelope`."""
     desc = robot_description(robot)
     lim = desc.limits
+    offset, deceleration = velocity_envelope(desc)
     out = [f'<?xml version="1.0"?>\n<robot name="{desc.name}">', '  <link name="link0"/>']
     for i in range(7):
         link = desc.links[i]
@@ -59,8 +89,8 @@ def robot_urdf(robot: RobotDescription | str | None = None) -> str:
             f'    <parent link="link{i}"/>\n    <child link="link{i + 1}"/>\n    <axis xyz="0 0 1"/>\n'
             f'    <limit effort="{lim.tau_max[i]:.17g}" velocity="{lim.dq_max[i]:.17g}" '
             f'lower="{lim.q_min[i]:.17g}" upper="{lim.q_max[i]:.17g}"/>\n'
-            f'    <position_based_velocity_limits velocity_offset="0" '
-            f'deceleration_limit="{lim.ddq_max[i]:.17g}"/>\n  </joint>')
+            f'    <position_based_velocity_limits velocity_offset="{offset[i]:.17g}" '
+            f'deceleration_limit="{deceleration[i]:.17g}"/>\n  </joint>')
     out.append('  <link name="link8"/>')
     out.append(f'  <joint name="{desc.name}_flange" type="fixed">\n    {_origin(desc.flange_placement())}\n'
                '    <parent link="link7"/>\n    <child link="link8"/>\n  </joint>')
@@ -68,4 +98,4 @@ def robot_urdf(robot: RobotDescription | str | None = None) -> str:
     return "\n".join(out)
 
 
-__all__ = ["robot_urdf"]
+__all__ = ["POSITION_BASED_VELOCITY_LIMITS", "robot_urdf", "velocity_bounds", "velocity_envelope"]
