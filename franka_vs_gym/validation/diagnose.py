@@ -246,7 +246,8 @@ class _Selector:
             joints = [j for j in range(7) if removed[j] >= PRACTICAL * noise[j] and gain[j] > 0]
             practical = bool(joints)
             fit = sf.fits[-1]
-            problems += [m for m in e.problems(self.ctx, fit).values()]
+            if score > SCORE_MIN and practical:  # plausibility matters (and may be costly) only when it would count
+                problems += [m for m in e.problems(self.ctx, fit).values()]
             plausible = not problems
             after = np.sqrt(sf.mse_cv)
         params = e.public(fit)
@@ -275,8 +276,9 @@ class _Selector:
         removed = np.sqrt(np.maximum(mse0 - sf.mse_cv, 0.0))
         joints = [j for j in range(7) if removed[j] >= PRACTICAL * self.noise[j] and gain[j] > 0]
         problems = []
-        for t, f in zip(terms, sf.fits[-2:], strict=True):
-            problems += [f"{t.effect.name}: {m}" for m in t.effect.problems(self.ctx, f).values()]
+        if score > SCORE_MIN and joints:
+            for t, f in zip(terms, sf.fits[-2:], strict=True):
+                problems += [f"{t.effect.name}: {m}" for m in t.effect.problems(self.ctx, f).values()]
         params = {t.effect.name: t.effect.public(f) for t, f in zip(terms, sf.fits[-2:], strict=True)}
         return Candidate(f"{a.effect}+{b.effect}", [a.effect, b.effect], joints, params, np.sqrt(sf.mse_cv), score,
                          bool(score > SCORE_MIN and joints), not problems, problems, removed, gain, sf.fits[-2:],
@@ -390,6 +392,7 @@ class _Selector:
     def _swap(self, chosen: list[Term], cur: SetFit, forced: list[Term]) -> tuple[list[Term], SetFit]:
         """Replace a selection by a non-selected candidate when the whole set then scores higher (e.g. a sigmoid
         picked first that a Coulomb step explains as well with fewer parameters)."""
+        swapped_out: set[str] = set()
         for _ in range(2):
             neff = self._neff(cur)
             base_score = self.set_score(chosen, cur, neff)
@@ -403,20 +406,21 @@ class _Selector:
                 rest = chosen[:i] + chosen[i + 1:]
                 target = self.eng.y - (total - contribs[i])
                 for e in self.effects:
-                    if e.name in names_in:
+                    if e.name in names_in or e.name in swapped_out:  # no swapping back and forth
                         continue
                     shape = e.shape(self.ctx, target)
                     joints = list(range(7)) if e.per_joint else None
                     cand = rest[:i] + [Term(e, shape, joints)] + rest[i:]
                     sf = self.eng.fit(cand)
-                    if any(e.problems(self.ctx, sf.fits[i]).values()):
-                        continue
                     sc = self.set_score(cand, sf, neff)
                     if sc > base_score + 2.0 and (best is None or sc > best[0]):
+                        if any(e.problems(self.ctx, sf.fits[i]).values()):
+                            continue
                         best = (sc, cand, sf, t.effect.name, e.name)
             if best is None:
                 break
             progress(f"swap: {best[3]} replaced by {best[4]}", self.verbose)
+            swapped_out.add(best[3])
             chosen, cur = self._refresh(best[1])
         return chosen, cur
 
@@ -687,6 +691,8 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
             new = cfg
             if sp:
                 for (e, _), f in zip(sp, _alternate(ctx, sp, y, train, refine=False), strict=True):
+                    if any(e.problems(ctx, f).values()):
+                        continue  # not applied with implausible values
                     try:
                         new = e.apply(new, f)
                     except NotApplicable:
@@ -743,6 +749,23 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
                 spec.append((best[1], best[2]))
                 full_h = best[3]
                 added.append(best[1].name)
+        widened: dict[str, list[int]] = {}
+        if auto:
+            # joints a per-joint effect left out (weak evidence where unexplained structure remains) are added
+            # when they lower that joint's held-out error by more than 1% without raising any other's
+            for i in range(len(spec)):
+                e, js = spec[i]
+                if not e.per_joint or js is None:
+                    continue
+                for j in range(7):
+                    if j in spec[i][1]:
+                        continue
+                    trial = spec[:i] + [(e, sorted(spec[i][1] + [j]))] + spec[i + 1:]
+                    h = heldout_rmse(trial)
+                    if h[j] < 0.99 * full_h[j] and np.all(h <= 1.02 * full_h):
+                        spec, full_h = trial, h
+                        widened.setdefault(e.name, []).append(j)
+                        progress(f"held-out check: {e.name} also on joint {j}", verbose)
         holdout_info = {"split": f"time split: fit on the first {100 * (1 - holdout):.0f}% "
                                  f"({len(train) / data.settings.rate:.1f} s), validate on the last "
                                  f"{100 * holdout:.0f}% ({len(test) / data.settings.rate:.1f} s)",
@@ -750,13 +773,18 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
                         "rmse_tau_after": np.round(full_h, 4).tolist(),
                         "rmse_tau_total_before": round(float(rmse(base_h)), 4),
                         "rmse_tau_total_after": round(float(rmse(full_h)), 4), "dropped": dropped,
-                        "added": added}
+                        "added": added, "joints_added": widened}
         members = [e for e, _ in spec]
         names = [e.name for e in members]
     progress(f"fitting {names} on all samples", verbose)
     fits = _alternate(ctx, spec, y, np.arange(ctx.n), refine=True) if spec else []
     new = cfg
+    implausible: dict[str, list[str]] = {}
     for e, f in zip(members, fits, strict=True):
+        probs = e.problems(ctx, f)  # also prepares what apply needs (e.g. consistent link inertials)
+        if probs:
+            implausible[e.name] = [m for _, m in sorted(probs.items())]
+            progress(f"warning: {e.name} fits with implausible values: {'; '.join(implausible[e.name])}", verbose)
         new = e.apply(new, f)
     if command_fit is not None:
         new = COMMAND_DELAY.apply(new, command_fit)
@@ -766,6 +794,8 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
     ev = evaluate(new, data)
     r_after = data.tau - ev.predicted
     params = {e.name: {**e.public(f), "joints": list(map(int, f.joints))} for e, f in zip(members, fits, strict=True)}
+    for name, probs in implausible.items():
+        params[name]["problems"] = probs
     return FitResult(cfg, new, names, fits, params, rmse(y), rmse(r_after), noise.copy(), data, y, r_after,
                      holdout_info, assumptions_of(data, cfg, tool))
 

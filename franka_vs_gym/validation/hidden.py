@@ -83,7 +83,7 @@ def fourier_trajectory(rng: np.random.Generator, duration: float, f0: float = 0.
 
 def _draw(effect: str, magnitude: float, rng: np.random.Generator):
     """Plant change and answer parameters for ``effect`` (one registered effect, or several joined by '+')."""
-    from franka_vs_gym.validation.effects import REGISTRY, PlantChange
+    from franka_vs_gym.validation.effects import REGISTRY, Effect, PlantChange
 
     plant = PlantChange(ModelConfig())
     rng.uniform(0.7, 1.3, 7)  # keeps the trajectories and noise of each seed as in earlier versions
@@ -91,7 +91,7 @@ def _draw(effect: str, magnitude: float, rng: np.random.Generator):
     if effect == "none":
         return plant, ans
     for name in effect.split("+"):
-        if name not in REGISTRY or not REGISTRY.get(name).injectable:
+        if name not in REGISTRY or type(REGISTRY.get(name)).inject is Effect.inject:
             raise ValueError(f"unknown effect {name!r}: choose from {', '.join(_effects())}, none or random")
         e = REGISTRY.get(name)
         ans[e.name] = e.inject(plant, rng, magnitude)

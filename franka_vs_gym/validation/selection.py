@@ -171,12 +171,20 @@ class Engine:
             per_joint_idx.append(idx)
             blocks.append((G, xy))
         At, bt = A.sum(axis=0), b.sum(axis=0)
-        theta = _solve(At, bt)
+        # effects with a prior (``Effect.ridge``, relative to the diagonal of their normal equations) are shrunk
+        # toward no change in the directions the log barely excites
+        rid = np.zeros(P)
+        for t, d in zip(terms, lay, strict=True):
+            if getattr(t.effect, "ridge", 0.0):
+                for sl in d.values():
+                    rid[sl] = t.effect.ridge
+        theta = _solve(At + np.diag(rid * np.diag(At)), bt)
         mse_cv = self.empty_mse.copy()
         if cv:
             sse = self.yy.copy()
             for f in range(self.F):
-                th = _solve(At - A[f], bt - b[f])
+                Af = At - A[f]
+                th = _solve(Af + np.diag(rid * np.diag(Af)), bt - b[f])
                 for j in range(7):
                     if per_joint_idx[j] is None:
                         continue
