@@ -167,6 +167,7 @@ class FCIRobot:
         self._win_i = 0
         self._success_sum = len(self.success_window)
         self.missed_in_row = 0
+        self.max_missed_commands = MAX_MISSED_COMMANDS
         self.tau_J_prev = sim.get_force_torque(JOINT_STATE)
         self._reset_desired()
 
@@ -518,7 +519,7 @@ class FCIRobot:
         self.success_window[self._win_i] = received
         self._win_i = (self._win_i + 1) % len(self.success_window)
         self.missed_in_row = 0 if received else self.missed_in_row + 1
-        if self.missed_in_row > MAX_MISSED_COMMANDS and self.robot_mode == RobotMode.MOVE:
+        if self.missed_in_row > self.max_missed_commands and self.robot_mode == RobotMode.MOVE:
             self.enter_reflex(("communication_constraints_violation",),
                               f"{self.missed_in_row} cycles in a row without a command")
 
