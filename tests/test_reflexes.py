@@ -247,3 +247,141 @@ def test_reason_names_are_libfrankas():
     except ImportError:  # pragma: no cover - the FCI server is optional
         return
     assert all(n in ERROR_BITS for n in names)  # the server's independent table of libfranka's bits knows them all
+
+
+# ---------------------------------------------------------------- reflexes inside a multi-step call (compiled plant)
+PERIOD = 50  # physics steps per call, as an environment's 50 ms control period
+
+
+def _tau_j_offset() -> np.ndarray:
+    """A torque-sensor offset on joint 1 that makes its measured torque cross 87 Nm after the 75th step of a 10 Nm
+    command (the gravity torque changes as the arm moves), from a run without reflexes (the offset is measurement
+    only: the motion is the same)."""
+    s = FrankaSim(camera=False, reflexes=False)
+    s.set_robot_state(FORCE_TORQUE)
+    s.set_force_torque(JOINT_STATE, [0, 10, 0, 0, 0, 0, 0])
+    tau = []
+    for _ in range(100):
+        s.step()
+        tau.append(s._qfrc_actuator[1])
+    assert (np.diff(tau) < 0).all()  # decreasing: one crossing
+    o = np.zeros(7)
+    o[1] = -LIM.tau_max[1] - (tau[73] + tau[74]) / 2
+    return o
+
+
+def _reflex_setup(limit: str):
+    """A robot commanded once, then stepped: (sim, the ControlException's reason)."""
+    if limit == "velocity":  # the issue's case: 87 Nm on joint index 2
+        sim = FrankaSim(camera=False)
+        sim.set_robot_state(FORCE_TORQUE)
+        sim.set_force_torque(JOINT_STATE, [0, 0, 87.0, 0, 0, 0, 0])
+        return sim, "joint_velocity_violation"
+    if limit == "position":  # joint 3 pushed into its upper limit
+        q0 = Q0.copy()
+        q0[3] = LIM.q_max[3] - 0.01
+        sim = FrankaSim(camera=False, q0=q0)
+        sim.set_robot_state(VELOCITY)
+        sim.set_velocity(JOINT_STATE, [0, 0, 0, 0.3, 0, 0, 0])
+        return sim, "joint_position_limits_violation"
+    sim = FrankaSim(ModelConfig(torque_offset=_tau_j_offset()), camera=False)
+    sim.set_robot_state(FORCE_TORQUE)
+    sim.set_force_torque(JOINT_STATE, [0, 10, 0, 0, 0, 0, 0])
+    return sim, "tau_J_range_violation"
+
+
+def _run_until_reflex(sim: FrankaSim, n: int) -> ControlException:
+    with pytest.raises(ControlException) as e:
+        for _ in range(2000 // n):
+            sim.world.step(n)
+    return e.value
+
+
+@pytest.mark.parametrize("limit", ["position", "velocity", "tau_J"])
+def test_reflex_fires_at_the_crossing_step_inside_a_multi_step_call(limit):
+    """world.step(50) (an environment's period, one call into MuJoCo) reports the violation at the physics step that
+    crossed the limit, exactly as a reference stepping one physics step at a time (checked in Python after each
+    step), with libfranka's reason, and holds the joints from that step on."""
+    ref, reason = _reflex_setup(limit)
+    e_ref = _run_until_reflex(ref, 1)
+    assert e_ref.reasons == (reason,)
+    assert ref.world.data.userdata[3] == 0.0  # the reference's reflex was raised by the check in Python
+    t_ref = ref.time
+
+    sim, _ = _reflex_setup(limit)
+    e = _run_until_reflex(sim, PERIOD)
+    assert e.reasons == (reason,) and reason in LIBFRANKA_NAMES
+    assert e.detail == e_ref.detail and e.detail.startswith(f"t={t_ref:.4f} s: joint ")  # time, joint, value
+    assert sim.world.data.userdata[3] == t_ref  # recorded by the plant at the crossing step...
+    k = round(t_ref / sim.dt)
+    assert k % PERIOD != 0  # ...in the middle of a call
+    assert round(sim.time / sim.dt) == (k // PERIOD + 1) * PERIOD  # the call ran to its end
+    np.testing.assert_array_equal(sim.q, ref.q)  # held where the reference stopped, bit for bit
+    assert sim.current_errors == (reason,)
+    for _ in range(3):  # brakes: held (to the hard stop's push within one step), and still in error
+        sim.world.step(PERIOD)
+        np.testing.assert_allclose(sim.q, ref.q, rtol=0, atol=1e-4)
+    sim.set_robot_state(FORCE_TORQUE)
+    with pytest.raises(ControlException, match="automatic_error_recovery"):
+        sim.set_force_torque(JOINT_STATE, np.zeros(7))
+    sim.automatic_error_recovery()  # releases the brakes
+    assert sim.current_errors == ()
+    if limit == "velocity":
+        sim.set_robot_state(FORCE_TORQUE)
+        sim.set_force_torque(JOINT_STATE, [0, 0, 0, 0, 0, 0, 0.2])
+        sim.world.step(PERIOD)
+        assert abs(sim.q[6] - ref.q[6]) > 1e-3  # moves again
+    elif limit == "position":  # back inside is allowed, further out is not (checked in Python at every step)
+        sim.set_robot_state(VELOCITY)
+        sim.set_velocity(JOINT_STATE, [0, 0, 0, -0.2, 0, 0, 0])
+        sim.world.step(PERIOD)
+        assert sim.q[3] < ref.q[3] - 1e-3
+        sim.set_velocity(JOINT_STATE, [0, 0, 0, 0.2, 0, 0, 0])
+        with pytest.raises(ControlException, match="joint_position_limits_violation"):
+            for _ in range(20):
+                sim.world.step(PERIOD)
+
+
+def test_the_plant_holds_the_joints_from_the_crossing_step():
+    """Inside one mujoco.mj_step(m, d, n) call (no Python in between), the compiled plant records the violation and
+    brakes: the joints stay at the recorded position while the free robot runs on."""
+    import mujoco
+
+    from franka_vs_gym.sim import plant
+
+    if not plant.NATIVE:
+        pytest.skip(plant.unavailable_reason())
+    free, _ = _reflex_setup("velocity")
+    free.reflexes = False
+    sim, _ = _reflex_setup("velocity")
+    for s in (free, sim):
+        mujoco.mj_step(s.world.model, s.world.data, PERIOD)
+    rec = sim.world.data.userdata
+    assert rec[0] == 2 and rec[4] == 2 and rec[5] > LIM.dq_max[2]  # velocity violation of joint 2, its value
+    assert np.abs(sim.q - rec[6:13]).max() < 1e-12 and np.abs(sim.dq).max() < 1e-12
+    assert abs(free.q[2] - rec[8]) > 0.05  # without the brakes the joint ran on
+    assert not sim.world.data.ctrl[sim._motor].any() and not sim.world.data.ctrl[sim._vel].any()
+
+
+def test_pure_python_fallback_reports_the_same_reflex():
+    """Without the compiled plant (FRANKA_VS_GYM_PURE_PYTHON=1) the checks run in Python at every physics step:
+    the same reason, time and joint (the value agrees to the fallback's friction rounding)."""
+    import os
+    import subprocess
+    import sys
+
+    code = ("import numpy as np; from franka_vs_gym.sim import FrankaSim, FORCE_TORQUE, JOINT_STATE, plant\n"
+            "from franka_vs_gym.sim.reflexes import ControlException\n"
+            "s = FrankaSim(camera=False); s.set_robot_state(FORCE_TORQUE)\n"
+            "s.set_force_torque(JOINT_STATE, [0, 0, 87.0, 0, 0, 0, 0])\n"
+            "try:\n    [s.world.step(50) for _ in range(10)]\n"
+            "except ControlException as e:\n    print(plant.NATIVE, e.reasons[0], e.detail)")
+    out = {}
+    for flag in ("0", "1"):
+        env = dict(os.environ, FRANKA_VS_GYM_PURE_PYTHON=flag)
+        r = subprocess.run([sys.executable, "-W", "ignore", "-c", code], env=env, capture_output=True, text=True,
+                           check=True)
+        out[flag] = r.stdout.split()
+    assert out["1"][0] == "False" and out["0"][1] == out["1"][1] == "joint_velocity_violation"
+    assert out["0"][2:6] == out["1"][2:6]  # "t=0.0140 s: joint 2"
+    assert float(out["0"][7]) == pytest.approx(float(out["1"][7]), abs=1e-3)

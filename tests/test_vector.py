@@ -151,3 +151,34 @@ def test_image_observations_equal_single_envs():
     assert o1["image"].std() > 1.0  # a real image
     vec.close()
     ref.close()
+
+
+def test_batched_env_reports_a_reflex_at_its_crossing_step_as_single_envs():
+    """Full wrist torque: the velocity reflex fires inside a control period (one batch call); the batched env's robots
+    end their episodes at the same step as single envs, with the same reason and detail (the time, joint and value
+    of the crossing step, inside the period)."""
+    n, env_id = 2, "FrankaTorqueTracking-v0"
+    vec = gym.make_vec(env_id, num_envs=n, nthread=2)
+    singles = [gym.make(env_id) for _ in range(n)]
+    vec.reset(seed=3)
+    for i, s in enumerate(singles):
+        s.reset(seed=3 + i)
+    a = np.zeros((n, 7), np.float32)
+    a[:, 6] = 12.0
+    for _ in range(100):
+        _, _, term, _, info = vec.step(a)
+        refs = [s.step(a[i]) for i, s in enumerate(singles)]
+        assert list(term) == [r[2] for r in refs]
+        if term.any():
+            break
+    assert term.all()
+    for i, s in enumerate(singles):
+        assert info["failure"][i] == refs[i][4]["failure"] == "joint_velocity_violation"
+        assert info["reflex"][i] == refs[i][4]["reflex"] and "joint 6" in info["reflex"][i]
+        t = float(info["reflex"][i].split()[0][2:])  # "t=0.1230 s: joint 6 at ..."
+        u = s.unwrapped
+        assert u.world.time - u.n_substeps * u.physics_step < t < u.world.time - 0.5 * u.physics_step  # mid-period
+        np.testing.assert_array_equal(vec.envs[i].sim.q, u.sim.q)  # held at the same position
+    vec.close()
+    for s in singles:
+        s.close()

@@ -233,10 +233,12 @@ def scene_xml(scene: SceneSpec) -> str:
         # table top 1 mm below z = 0, so that objects lying "on" it at z = 0 (tags) are rendered above it
         table = (f'<geom name="table" type="box" size="0.8 0.8 0.02" pos="0.3 0 -0.021" material="table_mat" '
                  f'{ENV_COLLISION}/>')
+    # user numbers: franka_vs_gym.sim.plant's NUSER per joint (friction law and reflex limits) and RSLOT per robot
+    # (its reflex record), read by the compiled plant
     return f"""<mujoco model="franka_vs_gym">
 <compiler angle="radian" meshdir="{mesh_dir()}" inertiafromgeom="false" autolimits="true"/>
 <option timestep="{scene.timestep:.9g}" integrator="implicitfast" gravity="{_fmt(g)}"/>
-<size nuser_jnt="7"/>
+<size nuser_jnt="15" nuserdata="{13 * len(scene.robots)}"/>
 <visual><global offwidth="{scene.offwidth}" offheight="{scene.offheight}"/>
 <quality shadowsize="0"/><map znear="0.01" zfar="20"/></visual>
 <default>

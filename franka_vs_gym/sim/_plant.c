@@ -10,8 +10,29 @@
  *
  * and the callback adds -tau_f(qvel) to qfrc_passive of that joint's dof. Joints without the tag (other models,
  * robots with the plant's friction switched off) are left alone, so any number of robots in one scene, and any
- * number of models stepped by mujoco.batch on its threads, each get their own law. The callback reads only its
- * arguments: it is thread-safe and never takes the GIL.
+ * number of models stepped by mujoco.batch on its threads, each get their own law.
+ *
+ * The same callback runs the robot's measured-state reflexes (franka_vs_gym.sim.reflexes) at every physics step.
+ * A robot whose seven joints carry FVS_RTAG in jnt_user[j][7] is watched:
+ *
+ *   jnt_user[j][7..14] = [FVS_RTAG, slot (offset of the robot's record in userdata), k (joint index 0..6),
+ *                         q_min (rad), q_max (rad), dq_max (rad/s), tau_max (Nm), tau_J offset (Nm)]
+ *
+ * and its record in mjData.userdata (FVS_RSLOT numbers from the slot) is
+ *
+ *   [status (0 armed, < 0 off, 1 position, 2 velocity, 3 tau_J: the first violation), t_from (s: only states later
+ *    than this are checked), check_tau (0/1), t (s), joint k, value (rad, rad/s or Nm), held q (7, rad)]
+ *
+ * The callback runs at the start of each step's dynamics, on the state the previous step produced (time t), the
+ * state a check after that step would see; d->qfrc_actuator still holds that step's actuator torque (it is
+ * recomputed after the passive forces), so the measured torque tau_J = qfrc_actuator + offset is checked too. The
+ * checks and their order are those of Reflexes.check_state: position (first joint outside [q_min, q_max]), then
+ * velocity (the joint with the largest |dq|/dq_max, if any |dq| > dq_max), then tau_J (largest |tau_J|/tau_max
+ * above 1). The first violation is recorded and the brakes engage from that step on: the robot's joints are put
+ * back at the held position with zero velocity and its joint actuators' controls are zeroed at every step, as the
+ * Python brakes do before every step. Python reads the record after the call and raises the ControlException.
+ *
+ * The callback reads and writes only its arguments: it is thread-safe and never takes the GIL.
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -21,12 +42,108 @@
 #include <mujoco/mujoco.h>
 
 #define FVS_TAG 1179013959.0 /* "FVSG" as an integer, exactly representable */
-#define FVS_NUSER 7
+#define FVS_RTAG 1179013960.0 /* a robot whose reflexes the plant watches */
+#define FVS_NUSER 15
+#define FVS_RSLOT 13
+
+static void fvs_brake(const mjModel* m, mjData* d, int j0, const mjtNum* s) {
+  for (int k = 0; k < 7; k++) {
+    d->qpos[m->jnt_qposadr[j0 + k]] = s[6 + k];
+    d->qvel[m->jnt_dofadr[j0 + k]] = 0.0;
+  }
+  for (int a = 0; a < m->nu; a++) {
+    if (m->actuator_trntype[a] == mjTRN_JOINT) {
+      const int jid = m->actuator_trnid[2 * a];
+      if (jid >= j0 && jid < j0 + 7) {
+        d->ctrl[a] = 0.0;
+      }
+    }
+  }
+}
+
+static void fvs_reflexes(const mjModel* m, mjData* d) {
+  const mjtSize nu = m->nuser_jnt;
+  for (int j0 = 0; j0 + 7 <= m->njnt; j0++) {
+    const mjtNum* u = m->jnt_user + j0 * nu;
+    if (u[7] != FVS_RTAG || u[9] != 0.0) {
+      continue;
+    }
+    int ok = 1;
+    for (int k = 1; k < 7; k++) {
+      const mjtNum* uk = m->jnt_user + (j0 + k) * nu;
+      if (uk[7] != FVS_RTAG || uk[8] != u[8] || uk[9] != (mjtNum)k) {
+        ok = 0;
+      }
+    }
+    const int off = (int)u[8];
+    if (!ok || off < 0 || off + FVS_RSLOT > m->nuserdata) {
+      continue;
+    }
+    mjtNum* s = d->userdata + off;
+    if (s[0] > 0.0) {
+      fvs_brake(m, d, j0, s);
+      continue;
+    }
+    if (s[0] != 0.0 || !(d->time > s[1])) {
+      continue;
+    }
+    int code = 0, jk = 0;
+    mjtNum value = 0.0;
+    for (int k = 0; k < 7; k++) {
+      const mjtNum* uk = m->jnt_user + (j0 + k) * nu;
+      const mjtNum q = d->qpos[m->jnt_qposadr[j0 + k]];
+      if (q < uk[10] || q > uk[11]) {
+        code = 1, jk = k, value = q;
+        break;
+      }
+    }
+    if (!code) {
+      mjtNum rmax = -1.0;
+      int over = 0;
+      for (int k = 0; k < 7; k++) {
+        const mjtNum* uk = m->jnt_user + (j0 + k) * nu;
+        const mjtNum v = d->qvel[m->jnt_dofadr[j0 + k]];
+        const mjtNum r = fabs(v) / uk[12];
+        over |= fabs(v) > uk[12];
+        if (r > rmax) {
+          rmax = r, jk = k, value = v;
+        }
+      }
+      if (over) {
+        code = 2;
+      }
+    }
+    if (!code && s[2] != 0.0) {
+      mjtNum rmax = -1.0;
+      for (int k = 0; k < 7; k++) {
+        const mjtNum* uk = m->jnt_user + (j0 + k) * nu;
+        const mjtNum tau = d->qfrc_actuator[m->jnt_dofadr[j0 + k]] + uk[14];
+        const mjtNum r = fabs(tau) / uk[13];
+        if (r > rmax) {
+          rmax = r, jk = k, value = tau;
+        }
+      }
+      if (rmax > 1.0) {
+        code = 3;
+      }
+    }
+    if (code) {
+      s[0] = code, s[3] = d->time, s[4] = jk, s[5] = value;
+      for (int k = 0; k < 7; k++) {
+        s[6 + k] = d->qpos[m->jnt_qposadr[j0 + k]];
+      }
+      fvs_brake(m, d, j0, s);
+    }
+  }
+}
 
 static void fvs_passive(const mjModel* m, mjData* d) {
   const mjtSize nu = m->nuser_jnt;
   if (nu < FVS_NUSER) {
     return;
+  }
+  if (m->nuserdata >= FVS_RSLOT) {
+    fvs_reflexes(m, d);
   }
   for (mjtSize j = 0; j < m->njnt; j++) {
     const mjtNum* u = m->jnt_user + j * nu;
@@ -64,7 +181,7 @@ static PyMethodDef methods[] = {
 
 static struct PyModuleDef module = {
     PyModuleDef_HEAD_INIT, "_plant",
-    "The plant's joint friction as a C passive-force callback for MuJoCo (see franka_vs_gym.sim.plant).", -1,
+    "The plant's joint friction and reflexes as a C passive-force callback for MuJoCo (see franka_vs_gym.sim.plant).", -1,
     methods,
 };
 
@@ -75,7 +192,9 @@ PyMODINIT_FUNC PyInit__plant(void) {
   }
   if (PyModule_AddIntConstant(mod, "MJ_VERSION_HEADER", mjVERSION_HEADER) < 0 ||
       PyModule_AddObject(mod, "TAG", PyFloat_FromDouble(FVS_TAG)) < 0 ||
-      PyModule_AddIntConstant(mod, "NUSER", FVS_NUSER) < 0) {
+      PyModule_AddIntConstant(mod, "NUSER", FVS_NUSER) < 0 ||
+      PyModule_AddObject(mod, "RTAG", PyFloat_FromDouble(FVS_RTAG)) < 0 ||
+      PyModule_AddIntConstant(mod, "RSLOT", FVS_RSLOT) < 0) {
     Py_DECREF(mod);
     return NULL;
   }

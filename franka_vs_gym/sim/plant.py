@@ -1,4 +1,4 @@
-"""The plant's joint friction inside MuJoCo's step.
+"""The plant's joint friction and measured-state reflexes inside MuJoCo's step.
 
 The simulated FER's friction (the law of :class:`franka_vs_gym.model.config.Friction`) is a C passive-force
 callback (``franka_vs_gym/sim/_plant.c``, compiled at install) that MuJoCo runs inside every ``mj_step``, so an
@@ -6,7 +6,7 @@ environment step's substeps are one call into MuJoCo and ``mujoco.batch`` can st
 
 MuJoCo's callbacks are global to a process, so the parameters live in each model: every joint of a robot carries
 its friction parameters in its user numbers (``jnt_user``, :data:`NUSER` per joint, the scene declares
-``<size nuser_jnt="7"/>``):
+``<size nuser_jnt="15"/>``; columns 0-6 :data:`FRICTION_COLS` below, 7-14 the reflexes'):
 
 ====  =====================  =========
  col   meaning                 unit
@@ -19,6 +19,29 @@ its friction parameters in its user numbers (``jnt_user``, :data:`NUSER` per joi
  5     coulomb                 Nm
  6     coulomb_vel             rad/s
 ====  =====================  =========
+
+The same callback runs the measured-state reflexes (:mod:`franka_vs_gym.sim.reflexes`: joint position, velocity
+and tau_J range) at every physics step; a watched robot's joints carry its limits:
+
+====  =====================  =========
+ col   meaning                 unit
+====  =====================  =========
+ 7     :data:`RTAG` when the plant checks this robot's reflexes, else 0
+ 8     offset of the robot's record in ``mjData.userdata``
+ 9     joint index in the robot (0..6)
+ 10    q_min                   rad
+ 11    q_max                   rad
+ 12    dq_max                  rad/s
+ 13    tau_max                 Nm
+ 14    tau_J offset            Nm
+====  =====================  =========
+
+and each robot has a record of :data:`RSLOT` numbers in ``mjData.userdata`` (the scene declares
+``<size nuserdata="13 x robots"/>``; it is part of MuJoCo's integration state, so ``mj_getState``/``mujoco.batch``
+carry it): status (0 armed, < 0 off, 1/2/3 the first violation: position, velocity, tau_J), the time after which
+states are checked (s), whether tau_J is checked, then the violation's time (s), joint, value, and the held joint
+positions (7, rad). From the violating step on the callback holds the robot (joints put back at the held position
+with zero velocity, its joint actuators' controls zeroed, at every step); Python reads the record after the call.
 
 Two robots in one scene, the dual-arm scene, or a batch of robots with randomised friction (one model each, see
 ``mujoco.batch.Batch.set_models``) each get their own law. Joints of other models never carry the tag, so the
@@ -39,8 +62,11 @@ from typing import Any
 import mujoco
 import numpy as np
 
-NUSER = 7  # user numbers per joint
+NUSER = 15  # user numbers per joint
+FRICTION_COLS = 7  # columns 0-6: the friction law
 TAG = 1179013959.0  # jnt_user[:, 0] of a joint whose friction the plant applies
+RTAG = 1179013960.0  # jnt_user[:, 7] of a joint whose robot's reflexes the plant checks
+RSLOT = 13  # userdata numbers per robot (its reflex record)
 
 _native: Any = None
 _reason: str | None = None
@@ -58,7 +84,8 @@ else:
         except ImportError as e:
             _reason = f"the compiled plant (franka_vs_gym.sim._plant) does not load: {e}; reinstall (pip install -e .)"
     if _native is not None:
-        if _native.MJ_VERSION_HEADER != mujoco.mj_version() or _native.TAG != TAG or _native.NUSER != NUSER:
+        if _native.MJ_VERSION_HEADER != mujoco.mj_version() or _native.TAG != TAG or _native.NUSER != NUSER \
+                or getattr(_native, "RTAG", None) != RTAG or getattr(_native, "RSLOT", None) != RSLOT:
             _reason = (f"the compiled plant was built against MuJoCo {_native.MJ_VERSION_HEADER} but MuJoCo "
                        f"{mujoco.mj_version()} is installed; reinstall franka_vs_gym (pip install -e .)")
             _native = None
@@ -100,10 +127,10 @@ def install() -> bool:
 
 
 def friction_rows(friction: Any, scale: float = 1.0, enabled: bool = True) -> np.ndarray:
-    """The (7, NUSER) ``jnt_user`` rows of a robot's seven joints for a friction law (``Friction``: phi1, phi2,
-    phi3, viscous, coulomb (7,) each, coulomb_vel) multiplied by ``scale`` (phi1, viscous and Coulomb scaled, which
-    scales the whole torque). ``enabled=False`` (or a zero law) clears the tag."""
-    rows = np.zeros((7, NUSER))
+    """The (7, FRICTION_COLS) ``jnt_user`` columns 0-6 of a robot's seven joints for a friction law (``Friction``:
+    phi1, phi2, phi3, viscous, coulomb (7,) each, coulomb_vel) multiplied by ``scale`` (phi1, viscous and Coulomb
+    scaled, which scales the whole torque). ``enabled=False`` (or a zero law) clears the tag."""
+    rows = np.zeros((7, FRICTION_COLS))
     on = enabled and not friction.is_zero()
     rows[:, 0] = TAG if on else 0.0
     rows[:, 1] = friction.phi1 * scale
@@ -131,4 +158,5 @@ def plant_friction_torque(model: mujoco.MjModel, data: mujoco.MjData, dofs: Any)
     return -(with_cb - d.qfrc_passive)[np.asarray(dofs)]
 
 
-__all__ = ["NATIVE", "NUSER", "TAG", "friction_rows", "install", "plant_friction_torque", "unavailable_reason"]
+__all__ = ["FRICTION_COLS", "NATIVE", "NUSER", "RSLOT", "RTAG", "TAG", "friction_rows",
+           "install", "plant_friction_torque", "unavailable_reason"]

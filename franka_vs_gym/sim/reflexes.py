@@ -14,18 +14,26 @@ docs/reliability.md), what is checked, and the reason raised:
 ================  ==========================================  ===================================================
 limit             checked against                             reason
 ================  ==========================================  ===================================================
-``q_min, q_max``  measured q, after every step (see below)     ``joint_position_limits_violation``
-``dq_max``        measured dq, after every step               ``joint_velocity_violation``
+``q_min, q_max``  measured q, every physics step (see below)  ``joint_position_limits_violation``
+``dq_max``        measured dq, every physics step             ``joint_velocity_violation``
 ``tau_max``       measured tau_J (sensor torque incl. offset) ``tau_J_range_violation``
+                  every physics step
 ``dtau_max``      commanded torque, change per 1 ms cycle     ``controller_torque_discontinuity``
 ``ddq_max``       commanded joint velocity, change per 1 ms   ``joint_motion_generator_velocity_discontinuity``
 ``dddq_max``      commanded acceleration, change per 1 ms     ``joint_motion_generator_acceleration_discontinuity``
 ================  ==========================================  ===================================================
 
-The measured state is checked after every ``SimWorld.step(n)`` call: after each physics step for
-``FrankaSim.step``, ``wait`` and ``set_position`` (which step one at a time while the reflexes are on), after each
-control period in the environments (the compiled plant runs a period in one call; the joints' hard stops hold in
-between).
+The measured state is checked after every physics step, whatever the number of steps a call runs. With the
+compiled plant (:mod:`franka_vs_gym.sim.plant`) the check runs inside MuJoCo's step, so an environment's control
+period (10-50 steps) stays one ``mj_step(m, d, n)`` call (one ``mujoco.batch`` call for the batched vector env): at
+the first physics step whose resulting state violates a limit the plant records the violation (time, joint, value,
+reason) in the robot's record in ``mjData.userdata`` and engages the brakes from that step on (joints held at that
+position, zero velocity, the robot's actuator controls zeroed); the ``SimWorld.step(n)`` call then raises the
+ControlException, whose detail names that time, joint and value. The state a call ends with is checked by Python
+after the call. Without the compiled plant the same checks run in Python before every physics step (and after the
+call), which raises at the violating step itself: the same reasons, times, joints and values, slower. After a
+recovery from beyond a position limit (relaxed limits, tightened step by step as the joint comes back) the checks run
+in Python at every step.
 
 The last three are limits on what a controller sends (libfranka's motion-generator and torque-command checks);
 ``command_rates`` chooses how FrankaSim treats them:
@@ -126,6 +134,9 @@ class Reflexes:
         self._ramp_vel = False
         self._check_tau = False
         self._t_command = -1.0
+        # the plant's record of this robot (franka_vs_gym.sim.plant); a record the plant never writes until install
+        self._native = False
+        self._ud = np.full(13, -1.0)
 
     @property
     def command_rates(self) -> str:
@@ -151,6 +162,7 @@ class Reflexes:
         """Clear the errors and release the brakes (``automatic_error_recovery``)."""
         q = self.sim._qpos
         self.errors, self.detail, self._hold = (), "", None
+        self._clear_record()
         # a joint left beyond its limit may move back in, not further out
         self._lo = np.minimum(self.q_min, q)
         self._hi = np.maximum(self.q_max, q)
@@ -160,6 +172,7 @@ class Reflexes:
     def reset(self) -> None:
         """Simulation reset: no error, no brakes, limits as specified."""
         self.errors, self.detail, self._hold = (), "", None
+        self._clear_record()
         self._lo, self._hi, self._relaxed = self.q_min.copy(), self.q_max.copy(), False
         self.reset_commands()
 
@@ -173,6 +186,8 @@ class Reflexes:
         self._ramp_tau = bool(self.limit_rate and self._tau_applied.any())
         self._ramp_vel = False
         self._check_tau = bool(np.any(self.sim._offset)) or bool(self.sim._torque_noise)
+        if self._native:
+            self._ud[2] = float(self._check_tau)
         self._update_mode()
 
     # ------------------------------------------------------------------ commands
@@ -228,11 +243,29 @@ class Reflexes:
     # ------------------------------------------------------------------ every physics step
     def install(self, world: Any) -> None:
         """Register with the world: a check after every ``world.step(n)`` call, and a per-physics-step hook that
-        does nothing (so the compiled plant keeps stepping a whole period in one call) except while the brakes
-        hold the joints, a command is being rate-limited or a recovered joint is coming back inside its limits."""
+        does nothing (so the compiled plant keeps stepping a whole period in one call, checking the limits inside
+        MuJoCo's step) except while the brakes hold the joints, a command is being rate-limited, a recovered joint
+        is coming back inside its limits, or without the compiled plant (the checks then run in Python)."""
+        from franka_vs_gym.sim import plant
         from franka_vs_gym.sim.world import no_op
 
         self._world = world
+        sim, m = self.sim, world.model
+        prefixes = [r.prefix for r in world.scene.robots]
+        jids = np.asarray(getattr(sim, "_jids", []), dtype=np.int64)
+        if getattr(sim, "_native", False) and sim.prefix in prefixes and jids.shape == (7,) and \
+                (np.diff(jids) == 1).all() and m.nuser_jnt >= plant.NUSER:
+            off = prefixes.index(sim.prefix) * plant.RSLOT
+            if off + plant.RSLOT <= m.nuserdata:
+                u = m.jnt_user
+                u[jids, 7] = plant.RTAG
+                u[jids, 8] = off
+                u[jids, 9] = np.arange(7)
+                u[jids, 10], u[jids, 11], u[jids, 12] = self.q_min, self.q_max, self.dq_max
+                u[jids, 13], u[jids, 14] = self.tau_max, sim._offset
+                self._ud = world.data.userdata[off:off + plant.RSLOT]
+                self._native = True
+                self._clear_record()
         self._hook = no_op
         world.add_pre_step(self._hook)
         world.add_check(self._make_check())
@@ -249,12 +282,17 @@ class Reflexes:
         buf = np.empty(14)
         bq, bd = buf[:7], buf[7:]
         sub, absolute = np.subtract, np.abs
+        ud, data, native = self._ud, self._world.data, self._native
 
         def after_steps() -> None:
+            if ud[0] > 0.0:  # the plant recorded a violation during the call (and holds the joints since)
+                self._trip_recorded()
             if not self._enabled or self._hold is not None:
                 return
             if self._relaxed or self._check_tau:
                 self.check_state()
+                if native:  # states up to now are checked (the plant's next call starts after them)
+                    ud[1] = data.time
                 return
             sub(q, center, out=bq)
             bd[:] = dq
@@ -270,7 +308,9 @@ class Reflexes:
             self.check_state()
 
     def _update_mode(self) -> None:
-        slow = self._hold is not None or self._ramp_tau or self._ramp_vel or self._relaxed
+        self._arm()
+        slow = self._hold is not None or self._ramp_tau or self._ramp_vel or self._relaxed or \
+            (self._enabled and not self._native)  # without the compiled plant, Python checks every step
         world = getattr(self, "_world", None)
         if world is None:
             return
@@ -288,6 +328,52 @@ class Reflexes:
     @enabled.setter
     def enabled(self, on: bool) -> None:
         self._enabled = bool(on)
+        self._update_mode()
+
+    # ------------------------------------------------------------------ the plant's record (compiled plant)
+    def _arm(self) -> None:
+        """Arm the plant's checks when Python would check every step's state against the specified limits (enabled,
+        no brakes, no relaxed limits), disarm them otherwise; a recorded violation not yet raised is kept."""
+        ud = self._ud
+        if self._native and not ud[0] > 0.0:
+            ud[0] = 0.0 if self._enabled and self._hold is None and not self._relaxed else -1.0
+
+    def _clear_record(self) -> None:
+        """Forget any recorded violation; the plant checks states after the current time."""
+        if self._native:
+            ud = self._ud
+            ud[:] = 0.0
+            ud[1] = self._world.data.time
+            ud[2] = float(self._check_tau)
+            self._arm()
+
+    def _detail(self, code: int, t: float, j: int, v: float) -> str:
+        """What was measured, for people: time (s), joint, value and limit of a violation (1 position, 2 velocity,
+        3 tau_J)."""
+        if code == 1:
+            return f"t={t:.4f} s: joint {j} at {v:.4f} rad, limits [{self.q_min[j]}, {self.q_max[j]}] rad"
+        if code == 2:
+            return f"t={t:.4f} s: joint {j} at {v:.4g} rad/s, limit {self.dq_max[j]} rad/s"
+        return f"t={t:.4f} s: joint {j}: measured torque {v:.4g} Nm, limit {self.tau_max[j]} Nm"
+
+    def _trip_recorded(self) -> None:
+        """Raise the violation the plant recorded inside the last call (the brakes hold the joints at the position
+        of that step), as :meth:`check_state` raises it at that step."""
+        ud = self._ud
+        code, t, j, v = int(ud[0]), float(ud[3]), int(ud[4]), float(ud[5])
+        hold = ud[6:13].copy()
+        ud[0] = -1.0
+        if code == 1:
+            if not (self._lo[j] - DIVERGED_POSITION < v < self._hi[j] + DIVERGED_POSITION):
+                self._diverged(f"joint {j} at {v:.4g} rad at t={t:.4f} s, far beyond its hard stop")
+            reasons = (JOINT_POSITION,)
+        elif code == 2:
+            if not abs(v) / self.dq_max[j] < DIVERGED_VELOCITY:
+                self._diverged(f"joint {j} at {v:.4g} rad/s at t={t:.4f} s")
+            reasons = (JOINT_VELOCITY,)
+        else:
+            reasons = (TAU_J_RANGE,)
+        self._trip(reasons, self._detail(code, t, j, v), hold)
 
     def pre_step(self) -> None:
         """Before each physics step: hold the brakes, advance the rate limiters, check the measured state."""
@@ -304,6 +390,8 @@ class Reflexes:
 
     def check_state(self) -> None:
         """Check the measured joint state against the position, velocity and torque limits; trip on a violation."""
+        if self._ud[0] > 0.0:
+            self._trip_recorded()
         sim = self.sim
         q, dq = sim._qpos, sim._qvel
         if (q < self._lo).any() or (q > self._hi).any():
@@ -315,13 +403,13 @@ class Reflexes:
             j = int(np.argmax(r))
             if not r[j] < DIVERGED_VELOCITY:
                 self._diverged(f"joint {j} at {dq[j]:.4g} rad/s")
-            self._trip((JOINT_VELOCITY,), f"joint {j} at {dq[j]:.4g} rad/s, limit {self.dq_max[j]} rad/s")
+            self._trip((JOINT_VELOCITY,), self._detail(2, sim.world.time, j, dq[j]))
         if self._check_tau and self._hold is None:
             tau = sim._qfrc_actuator + sim._offset
             r = np.abs(tau) / self.tau_max
             if r.max() > 1.0:
                 j = int(np.argmax(r))
-                self._trip((TAU_J_RANGE,), f"joint {j}: measured torque {tau[j]:.4g} Nm, limit {self.tau_max[j]} Nm")
+                self._trip((TAU_J_RANGE,), self._detail(3, sim.world.time, j, tau[j]))
 
     def _diverged(self, what: str) -> None:
         from franka_vs_gym.sim.world import SimulationDiverged
@@ -335,7 +423,7 @@ class Reflexes:
         j = int(np.flatnonzero(bad)[0])
         if not (self._lo[j] - DIVERGED_POSITION < q[j] < self._hi[j] + DIVERGED_POSITION):
             self._diverged(f"joint {j} at {q[j]:.4g} rad, far beyond its hard stop")
-        self._trip((JOINT_POSITION,), f"joint {j} at {q[j]:.4f} rad, limits [{self.q_min[j]}, {self.q_max[j]}] rad")
+        self._trip((JOINT_POSITION,), self._detail(1, self.sim.world.time, j, q[j]))
 
     def _tighten(self, q: np.ndarray) -> None:
         np.minimum(self.q_min, np.maximum(self._lo, q), out=self._lo)
@@ -384,10 +472,13 @@ class Reflexes:
             self._update_mode()
 
     # ------------------------------------------------------------------ tripping
-    def _trip(self, reasons: tuple[str, ...], detail: str) -> None:
-        """Engage the brakes (hold the current position), record the error, raise ControlException."""
+    def _trip(self, reasons: tuple[str, ...], detail: str, hold: np.ndarray | None = None) -> None:
+        """Engage the brakes (hold the current position, or ``hold`` (7,) rad, where the plant's brakes held the
+        joints), record the error, raise ControlException."""
         sim = self.sim
         self.errors, self.detail = reasons, detail
+        if hold is not None:
+            sim._qpos[:] = hold
         self._hold = sim._qpos.copy()
         sim._qvel[:] = 0.0
         sim._ctrl_tau[:] = 0.0

@@ -266,7 +266,8 @@ class FrankaSim:
     def _write_plant_friction(self) -> None:
         """The friction parameters into the model's joint user numbers, read by the compiled plant."""
         on = self._native and self._friction_enabled
-        self._m.jnt_user[self._jids] = plant.friction_rows(self.spec.config.friction, self._friction_scale, on)
+        rows = plant.friction_rows(self.spec.config.friction, self._friction_scale, on)
+        self._m.jnt_user[self._jids, :plant.FRICTION_COLS] = rows
 
     def _make_friction_step(self):
         fr = self.spec.config.friction
