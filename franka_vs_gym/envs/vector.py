@@ -9,8 +9,10 @@ step (the compiled plant, :mod:`franka_vs_gym.sim.plant`), so a control period i
 Results are bit for bit those of N single environments (``gymnasium.make``) reset with the same seeds: a batch step
 of a simulation loads its state into MuJoCo, runs the same ``mj_step`` calls on the same model and saves the
 state back. Derived quantities an environment reads after its physics (contacts, or the whole scene for a camera
-image) are copied from the batch's persistent per-simulation data, and the robots' reflex checks run after the
-batch call as ``SimWorld.step`` runs them. A simulation that diverges is re-run alone by its environment, which then
+image) are copied from the batch's persistent per-simulation data. The robots' measured-state reflexes run inside
+the batch call (the compiled plant checks every physics step and records a violation in the simulation's
+``userdata``, part of the state copied back), and the reflex checks run after it as ``SimWorld.step`` runs them,
+raising that violation with its time, joint and value. A simulation that diverges is re-run alone by its environment, which then
 reports the divergence exactly as a single environment does; so is a robot that needs Python between its physics
 steps (brakes holding it after a reflex, rate-limited commands, a command or measurement delay, a camera frame in
 the middle of the period).

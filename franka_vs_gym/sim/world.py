@@ -67,8 +67,9 @@ class SimWorld:
         self._post_hooks.append(hook)
 
     def add_check(self, check: Callable[[], None]) -> None:
-        """A check run after every ``step(n)`` call (not between its physics steps: the compiled plant runs them
-        in one call), e.g. a robot's reflexes; it may raise to stop the caller."""
+        """A check run after every ``step(n)`` call, e.g. a robot's reflexes (the compiled plant checks them at
+        every physics step inside the call and records a violation; the check raises it); it may raise to stop the
+        caller."""
         self._checks.append(check)
 
     @property
