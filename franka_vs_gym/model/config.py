@@ -362,7 +362,19 @@ class ModelConfig:
             "link_mass_scale": self.link_mass_scale.tolist(),
             "notes": self.notes,
             **({} if self.check_gravity else {"check_gravity": False}),
+            **self._links_entry(),
         }
+
+    def _links_entry(self) -> dict[str, Any]:
+        """``{"links": [...]}`` when the link inertials differ from the named robot's (a re-identified arm, e.g.
+        by the workbench's ``link_inertials`` effect), so the file keeps them; ``{}`` otherwise."""
+        try:
+            registered = robot_description(self.robot.name).links
+        except ValueError:
+            registered = None
+        if registered == self.robot.links:
+            return {}
+        return {"links": [{"mass": L.mass, "com": list(L.com), "inertia": list(L.inertia)} for L in self.robot.links]}
 
     @classmethod
     def from_dict(cls, d: dict[str, Any], robot: RobotDescription | str | None = None) -> ModelConfig:
@@ -375,7 +387,7 @@ class ModelConfig:
             raise ValueError(f"unsupported model file format {fmt!r} (expected {FORMAT!r})")
         desc = _file_robot(d, robot)
         known = {"format", "robot", "tool", "payload", "gravity", "friction", "armature", "torque_offset", "delay",
-                 "delay_channel", "link_mass_scale", "notes", "check_gravity"}
+                 "delay_channel", "link_mass_scale", "notes", "check_gravity", "links"}
         unknown = set(d) - known
         if unknown:
             raise ValueError(f"unknown keys in model file: {sorted(unknown)}")
@@ -385,6 +397,20 @@ class ModelConfig:
             raise ValueError("check_gravity in a model file must be true or false")
         if not isinstance(d.get("delay_channel", "command"), str):
             raise ValueError("delay_channel must be 'command' or 'measurement'")
+        if d.get("links") is not None:  # re-identified link inertials (links 1..7: mass, com, inertia (6,))
+            from dataclasses import replace as _replace
+
+            from franka_vs_gym.model.params import LinkInertial
+
+            links = d["links"]
+            if not isinstance(links, list) or len(links) != 7:
+                raise ValueError("links in a model file must be a list of 7 objects {mass, com, inertia}")
+            try:
+                desc = _replace(desc, links=tuple(
+                    LinkInertial(float(L["mass"]), tuple(float(x) for x in L["com"]),
+                                 tuple(float(x) for x in L["inertia"])) for L in links))
+            except (KeyError, TypeError) as e:
+                raise ValueError(f"links in a model file: each needs mass, com (3) and inertia (6): {e}") from None
         cfg = cls(
             tool=Tool.from_dict(d.get("tool", "franka_hand")),
             payload=None if d.get("payload") is None else RigidBody.from_dict(d["payload"]),
