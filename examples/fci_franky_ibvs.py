@@ -36,7 +36,7 @@ TAG_SIZE = 0.08
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seed", type=int, default=3, help="random start pose of the study (experiments.servo)")
-    ap.add_argument("--max-time", type=float, default=8.0, help="give up after this many seconds")
+    ap.add_argument("--max-time", type=float, default=8.0, help="give up after this many seconds of robot time")
     ap.add_argument("--host", default="127.0.0.1", help="address of the in-process server")
     ap.add_argument("--lockstep", action="store_true",
                     help="lock-step server (the robot runs as fast as franky commands it; for tests)")
@@ -55,8 +55,8 @@ def main() -> None:
         robot = Robot(server.host, realtime_config=RealtimeConfig.Ignore)
         robot.relative_dynamics_factor = 0.5
         model, detector = FrankaModel(), TagDetector()
-        history, t0, err_px = [], time.perf_counter(), np.inf
-        while time.perf_counter() - t0 < args.max_time:
+        history, t0, t_robot0, err_px = [], time.perf_counter(), server.sim.get_time(), np.inf
+        while server.sim.get_time() - t_robot0 < args.max_time and time.perf_counter() - t0 < 20 * args.max_time:
             image = server.render_camera(intr.width, intr.height)
             meas = detected_measurement(image, detector, 0, TAG_SIZE, intr)
             if not meas.visible:

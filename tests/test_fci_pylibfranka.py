@@ -194,7 +194,8 @@ def test_record_writes_a_workbench_log(tmp_path):
 def test_real_time_missed_deadlines(stall, reflex):
     """Real-time mode: a client that stalls lowers control_command_success_rate; beyond the tolerance the
     communication-constraints reflex stops the motion."""
-    with FCIServer(_host(27), camera=False, verbose=False) as srv:
+    # without the reflex, a tolerance of 50 cycles keeps a loaded test machine from stalling the client for real
+    with FCIServer(_host(27), camera=False, verbose=False, max_missed_commands=20 if reflex else 50) as srv:
         out = run_client(CLIENTS / "stall.py", srv.host, str(stall))
     if reflex:
         assert out["raised"] is not None and '"communication_constraints_violation"' in out["raised"]

@@ -350,3 +350,27 @@ def test_command_line_takes_the_robot(tmp_path, capsys):
     assert main(["evaluate", "zero", "--robot", "ur5", "--episodes", "1"]) == 2
     assert main(["demo", "torque", "--robot", "ur5", "--out", str(tmp_path / "d")]) == 2
     assert "unknown robot 'ur5'" in capsys.readouterr().err
+
+
+def test_identified_link_inertials_survive_the_model_file(tmp_path):
+    """A configuration whose robot carries identified link inertials (the workbench's link_inertials effect) keeps
+    them through save/load: the file stores them next to the robot's name; other changes must be registered."""
+    from dataclasses import replace
+
+    from franka_vs_gym.model.params import LinkInertial
+
+    links = list(FER.links)
+    links[6] = LinkInertial(1.1, (0.01, 0.0, 0.05), (0.01, 0.0, 0.0, 0.01, 0.0, 0.005))
+    cfg = ModelConfig().copy(robot=replace(FER, links=tuple(links)))
+    back = ModelConfig.load(cfg.save(tmp_path / "m.json"))
+    assert back.robot == cfg.robot and back.robot.links[6].mass == 1.1
+    q = FER.neutral()
+    np.testing.assert_allclose(FrankaModel(back).gravity(q), FrankaModel(cfg).gravity(q), atol=1e-12)
+    assert "links" not in ModelConfig().to_dict()  # the registered robot is named only
+    other = ModelConfig().copy(robot=replace(FER, q_neutral=(0.0, -0.5, 0.0, -2.0, 0.0, 1.5, 0.7)))
+    with pytest.raises(ValueError, match="register it under its own name"):
+        other.save(tmp_path / "other.json")
+    d = cfg.to_dict()
+    d["links"] = d["links"][:3]
+    with pytest.raises(ValueError, match="list of 7"):
+        ModelConfig.from_dict(d)

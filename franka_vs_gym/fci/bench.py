@@ -19,23 +19,38 @@ def _client(host: str, n: int) -> dict:
     return json.loads(r.stdout.strip().splitlines()[-1])
 
 
-def server_cycle_us(n: int = 3000) -> float:
-    """Mean server-side cost of one lock-step cycle without networking (plant step, controller, state, encode), us."""
-    from franka_vs_gym.fci.codec import MoveControllerMode, MoveMotionGeneratorMode, RobotCommand
+def server_cycle_us(n: int = 3000, kind: str = "torque") -> float:
+    """Best mean server-side cost of one lock-step cycle without networking (controller, plant step, state,
+    encoding), us. ``kind``: "torque" (external torques), "joint" (joint position through the internal joint
+    impedance), "cartesian" (a moving Cartesian pose through the joint impedance), "cartesian_impedance" (the same
+    through the internal Cartesian impedance)."""
+    from franka_vs_gym.fci.codec import MoveControllerMode as C
+    from franka_vs_gym.fci.codec import MoveMotionGeneratorMode as G
+    from franka_vs_gym.fci.codec import RobotCommand
     from franka_vs_gym.fci.robot import FCIRobot
     from franka_vs_gym.sim import FrankaSim
 
+    modes = {"torque": (C.EXTERNAL_CONTROLLER, G.NONE), "joint": (C.JOINT_IMPEDANCE, G.JOINT_POSITION),
+             "cartesian": (C.JOINT_IMPEDANCE, G.CARTESIAN_POSITION),
+             "cartesian_impedance": (C.CARTESIAN_IMPEDANCE, G.CARTESIAN_POSITION)}
     robot = FCIRobot(FrankaSim(camera=False))
-    robot.start_motion(MoveControllerMode.EXTERNAL_CONTROLLER, MoveMotionGeneratorMode.NONE)
+    robot.start_motion(*modes[kind])
     z = np.zeros(7)
-    cmd = RobotCommand(0, z, z, np.eye(4).ravel(), np.zeros(6), np.zeros(2), False, False, z, False)
-    best = np.inf
+    q0, T0 = robot.q_d.copy(), robot.O_T_EE_of(robot.q_d)
+    best, k = np.inf, 0
     for _ in range(3):
         t = time.perf_counter()
         for i in range(n):
-            robot.step(cmd)
+            s = 0.5 * (1 - np.cos(np.pi * k / (3 * n)))  # a smooth 5 cm / 0.1 rad move over the run
+            q_c, T = q0.copy(), T0.copy()
+            q_c[3] += 0.1 * s
+            T[0, 3] += 0.05 * s
+            robot.step(RobotCommand(i, q_c, z, T.ravel(order="F"), np.zeros(6), np.zeros(2), False, False, z, False))
             robot.fill_state().encode(i)
+            k += 1
         best = min(best, (time.perf_counter() - t) / n * 1e6)
+    if robot.reflex_detail:
+        raise RuntimeError(f"benchmark motion tripped a reflex: {robot.reflex_detail}")
     return float(best)
 
 
@@ -44,7 +59,9 @@ def bench_fci(quick: bool = False, host: str = "127.0.31.1") -> dict[str, float]
     from franka_vs_gym.fci.server import FCIServer
 
     n = 2000 if quick else 10000
-    out: dict[str, float] = {"server cycle without networking, us": server_cycle_us(1000 if quick else 3000)}
+    m = 1000 if quick else 3000
+    out: dict[str, float] = {f"server cycle without networking, {kind}, us": server_cycle_us(m, kind)
+                             for kind in ("torque", "joint", "cartesian", "cartesian_impedance")}
     with FCIServer(host, lockstep=True, camera=False, verbose=False) as srv:
         res = _client(srv.host, n)
     out["lock-step cycles per wall second (pylibfranka)"] = res["cycles"] / res["wall_s"]

@@ -96,6 +96,8 @@ class FCIServer:
     record : path of a workbench log (``.csv`` or ``.npz`` + ``.json`` sidecar) written at :meth:`stop` with one
         row per physics step while a robot client is connected (the values the client received).
     port, gripper_port : 1337 and 1338 as libfranka fixes them (change only for tests of the server itself).
+    max_missed_commands : real time: cycles in a row without a command before the communication-constraints reflex
+        (default :data:`~franka_vs_gym.fci.robot.MAX_MISSED_COMMANDS`, 20).
     verbose : print the ready line and connection events.
 
     Attributes
@@ -110,7 +112,8 @@ class FCIServer:
                  camera: bool = True, table: bool = True, extra_worldbody: str = "",
                  record: str | Path | None = None,
                  port: int = codec.ROBOT_PORT,
-                 gripper_port: int = codec.GRIPPER_PORT, verbose: bool = True) -> None:
+                 gripper_port: int = codec.GRIPPER_PORT, max_missed_commands: int | None = None,
+                 verbose: bool = True) -> None:
         from franka_vs_gym.sim import FrankaSim
 
         self.host, self.port, self.gripper_port = host, int(port), int(gripper_port)
@@ -138,6 +141,8 @@ class FCIServer:
             kwargs["reflexes"] = False
         self.sim = FrankaSim(model, **kwargs)
         self.robot = FCIRobot(self.sim, self.description)
+        if max_missed_commands is not None:
+            self.robot.max_missed_commands = int(max_missed_commands)
         self.hand = SimulatedHand(self.sim)
         self.urdf = robot_urdf(self.description)
         self.lock = threading.RLock()

@@ -24,7 +24,15 @@ import numpy as np
 
 from franka_vs_gym.model import checks
 from franka_vs_gym.model.checks import as_vector
-from franka_vs_gym.model.description import FER, FRANKA_HAND, GRAVITY, RobotDescription, robot_description
+from franka_vs_gym.model.description import (
+    FER,
+    FRANKA_HAND,
+    GRAVITY,
+    ROBOTS,
+    LinkInertial,
+    RobotDescription,
+    robot_description,
+)
 from franka_vs_gym.model.friction import compile_friction, joint_friction
 from franka_vs_gym.model.geometry import combine_inertials, rotate_inertia
 
@@ -351,6 +359,7 @@ class ModelConfig:
         return {
             "format": FORMAT,
             "robot": self.robot.name,
+            **_robot_overrides(self.robot),
             "tool": self.tool.to_dict(),
             "payload": None if self.payload is None else self.payload.to_dict(),
             "gravity": self.gravity.tolist(),
@@ -362,19 +371,7 @@ class ModelConfig:
             "link_mass_scale": self.link_mass_scale.tolist(),
             "notes": self.notes,
             **({} if self.check_gravity else {"check_gravity": False}),
-            **self._links_entry(),
         }
-
-    def _links_entry(self) -> dict[str, Any]:
-        """``{"links": [...]}`` when the link inertials differ from the named robot's (a re-identified arm, e.g.
-        by the workbench's ``link_inertials`` effect), so the file keeps them; ``{}`` otherwise."""
-        try:
-            registered = robot_description(self.robot.name).links
-        except ValueError:
-            registered = None
-        if registered == self.robot.links:
-            return {}
-        return {"links": [{"mass": L.mass, "com": list(L.com), "inertia": list(L.inertia)} for L in self.robot.links]}
 
     @classmethod
     def from_dict(cls, d: dict[str, Any], robot: RobotDescription | str | None = None) -> ModelConfig:
@@ -386,8 +383,10 @@ class ModelConfig:
         if fmt not in _FORMATS:
             raise ValueError(f"unsupported model file format {fmt!r} (expected {FORMAT!r})")
         desc = _file_robot(d, robot)
-        known = {"format", "robot", "tool", "payload", "gravity", "friction", "armature", "torque_offset", "delay",
-                 "delay_channel", "link_mass_scale", "notes", "check_gravity", "links"}
+        if "links" in d:
+            desc = replace(desc, links=_links_from_file(d["links"]))
+        known = {"format", "robot", "links", "tool", "payload", "gravity", "friction", "armature", "torque_offset",
+                 "delay", "delay_channel", "link_mass_scale", "notes", "check_gravity"}
         unknown = set(d) - known
         if unknown:
             raise ValueError(f"unknown keys in model file: {sorted(unknown)}")
@@ -397,20 +396,6 @@ class ModelConfig:
             raise ValueError("check_gravity in a model file must be true or false")
         if not isinstance(d.get("delay_channel", "command"), str):
             raise ValueError("delay_channel must be 'command' or 'measurement'")
-        if d.get("links") is not None:  # re-identified link inertials (links 1..7: mass, com, inertia (6,))
-            from dataclasses import replace as _replace
-
-            from franka_vs_gym.model.params import LinkInertial
-
-            links = d["links"]
-            if not isinstance(links, list) or len(links) != 7:
-                raise ValueError("links in a model file must be a list of 7 objects {mass, com, inertia}")
-            try:
-                desc = _replace(desc, links=tuple(
-                    LinkInertial(float(L["mass"]), tuple(float(x) for x in L["com"]),
-                                 tuple(float(x) for x in L["inertia"])) for L in links))
-            except (KeyError, TypeError) as e:
-                raise ValueError(f"links in a model file: each needs mass, com (3) and inertia (6): {e}") from None
         cfg = cls(
             tool=Tool.from_dict(d.get("tool", "franka_hand")),
             payload=None if d.get("payload") is None else RigidBody.from_dict(d["payload"]),
@@ -434,6 +419,7 @@ class ModelConfig:
         overwrite an existing file unless ``overwrite``, and never writes over an input of the running command."""
         from franka_vs_gym.io import atomic_write
 
+        _check_nameable(self.robot)
         return atomic_write(path, json.dumps(self.to_dict(), indent=2), force=overwrite, what="model file")
 
     @classmethod
@@ -452,6 +438,47 @@ class ModelConfig:
             return cls.from_dict(d, robot)
         except ValueError as e:
             raise ValueError(f"model file {p}: {e}") from None
+
+
+def _check_nameable(robot: RobotDescription) -> None:
+    """A model file names its robot and may store link inertials; anything else must be in the registry."""
+    registered = ROBOTS.get(robot.name)
+    if registered is None:
+        raise ValueError(f"robot {robot.name!r} is not registered: register_robot() it before saving a model file")
+    if replace(registered, links=robot.links) != robot:
+        raise ValueError(f"the robot description {robot.name!r} differs from the registered one in more than its link "
+                         "inertials: register it under its own name (register_robot) before saving a model file")
+
+
+def _robot_overrides(robot: RobotDescription) -> dict[str, Any]:
+    """What a model file stores besides the robot's name: the link inertials when they differ from the registered
+    description's (e.g. identified by the workbench's ``link_inertials`` effect)."""
+    registered = ROBOTS.get(robot.name)
+    if registered is not None and registered.links == robot.links:
+        return {}
+    return {"links": [{"mass": link.mass, "com": list(link.com), "inertia": list(link.inertia)}
+                      for link in robot.links]}
+
+
+def _links_from_file(links: Any) -> tuple[LinkInertial, ...]:
+    """Link inertials 1..7 stored in a model file (mass kg, com (3,) m, inertia (ixx, ixy, ixz, iyy, iyz, izz) kg
+    m^2 about the com), checked."""
+    if not isinstance(links, list) or len(links) != 7:
+        raise ValueError("links in a model file must be a list of 7 objects (mass, com, inertia)")
+    out = []
+    for i, link in enumerate(links):
+        try:
+            body = RigidBody(link["mass"], link["com"], np.asarray(link["inertia"], dtype=np.float64)[[0, 1, 2, 1, 3, 4,
+                                                                                                         2, 4, 5]]
+                             .reshape(3, 3))
+        except (KeyError, TypeError, IndexError, ValueError) as e:
+            raise ValueError(f"links[{i}] in the model file: {e}") from None
+        if body.mass <= 0:
+            raise ValueError(f"links[{i}] in the model file: mass must be > 0 kg")
+        I = body.inertia
+        out.append(LinkInertial(body.mass, tuple(map(float, body.com)),
+                                (I[0, 0], I[0, 1], I[0, 2], I[1, 1], I[1, 2], I[2, 2])))
+    return tuple(out)
 
 
 def _file_robot(d: dict[str, Any], expected: RobotDescription | str | None) -> RobotDescription:

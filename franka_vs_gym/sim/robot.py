@@ -77,7 +77,7 @@ class FrankaSim:
     Units and frames: SI (rad, rad/s, Nm, m, s). f is the base, e the end effector (``flMe`` of the tool), c the
     wrist camera (``eMc``; ViSP convention: z forward, x right, y down). Twists are [v; w] (6,).
 
-    Limits, as on the real robot: torque commands are saturated at the FER torque limits (87/12 Nm; the total
+    Limits, as on the real robot: torque commands are saturated at the robot's torque limits (87/12 Nm; the total
     actuator torque, command plus gravity, is clamped too); joint velocity commands (and the joint velocities a
     Cartesian command maps to) are scaled down uniformly so that no joint exceeds its velocity limit; joint
     position limits are hard stops in the plant. NaN, inf or wrong-shape commands raise ValueError and never
@@ -117,32 +117,71 @@ class FrankaSim:
                  undeclared_payload: RigidBody | None = None, torque_noise: float = 0.0, seed: int | None = None,
                  extra_worldbody: str = "", extra_assets: str = "", reflexes: bool = True,
                  command_rates: str = "pass") -> None:
+        world, spec, cfg = self._make_world(model, robot, world, prefix, camera=camera, tags=tags, table=table,
+                                            timestep=timestep, ft_sensor=ft_sensor,
+                                            undeclared_payload=undeclared_payload, extra_worldbody=extra_worldbody,
+                                            extra_assets=extra_assets)
+        self.world, self.prefix, self.spec = world, prefix, spec
+        self._m, self._d = world.model, world.data
+        self.model = FrankaModel(cfg)
+        self._use_mounting_gravity(cfg)
+        self.dt = world.dt
+        jids = self._bind_mujoco()
+        lim = self.model.limits()
+        self.q_min, self.q_max, self.dq_max, self.tau_max = lim["q_min"], lim["q_max"], lim["dq_max"], lim["tau_max"]
+        self._setup_friction(cfg, friction, jids)
+        self._setup_delay(cfg)
+        self._tau_cmd = np.zeros(7)
+        self._offset = cfg.torque_offset.copy()
+        self._torque_noise = float(torque_noise)
+        self._rng = np.random.default_rng(seed)
+        self._state = RobotState.STATE_STOP
+        self._eMc = DEFAULT_eMc.copy()
+        self._positioning_velocity = 20.0
+        self._hook = self._make_pre_step()
+        world.add_pre_step(self._hook)
+        # the reflexes' limits come from the robot description (config.robot)
+        self._reflexes = Reflexes(self, cfg.robot.limits, enabled=reflexes, command_rates=command_rates)
+        self._reflexes.install(world)
+        if self._cam >= 0:
+            self.set_eMc(self._eMc)
+        self.reset(cfg.robot.neutral() if q0 is None else q0)
+
+    # ------------------------------------------------------------------ construction steps
+    @staticmethod
+    def _make_world(model: Any, robot: RobotDescription | str | None, world: SimWorld | None, prefix: str,
+                    **scene: Any) -> tuple[SimWorld, RobotSpec, ModelConfig]:
+        """(world, this robot's spec, its configuration): a new one-robot scene, or this prefix's robot in ``world``."""
         if world is None:
             cfg = resolve_config(model, robot)
-            spec = RobotSpec(prefix=prefix, config=cfg, camera=camera, ft_sensor=ft_sensor,
-                             undeclared_payload=undeclared_payload)
+            spec = RobotSpec(prefix=prefix, config=cfg, camera=scene["camera"], ft_sensor=scene["ft_sensor"],
+                             undeclared_payload=scene["undeclared_payload"])
+            timestep = scene["timestep"]
             if not (timestep > 0 and math.isfinite(timestep)):
                 raise ValueError(f"timestep must be > 0 s, got {timestep}")
-            world = SimWorld(SceneSpec(robots=[spec], table=table, tags=list(tags or []), timestep=timestep,
-                                       extra_worldbody=extra_worldbody, extra_assets=extra_assets))
-        else:
-            specs = [r for r in world.scene.robots if r.prefix == prefix]
-            if not specs:
-                raise ValueError(f"no robot with prefix {prefix!r} in the world "
-                                 f"(have {[r.prefix for r in world.scene.robots]})")
-            spec = specs[0]
-            cfg = spec.config
-        self.world, self.prefix, self.spec = world, prefix, spec
-        m, d = world.model, world.data
-        self._m, self._d = m, d
-        self.model = FrankaModel(cfg)
-        # Gravity as the robot sees it: the world's gravity expressed in this robot's base frame (mounting).
+            world = SimWorld(SceneSpec(robots=[spec], table=scene["table"], tags=list(scene["tags"] or []),
+                                       timestep=timestep, extra_worldbody=scene["extra_worldbody"],
+                                       extra_assets=scene["extra_assets"]))
+            return world, spec, cfg
+        specs = [r for r in world.scene.robots if r.prefix == prefix]
+        if not specs:
+            raise ValueError(f"no robot with prefix {prefix!r} in the world "
+                             f"(have {[r.prefix for r in world.scene.robots]})")
+        return world, specs[0], specs[0].config
+
+    def _use_mounting_gravity(self, cfg: ModelConfig) -> None:
+        """Gravity as the robot sees it: the world's gravity expressed in this robot's base frame (mounting)."""
+        m, d = self._m, self._d
         mujoco.mj_kinematics(m, d)
-        base = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"{prefix}link0")
+        base = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"{self.prefix}link0")
         g_base = d.xmat[base].reshape(3, 3).T @ m.opt.gravity
         if not np.allclose(g_base, cfg.gravity, atol=1e-9):
             self.model.set_gravity(g_base)
-        self.dt = world.dt
+
+    def _bind_mujoco(self) -> list[int]:
+        """This robot's MuJoCo ids and the views into the simulator state (joints, actuators, sites, camera, F/T
+        sensor) that every command and measurement uses; returns the joint ids."""
+        m, d, prefix = self._m, self._d, self.prefix
         jids = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, f"{prefix}joint{i + 1}") for i in range(7)]
         qadr = [int(m.jnt_qposadr[j]) for j in jids]
         vadr = [int(m.jnt_dofadr[j]) for j in jids]
@@ -163,45 +202,33 @@ class FrankaSim:
         self._base_body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"{prefix}link0")
         self._cam = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, f"{prefix}wrist_camera")
         self._ft = None
-        if spec.ft_sensor:
+        if self.spec.ft_sensor:
             fs = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SENSOR, f"{prefix}ft_force")
             ts = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SENSOR, f"{prefix}ft_torque")
             self._ft = (int(m.sensor_adr[fs]), int(m.sensor_adr[ts]))
-        lim = self.model.limits()
-        self.q_min, self.q_max, self.dq_max, self.tau_max = lim["q_min"], lim["q_max"], lim["dq_max"], lim["tau_max"]
-        # Friction in the plant: -tau_f(dq) of the configured law (franka_vs_gym.model.friction) written into
-        # qfrc_applied in place before every physics step (this runs at 1 kHz).
-        fr = cfg.friction
-        self._friction_enabled = bool(friction) and not fr.is_zero()
+        return jids
+
+    def _setup_friction(self, cfg: ModelConfig, friction: bool, jids: list[int]) -> None:
+        """Friction in the plant: -tau_f(dq) of the configured law (franka_vs_gym.model.friction). The compiled plant
+        applies it inside mj_step from the parameters in the model (jnt_user); the Python friction step, written into
+        qfrc_applied in place before every physics step, is the fallback without it (franka_vs_gym.sim.plant)."""
+        self._friction_enabled = bool(friction) and not cfg.friction.is_zero()
         self._friction_scale = 1.0
         self._friction_step = self._make_friction_step()
-        # the compiled plant applies the friction inside mj_step from the parameters in the model (jnt_user); the
-        # Python friction step is the fallback without it (franka_vs_gym.sim.plant)
         self._native = plant.install()
         self._jids = jids
         self._write_plant_friction()
+
+    def _setup_delay(self, cfg: ModelConfig) -> None:
+        """The configured delay: torque commands queued ("command") or torque measurements recorded after each step
+        and reported late ("measurement")."""
         n_delay = int(round(cfg.delay / self.dt))
         self._delay_steps = n_delay if cfg.delay_channel == "command" else 0
         self._meas_fifo: deque[np.ndarray] | None = None
         if cfg.delay_channel == "measurement" and n_delay:
             self._meas_fifo = deque(maxlen=n_delay + 1)
-            world.add_post_step(self._record_measurement)
+            self.world.add_post_step(self._record_measurement)
         self._tau_fifo: deque[np.ndarray] = deque()
-        self._tau_cmd = np.zeros(7)
-        self._offset = cfg.torque_offset.copy()
-        self._torque_noise = float(torque_noise)
-        self._rng = np.random.default_rng(seed)
-        self._state = RobotState.STATE_STOP
-        self._eMc = DEFAULT_eMc.copy()
-        self._positioning_velocity = 20.0
-        self._hook = self._make_pre_step()
-        world.add_pre_step(self._hook)
-        # the reflexes' limits come from the robot description (config.robot)
-        self._reflexes = Reflexes(self, cfg.robot.limits, enabled=reflexes, command_rates=command_rates)
-        self._reflexes.install(world)
-        if self._cam >= 0:
-            self.set_eMc(self._eMc)
-        self.reset(cfg.robot.neutral() if q0 is None else q0)
 
     # ------------------------------------------------------------------ stepping
     @property
