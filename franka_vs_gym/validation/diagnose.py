@@ -50,6 +50,7 @@ from franka_vs_gym.validation.effects import (
     Fit,
     NotApplicable,
     get_effect,
+    load_entry_points,
     load_plugin,
 )
 from franka_vs_gym.validation.evaluate import evaluate
@@ -484,9 +485,27 @@ def _command_delay(ctx: Context, fl, noise: np.ndarray, verbose: bool) -> Candid
     return c
 
 
+_ENTRY_POINTS_LOADED = False
+
+
+def _installed_plugins() -> None:
+    """Register, once per process, the effects installed packages declare in the entry-point group
+    ``franka_vs_gym.effects``; a broken plug-in is reported in one line, not fatal to the library."""
+    global _ENTRY_POINTS_LOADED
+    if _ENTRY_POINTS_LOADED:
+        return
+    _ENTRY_POINTS_LOADED = True
+    try:
+        load_entry_points()
+    except Exception as exc:  # a third party's package: say which, keep the library usable
+        progress(f"warning: an installed effect plug-in failed to load: {type(exc).__name__}: {exc}")
+
+
 def resolve_effects(effects: list[str] | None, registry: EffectRegistry = REGISTRY) -> list[Effect]:
     """Candidate effects: every registered effect, or the names given; an item ending in ``.py`` is a plug-in file
     whose effects are registered and added to the candidates."""
+    if registry is REGISTRY:
+        _installed_plugins()
     if effects is None:
         return list(registry.values())
     out: list[Effect] = []
