@@ -223,6 +223,10 @@ def clean(log: MeasurementLog, settings: CleanSettings | None = None) -> Process
             optional[name] = r if name in ("tau_J_d", "tau_ext_hat_filtered") else lp(r)
     k = int(round(s.trim * s.rate))
     sl = slice(k, len(grid) - k)
+    still = [j for j in range(7) if np.abs(dq[sl, j]).max() < 0.05]
+    if still:
+        warnings.append(f"joints {still} barely move (abs(dq) < 0.05 rad/s): their friction, inertia and delay cannot "
+                        "be identified from this log (only offsets and pose-dependent effects)")
     frac = highpass_power_fraction(s)
     hf = (tau - tau_filt)[sl]
     noise = np.sqrt(np.mean(hf ** 2, axis=0) / frac)
