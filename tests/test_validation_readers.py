@@ -185,3 +185,35 @@ def test_effect_plugin_from_a_user_file_is_ranked_with_the_library(tmp_path):
     finally:
         for n in names:
             REGISTRY.unregister(n)
+
+
+def test_effects_from_an_installed_package_entry_point(monkeypatch):
+    """An installed package declaring the entry-point group ``franka_vs_gym.effects`` gets its effect registered
+    and ranked by diagnose (the group is read once per process)."""
+    import importlib
+    import importlib.metadata
+
+    from franka_vs_gym.validation.effects import ENTRY_POINT_GROUP, REGISTRY, EffectRegistry, load_plugin
+
+    dg = importlib.import_module("franka_vs_gym.validation.diagnose")  # the module (the package exports the function)
+    reg_tmp = EffectRegistry()
+    load_plugin(EXAMPLE, reg_tmp)
+    cls = type(reg_tmp.get("tool_mass_error"))
+
+    class FakeEntryPoint:
+        name = "tool_mass_error"
+
+        def load(self):
+            return cls
+
+    def fake_entry_points(group=None):
+        return [FakeEntryPoint()] if group == ENTRY_POINT_GROUP else []
+
+    monkeypatch.setattr(importlib.metadata, "entry_points", fake_entry_points)
+    monkeypatch.setattr(dg, "_ENTRY_POINTS_LOADED", False)
+    try:
+        names = [e.name for e in dg.resolve_effects(None)]
+        assert "tool_mass_error" in names and "payload" in names
+    finally:
+        if "tool_mass_error" in REGISTRY:
+            REGISTRY.unregister("tool_mass_error")

@@ -46,7 +46,7 @@ def main(args: argparse.Namespace) -> int:
             from franka_vs_gym.validation.report import markdown_report
 
             progress("writing the report and figures", verbose)
-            res = compare(d.context.data, d.config, do_replay=False)
+            res = compare(d.data, d.config, do_replay=False)
             markdown_report(res, report_tmp, diagnosis=d, overwrite=True)
     if args.report:
         progress(f"report: {args.report}/report.md", verbose)

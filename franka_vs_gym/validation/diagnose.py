@@ -50,12 +50,13 @@ from franka_vs_gym.validation.effects import (
     Fit,
     NotApplicable,
     get_effect,
+    load_entry_points,
     load_plugin,
 )
 from franka_vs_gym.validation.evaluate import evaluate
 from franka_vs_gym.validation.logs import MeasurementLog
 from franka_vs_gym.validation.selection import Engine, SetFit, Term, n_eff
-from franka_vs_gym.validation.signals import CleanSettings, ProcessedLog
+from franka_vs_gym.validation.signals import CleanSettings, ProcessedLog, decimated
 
 SCORE_MIN = 10.0
 JOINT_SCORE_MIN = 2.0
@@ -142,6 +143,7 @@ class Diagnosis:
     assumptions: dict[str, Any] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
     residual: np.ndarray | None = None
+    data: ProcessedLog | None = None  # the whole processed log (the context may hold a decimated copy)
 
     @property
     def selected(self) -> list[str]:
@@ -483,9 +485,27 @@ def _command_delay(ctx: Context, fl, noise: np.ndarray, verbose: bool) -> Candid
     return c
 
 
+_ENTRY_POINTS_LOADED = False
+
+
+def _installed_plugins() -> None:
+    """Register, once per process, the effects installed packages declare in the entry-point group
+    ``franka_vs_gym.effects``; a broken plug-in is reported in one line, not fatal to the library."""
+    global _ENTRY_POINTS_LOADED
+    if _ENTRY_POINTS_LOADED:
+        return
+    _ENTRY_POINTS_LOADED = True
+    try:
+        load_entry_points()
+    except Exception as exc:  # a third party's package: say which, keep the library usable
+        progress(f"warning: an installed effect plug-in failed to load: {type(exc).__name__}: {exc}")
+
+
 def resolve_effects(effects: list[str] | None, registry: EffectRegistry = REGISTRY) -> list[Effect]:
     """Candidate effects: every registered effect, or the names given; an item ending in ``.py`` is a plug-in file
     whose effects are registered and added to the candidates."""
+    if registry is REGISTRY:
+        _installed_plugins()
     if effects is None:
         return list(registry.values())
     out: list[Effect] = []
@@ -520,8 +540,10 @@ def diagnose(log: MeasurementLog | ProcessedLog | str, model: Any = None, *, rig
     progress("cleaning the log", verbose)
     data = as_processed(log, settings)
     cfg = baseline_config(data.log, model, rigid_body, tool=tool, robot=robot)
-    progress(f"evaluating the baseline model and regressors on {data.n} samples", verbose)
-    ctx = Context(data, cfg)
+    fx = decimated(data)
+    progress(f"evaluating the baseline model and regressors on {fx.n} samples"
+             + (f" (the log decimated to {fx.settings.rate:g} Hz)" if fx is not data else ""), verbose)
+    ctx = Context(fx, cfg)
     y = ctx.residual
     noise = data.noise
     fl = _folds(ctx.n, folds)
@@ -559,7 +581,9 @@ def diagnose(log: MeasurementLog | ProcessedLog | str, model: Any = None, *, rig
         progress("testing the remaining residual for structure", verbose)
         unexplained = test_structure(ctx, residual, noise, fl)
     d = Diagnosis(rmse(y), float(np.sqrt(np.mean(y ** 2))), noise.copy(), ranking, verdict, selection, cfg, ctx,
-                  rmse_sel, unexplained, assumptions_of(data, cfg, tool), notes, residual)
+                  rmse_sel, unexplained, assumptions_of(data, cfg, tool), notes, residual, data)
+    if fx is not data:
+        d.assumptions["effects_analysed_at_hz"] = fx.settings.rate
     return d
 
 
@@ -600,11 +624,16 @@ def _split(n: int, frac: float = HOLDOUT) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _alternate(ctx: Context, spec, y: np.ndarray, idx: np.ndarray, refine: bool) -> list[Fit]:
-    """Fit the effects of ``spec`` [(effect, joints)] together on samples idx (alternating least squares, with the
-    non-linear refinements inside when ``refine``)."""
+    """Fit the effects of ``spec`` [(effect, joints)] together on samples idx: the joint linear least-squares
+    solution (shapes chosen on the residual) as the start, then alternating passes in which each effect is re-fitted
+    to what the others leave (its own fit: e.g. the sigmoid as a replacement of the model's), with the non-linear
+    refinements inside when ``refine``."""
+    eng = Engine(ctx, y, [np.asarray(idx)])
+    terms = [Term(e, e.shape(ctx, y), (list(j) if j is not None else list(range(7))) if e.per_joint else None)
+             for e, j in spec]
+    contrib = eng.contributions(eng.fit(terms, cv=False))
     fits: list[Fit | None] = [None] * len(spec)
-    contrib = [np.zeros_like(y) for _ in spec]
-    for _ in range(3 if len(spec) > 1 else 1):
+    for _ in range(2 if len(spec) > 1 else 1):
         for i, (e, joints) in enumerate(spec):
             others = sum((contrib[m] for m in range(len(spec)) if m != i), np.zeros_like(y))
             f = e.fit(ctx, y - others, idx)
@@ -649,7 +678,7 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
                 raise ValueError(f"effect {n!r} given twice")
             names.append(n)
         progress(f"evaluating the baseline model and regressors on {data.n} samples", verbose)
-        ctx = Context(data, cfg)
+        ctx = Context(decimated(data), cfg)
     for n in names:
         e = get_effect(n)
         if type(e).apply is Effect.apply:
@@ -685,7 +714,7 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
     holdout_info: dict[str, Any] | None = None
     if holdout and (spec or auto):
         train, test = _split(ctx.n, holdout)
-        sub = data.subset(test)
+        sub = ctx.data.subset(test)
 
         def heldout_rmse(sp) -> np.ndarray:
             new = cfg
@@ -793,10 +822,11 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
     progress("re-comparing with the calibrated model", verbose)
     ev = evaluate(new, data)
     r_after = data.tau - ev.predicted
+    y_full = y if ctx.data is data else data.tau - evaluate(cfg, data).predicted
     params = {e.name: {**e.public(f), "joints": list(map(int, f.joints))} for e, f in zip(members, fits, strict=True)}
     for name, probs in implausible.items():
         params[name]["problems"] = probs
-    return FitResult(cfg, new, names, fits, params, rmse(y), rmse(r_after), noise.copy(), data, y, r_after,
+    return FitResult(cfg, new, names, fits, params, rmse(y_full), rmse(r_after), noise.copy(), data, y_full, r_after,
                      holdout_info, assumptions_of(data, cfg, tool))
 
 

@@ -1133,7 +1133,8 @@ class Delay(Effect):
         d = float(self.coef(fit)[0])
         if d < 0:
             return {-1: f"negative delay {d * 1000:.2f} ms (the torque would lead the motion)"}
-        if d < 1.5 * ctx.data.dt:
+        dt = ctx.data.report.dt_median or ctx.data.dt  # the log's own sample period (the analysis may decimate)
+        if d < 1.5 * dt:
             return {-1: f"delay {d * 1000:.2f} ms is below 1.5 sample periods: within the alignment uncertainty of "
                         "logged signals"}
         if d > MAX_DELAY:

@@ -223,6 +223,10 @@ def clean(log: MeasurementLog, settings: CleanSettings | None = None) -> Process
             optional[name] = r if name in ("tau_J_d", "tau_ext_hat_filtered") else lp(r)
     k = int(round(s.trim * s.rate))
     sl = slice(k, len(grid) - k)
+    still = [j for j in range(7) if np.abs(dq[sl, j]).max() < 0.05]
+    if still:
+        warnings.append(f"joints {still} barely move (abs(dq) < 0.05 rad/s): their friction, inertia and delay cannot "
+                        "be identified from this log (only offsets and pose-dependent effects)")
     frac = highpass_power_fraction(s)
     hf = (tau - tau_filt)[sl]
     noise = np.sqrt(np.mean(hf ** 2, axis=0) / frac)
@@ -232,4 +236,25 @@ def clean(log: MeasurementLog, settings: CleanSettings | None = None) -> Process
                         {kk: v[sl] for kk, v in optional.items()}, noise, log, report, s)
 
 
-__all__ = ["CleanSettings", "CleaningReport", "ProcessedLog", "clean", "highpass_power_fraction"]
+MAX_EFFECT_SAMPLES = 60_000  # samples the effect library works on (60 s at 1 kHz); longer logs are decimated
+
+
+def decimated(data: ProcessedLog, max_samples: int = MAX_EFFECT_SAMPLES) -> ProcessedLog:
+    """``data`` decimated by the smallest integer factor that leaves at most ``max_samples`` samples, keeping the
+    rate above 4 times the low-pass cutoff (the motion signals are filtered, so nothing of them is lost; the
+    torque noise averages over fewer samples). Returns ``data`` itself when no decimation is needed. Used by the
+    effect library (its regressors take 70 columns per joint and sample) on long logs."""
+    k = -(-data.n // max_samples)
+    k = min(k, max(1, int(data.settings.rate // (4 * data.settings.cutoff))))
+    if k <= 1:
+        return data
+    from dataclasses import replace
+
+    idx = np.arange(0, data.n, k)
+    sub = data.subset(idx)
+    sub.settings = replace(data.settings, rate=data.settings.rate / k)
+    return sub
+
+
+__all__ = ["CleanSettings", "MAX_EFFECT_SAMPLES", "decimated", "CleaningReport", "ProcessedLog", "clean",
+           "highpass_power_fraction"]
