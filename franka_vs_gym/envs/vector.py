@@ -12,10 +12,10 @@ state back. Derived quantities an environment reads after its physics (contacts,
 image) are copied from the batch's persistent per-simulation data. The robots' measured-state reflexes run inside
 the batch call (the compiled plant checks every physics step and records a violation in the simulation's
 ``userdata``, part of the state copied back), and the reflex checks run after it as ``SimWorld.step`` runs them,
-raising that violation with its time, joint and value. A simulation that diverges is re-run alone by its environment, which then
-reports the divergence exactly as a single environment does; so is a robot that needs Python between its physics
-steps (brakes holding it after a reflex, rate-limited commands, a command or measurement delay, a camera frame in
-the middle of the period).
+raising that violation with its time, joint and value. A simulation that diverges is re-run alone by its
+environment, which then reports the divergence exactly as a single environment does; so is a robot that needs Python
+between its physics steps (brakes holding it after a reflex, rate-limited commands, a command or measurement delay,
+a camera frame in the middle of the period).
 
 Autoreset follows Gymnasium 1.x: ``autoreset_mode=AutoresetMode.NEXT_STEP`` (default: the step after an episode
 ends resets that environment, ignoring its action) or ``SAME_STEP`` (reset within the step; the last observation
