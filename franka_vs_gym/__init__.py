@@ -1,4 +1,5 @@
-"""franka_vs_gym: a simulator of the Franka Emika Robot (FER) for visual servoing, torque control and RL.
+"""franka_vs_gym: a simulator of Franka arms (the Franka Emika Robot, FER, by default; the Franka Research 3, FR3)
+for visual servoing, torque control and RL.
 
 Importing the package registers its Gymnasium environments.
 """
