@@ -69,7 +69,7 @@ def test_no_hidden_effect_gives_verdict_none(seed):
     d = diagnose(log)
     assert d.verdict == "none", [(c.effect, round(c.score, 1)) for c in d.ranking[:3]]
     assert not any(c.significant for c in d.ranking)
-    assert d.selected == []
+    assert d.selected == [] and d.explained, d.unexplained.text
     # the default model is right: its residual is the measurement noise
     np.testing.assert_allclose(d.rmse_tau, d.noise_floor, rtol=0.05)
 

@@ -217,3 +217,22 @@ def test_effects_from_an_installed_package_entry_point(monkeypatch):
     finally:
         if "tool_mass_error" in REGISTRY:
             REGISTRY.unregister("tool_mass_error")
+
+
+def test_a_tool_heavier_than_the_real_one_is_corrected_not_misnamed():
+    """The commonest real-log mistake: the model's tool is heavier than what the arm carries (here 1 kg too heavy;
+    a log recorded without the Hand but compared with it is the same). The payload effect fits a negative mass,
+    the corrected tool is physical, so it is selected (not a torque offset) and fit restores the real tool."""
+    from franka_vs_gym.model.config import ModelConfig, RigidBody, Tool
+    from franka_vs_gym.validation.diagnose import fit_effects
+
+    log, _ = make_hidden_effect_log("none", 5, duration=8.0)
+    hand = Tool.franka_hand()
+    heavy = Tool("custom", hand.flMe, RigidBody(hand.body.mass + 1.0, hand.body.com, hand.body.inertia))
+    d = diagnose(log, ModelConfig(tool=heavy))
+    assert d.selected == ["payload"] and d.explained, (d.selected, d.notes)
+    assert d.selection[0].params["mass_kg"] == pytest.approx(-1.0, abs=0.05)
+    f = fit_effects(log, ["payload"], ModelConfig(tool=heavy))
+    assert f.after.tool.body.mass == pytest.approx(hand.body.mass, abs=0.05)
+    np.testing.assert_allclose(f.after.tool.body.com, hand.body.com, atol=0.01)
+    assert np.all(f.rmse_after <= 1.05 * f.noise_floor)

@@ -18,7 +18,7 @@ import numpy as np
 from franka_vs_gym.assets.mjcf import RobotSpec, SceneSpec, TagSpec, mat2quat
 from franka_vs_gym.model.checks import as_pose, as_vector
 from franka_vs_gym.model.config import ModelConfig, RigidBody, Tool, resolve_config
-from franka_vs_gym.model.description import RobotDescription
+from franka_vs_gym.model.description import FER, RobotDescription
 from franka_vs_gym.model.franka_model import FrankaModel
 from franka_vs_gym.model.friction import make_plant_friction
 from franka_vs_gym.model.geometry import CAMERA_VISP_TO_MUJOCO, combine_inertials, pose_vector, twist_transform
@@ -59,8 +59,8 @@ JOINT_STATE, END_EFFECTOR_FRAME, CAMERA_FRAME, REFERENCE_FRAME = (
 # Default wrist camera mount: optical axis along the end-effector z axis, 9 cm to the side of the fingers (x_e)
 # and 5 cm behind the finger tips, so the fingers stay out of the image.
 DEFAULT_eMc = np.array([[1.0, 0.0, 0.0, 0.09], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, -0.05], [0.0, 0.0, 0.0, 1.0]])
-# Gains of the joint velocity servo (Nm s/rad) used in velocity and position control.
-VELOCITY_GAINS = np.array([120.0, 120.0, 80.0, 80.0, 15.0, 15.0, 6.0])
+# Gains of the FER's joint velocity servo (Nm s/rad); each robot's own are ``RobotDescription.servo_gains``.
+VELOCITY_GAINS = np.array(FER.servo_gains)
 # Velocity commands are scaled to 98 % of the limits at most, so that the joint servo's small overshoot does not trip
 # the velocity reflex (libfranka's rate limiter likewise keeps commands a margin below the limits).
 VELOCITY_COMMAND_SCALE = 0.98
@@ -133,6 +133,7 @@ class FrankaSim:
         self._setup_delay(cfg)
         self._tau_cmd = np.zeros(7)
         self._offset = cfg.torque_offset.copy()
+        self.servo_gains = np.array(cfg.robot.servo_gains, dtype=np.float64)  # joint velocity servo, Nm s/rad
         self._torque_noise = float(torque_noise)
         self._rng = np.random.default_rng(seed)
         self._state = RobotState.STATE_STOP
@@ -383,7 +384,7 @@ class FrankaSim:
         m = self._m
         # the joints' current servo torque: torque control takes over from it without a jump
         servo = self._d.actuator_force[self._vel].copy() if state == RobotState.STATE_FORCE_TORQUE_CONTROL else None
-        kv = 0.0 if state == RobotState.STATE_FORCE_TORQUE_CONTROL else VELOCITY_GAINS
+        kv = 0.0 if state == RobotState.STATE_FORCE_TORQUE_CONTROL else self.servo_gains
         m.actuator_gainprm[self._vel, 0] = kv
         m.actuator_biasprm[self._vel, 2] = -np.asarray(kv)
         self._ctrl_vel[:] = 0.0
@@ -488,8 +489,8 @@ class FrankaSim:
         n = int(math.ceil(T / self.dt))
         # joint velocity servo along the trajectory, plus a position correction
         m = self._m
-        m.actuator_gainprm[self._vel, 0] = VELOCITY_GAINS
-        m.actuator_biasprm[self._vel, 2] = -VELOCITY_GAINS
+        m.actuator_gainprm[self._vel, 0] = self.servo_gains
+        m.actuator_biasprm[self._vel, 2] = -self.servo_gains
         for k in range(1, n + 1):
             s = k * self.dt / T
             dsdt = (30 * s**2 - 60 * s**3 + 30 * s**4) / T

@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from franka_vs_gym.model.config import Friction, ModelConfig, RigidBody
+from franka_vs_gym.model.config import Friction, ModelConfig, RigidBody, Tool
 from franka_vs_gym.model.description import FER
 from franka_vs_gym.model.friction import coulomb_friction, gaz_sigmoid, viscous_friction
 from franka_vs_gym.model.geometry import combine_inertials, parallel_axis
@@ -833,7 +833,8 @@ def _payload_body(th: np.ndarray) -> tuple[RigidBody, list[str]]:
     m = float(th[0])
     problems = []
     if m <= 0:
-        return RigidBody(), [f"payload mass {m:.3g} kg must be > 0"]
+        return RigidBody(), [f"payload mass {m:.3g} kg must be > 0 (if the arm carries less than the model's tool, "
+                             "try --tool none or --tool unknown)"]
     c7 = th[1:4] / m
     Ixx, Ixy, Iyy, Ixz, Iyz, Izz = th[4:10]
     Io = np.array([[Ixx, Ixy, Ixz], [Ixy, Iyy, Iyz], [Ixz, Iyz, Izz]])
@@ -857,12 +858,25 @@ def _combine(a: RigidBody, b: RigidBody) -> RigidBody:
     return RigidBody(*combine_inertials([(a.mass, a.com, a.inertia), (b.mass, b.com, b.inertia)]))
 
 
+def _flange_params7(config: ModelConfig) -> np.ndarray:
+    """(10,) dynamic parameters, in the joint-7 frame, of the body at the flange (tool and payload together)."""
+    body = config.flange_body()
+    if body.mass <= 0:
+        return np.zeros(10)
+    return pin.Inertia(body.mass, np.asarray(body.com) + FLANGE_OFFSET, np.asarray(body.inertia)).toDynamicParameters()
+
+
 class Payload(Effect):
     """An unknown rigid body held at the flange: 10 parameters (mass, first moments, inertia about the joint-7
-    origin, pinocchio's order), reported as mass, centre of mass and inertia in the flange frame.
+    origin, pinocchio's order), reported as mass, centre of mass and inertia in the flange frame. A negative mass
+    means the arm carries *less* than the model's tool and payload (a lighter tool, or none): then the corrected
+    flange body (the model's tool and payload plus the change) must itself be physical, and ``apply`` replaces the
+    tool by it.
 
     Signature: wrist-pose-dependent gravity torque on joints 1-6 plus inertial torques of a body at the flange.
-    Plausible: 0 < m <= 3.5 kg (FER rated payload 3 kg), centre of mass within 0.3 m of the flange.
+    Plausible: 0 < m <= 3.5 kg (FER rated payload 3 kg), centre of mass within 0.3 m of the flange; a negative m
+    when the corrected flange body keeps a positive mass and its centre of mass within 0.3 m (its inertia, barely
+    identifiable, is projected onto physical values, as a fitted payload's is).
     """
 
     name = "payload"
@@ -870,19 +884,36 @@ class Payload(Effect):
     n_params = 10
     description = "an unknown rigid body held at the flange (mass, centre of mass, inertia)"
     signature = "wrist-pose-dependent gravity torque on joints 1-6 plus inertial torques of a body at the flange"
-    plausible = "0 < m <= 3.5 kg, centre of mass within 0.3 m of the flange"
+    plausible = "0 < m <= 3.5 kg, centre of mass within 0.3 m of the flange (or a lighter but physical tool)"
 
     def design(self, ctx, shape):
         return ctx.ev.Y_last
 
+    def _corrected(self, config: ModelConfig, fit: Fit) -> np.ndarray:
+        return _flange_params7(config) + self.coef(fit)
+
     def problems(self, ctx, fit):
-        _, pr = _payload_body(self.coef(fit))
-        return {-1: "; ".join(pr)} if pr else {}
+        th = self.coef(fit)
+        if th[0] > 0:
+            _, pr = _payload_body(th)
+            return {-1: "; ".join(pr)} if pr else {}
+        have = ctx.config.flange_body().mass
+        new = self._corrected(ctx.config, fit)
+        if have <= 0 or new[0] <= 0:
+            return {-1: f"payload mass {th[0]:.3g} kg: more than the model's tool and payload ({have:.3g} kg) "
+                        "would be removed"}
+        _, pr = _payload_body(new)  # the corrected tool: mass, centre of mass (its inertia is projected)
+        return {-1: "the corrected tool: " + "; ".join(pr)} if pr else {}
 
     def apply(self, config, fit):
-        body, _ = _payload_body(self.coef(fit))
-        if body.mass <= 0:
-            return config.copy()
+        th = self.coef(fit)
+        if th[0] <= 0:  # a lighter tool: the tool becomes the corrected flange body, the payload is absorbed
+            new = self._corrected(config, fit)
+            if new[0] <= 0:
+                return config.copy()
+            body, _ = _payload_body(new)  # flange frame, inertia projected onto physical values
+            return config.copy(tool=Tool("custom", config.tool.flMe, body), payload=None)
+        body, _ = _payload_body(th)
         if config.payload is not None and config.payload.mass > 0:
             body = _combine(config.payload, body)
         return config.copy(payload=body)
@@ -894,7 +925,11 @@ class Payload(Effect):
         return {"mass_kg": m, "com_flange_m": com.tolist()}
 
     def public(self, fit):
-        body, _ = _payload_body(self.coef(fit))
+        th = self.coef(fit)
+        if th[0] <= 0:
+            return {"mass_kg": round(float(th[0]), 6), "meaning": "the arm carries less than the model's tool and "
+                    "payload; the corrected tool is fitted"}
+        body, _ = _payload_body(th)
         return {"mass_kg": round(body.mass, 6), "com_flange_m": np.round(body.com, 6).tolist(),
                 "inertia_kgm2": np.round(body.inertia, 6).tolist()}
 
