@@ -84,10 +84,14 @@ else:
         except ImportError as e:
             _reason = f"the compiled plant (franka_vs_gym.sim._plant) does not load: {e}; reinstall (pip install -e .)"
     if _native is not None:
-        if _native.MJ_VERSION_HEADER != mujoco.mj_version() or _native.TAG != TAG or _native.NUSER != NUSER \
-                or getattr(_native, "RTAG", None) != RTAG or getattr(_native, "RSLOT", None) != RSLOT:
+        if _native.MJ_VERSION_HEADER != mujoco.mj_version():
             _reason = (f"the compiled plant was built against MuJoCo {_native.MJ_VERSION_HEADER} but MuJoCo "
                        f"{mujoco.mj_version()} is installed; reinstall franka_vs_gym (pip install -e .)")
+            _native = None
+        elif _native.TAG != TAG or _native.NUSER != NUSER or getattr(_native, "RTAG", None) != RTAG \
+                or getattr(_native, "RSLOT", None) != RSLOT:
+            _reason = ("the compiled plant is older than its sources (franka_vs_gym/sim/_plant.c); rebuild it "
+                       "(pip install -e . or python setup.py build_ext --inplace)")
             _native = None
 
 NATIVE: bool = _native is not None

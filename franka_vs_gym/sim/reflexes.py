@@ -137,6 +137,7 @@ class Reflexes:
         # the plant's record of this robot (franka_vs_gym.sim.plant); a record the plant never writes until install
         self._native = False
         self._ud = np.full(13, -1.0)
+        self._t_from = -math.inf  # states at or before this time are not checked before a step (reset, recovery)
 
     @property
     def command_rates(self) -> str:
@@ -339,11 +340,15 @@ class Reflexes:
             ud[0] = 0.0 if self._enabled and self._hold is None and not self._relaxed else -1.0
 
     def _clear_record(self) -> None:
-        """Forget any recorded violation; the plant checks states after the current time."""
+        """Forget any recorded violation; states after the current time are checked (a reset or recovered state is
+        not: the checks start with the state after the next physics step)."""
+        world = getattr(self, "_world", None)
+        if world is not None:
+            self._t_from = world.data.time
         if self._native:
             ud = self._ud
             ud[:] = 0.0
-            ud[1] = self._world.data.time
+            ud[1] = self._t_from
             ud[2] = float(self._check_tau)
             self._arm()
 
@@ -385,7 +390,7 @@ class Reflexes:
             self._ramp_torque()
         elif self._ramp_vel:
             self._ramp_velocity()
-        if self.enabled:
+        if self._enabled and self._world.data.time > self._t_from:
             self.check_state()
 
     def check_state(self) -> None:
