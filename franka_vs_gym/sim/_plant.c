@@ -20,8 +20,9 @@
  *
  * and its record in mjData.userdata (FVS_RSLOT numbers from the slot) is
  *
- *   [status (0 armed, < 0 off, 1 position, 2 velocity, 3 tau_J: the first violation), t_from (s: only states later
- *    than this are checked), check_tau (0/1), t (s), joint k, value (rad, rad/s or Nm), held q (7, rad)]
+ *   [status (FVS_ARMED armed, 0 off (a zeroed record), 1 position, 2 velocity, 3 tau_J: the first violation),
+ *    t_from (s: only states later than this are checked), check_tau (0/1), t (s), joint k, value (rad, rad/s or
+ *    Nm), held q (7, rad)]
  *
  * The callback runs at the start of each step's dynamics, on the state the previous step produced (time t), the
  * state a check after that step would see; d->qfrc_actuator still holds that step's actuator torque (it is
@@ -45,6 +46,7 @@
 #define FVS_RTAG 1179013960.0 /* a robot whose reflexes the plant watches */
 #define FVS_NUSER 15
 #define FVS_RSLOT 13
+#define FVS_ARMED -1.0 /* record status of a robot whose reflexes the plant checks */
 
 static void fvs_brake(const mjModel* m, mjData* d, int j0, const mjtNum* s) {
   for (int k = 0; k < 7; k++) {
@@ -61,78 +63,94 @@ static void fvs_brake(const mjModel* m, mjData* d, int j0, const mjtNum* s) {
   }
 }
 
-static void fvs_reflexes(const mjModel* m, mjData* d) {
+/* The robot whose joints are j0..j0+6 and whose record is at userdata offset off, if its joints carry the reflex
+ * columns consistently; else NULL. */
+static mjtNum* fvs_record(const mjModel* m, mjData* d, int j0) {
   const mjtSize nu = m->nuser_jnt;
-  for (int j0 = 0; j0 + 7 <= m->njnt; j0++) {
-    const mjtNum* u = m->jnt_user + j0 * nu;
-    if (u[7] != FVS_RTAG || u[9] != 0.0) {
-      continue;
+  if (nu < FVS_NUSER || j0 < 0 || j0 + 7 > m->njnt) {
+    return NULL;
+  }
+  const mjtNum* u = m->jnt_user + j0 * nu;
+  if (u[7] != FVS_RTAG || u[9] != 0.0) {
+    return NULL;
+  }
+  for (int k = 1; k < 7; k++) {
+    const mjtNum* uk = m->jnt_user + (j0 + k) * nu;
+    if (uk[7] != FVS_RTAG || uk[8] != u[8] || uk[9] != (mjtNum)k) {
+      return NULL;
     }
-    int ok = 1;
-    for (int k = 1; k < 7; k++) {
-      const mjtNum* uk = m->jnt_user + (j0 + k) * nu;
-      if (uk[7] != FVS_RTAG || uk[8] != u[8] || uk[9] != (mjtNum)k) {
-        ok = 0;
-      }
+  }
+  const int off = (int)u[8];
+  if (off < 0 || off + FVS_RSLOT > m->nuserdata) {
+    return NULL;
+  }
+  return d->userdata + off;
+}
+
+/* Check the armed robot (record s) on the current state; record and brake on the first violation. Returns the
+ * reason code (0: within the limits). */
+static int fvs_check(const mjModel* m, mjData* d, int j0, mjtNum* s) {
+  const mjtSize nu = m->nuser_jnt;
+  int code = 0, jk = 0;
+  mjtNum value = 0.0;
+  for (int k = 0; k < 7; k++) {
+    const mjtNum* uk = m->jnt_user + (j0 + k) * nu;
+    const mjtNum q = d->qpos[m->jnt_qposadr[j0 + k]];
+    if (q < uk[10] || q > uk[11]) {
+      code = 1, jk = k, value = q;
+      break;
     }
-    const int off = (int)u[8];
-    if (!ok || off < 0 || off + FVS_RSLOT > m->nuserdata) {
-      continue;
-    }
-    mjtNum* s = d->userdata + off;
-    if (s[0] > 0.0) {
-      fvs_brake(m, d, j0, s);
-      continue;
-    }
-    if (s[0] != 0.0 || !(d->time > s[1])) {
-      continue;
-    }
-    int code = 0, jk = 0;
-    mjtNum value = 0.0;
+  }
+  if (!code) {
+    mjtNum rmax = -1.0;
+    int over = 0;
     for (int k = 0; k < 7; k++) {
       const mjtNum* uk = m->jnt_user + (j0 + k) * nu;
-      const mjtNum q = d->qpos[m->jnt_qposadr[j0 + k]];
-      if (q < uk[10] || q > uk[11]) {
-        code = 1, jk = k, value = q;
-        break;
+      const mjtNum v = d->qvel[m->jnt_dofadr[j0 + k]];
+      const mjtNum r = fabs(v) / uk[12];
+      over |= fabs(v) > uk[12];
+      if (r > rmax) {
+        rmax = r, jk = k, value = v;
       }
     }
-    if (!code) {
-      mjtNum rmax = -1.0;
-      int over = 0;
-      for (int k = 0; k < 7; k++) {
-        const mjtNum* uk = m->jnt_user + (j0 + k) * nu;
-        const mjtNum v = d->qvel[m->jnt_dofadr[j0 + k]];
-        const mjtNum r = fabs(v) / uk[12];
-        over |= fabs(v) > uk[12];
-        if (r > rmax) {
-          rmax = r, jk = k, value = v;
-        }
-      }
-      if (over) {
-        code = 2;
+    if (over) {
+      code = 2;
+    }
+  }
+  if (!code && s[2] != 0.0) {
+    mjtNum rmax = -1.0;
+    for (int k = 0; k < 7; k++) {
+      const mjtNum* uk = m->jnt_user + (j0 + k) * nu;
+      const mjtNum tau = d->qfrc_actuator[m->jnt_dofadr[j0 + k]] + uk[14];
+      const mjtNum r = fabs(tau) / uk[13];
+      if (r > rmax) {
+        rmax = r, jk = k, value = tau;
       }
     }
-    if (!code && s[2] != 0.0) {
-      mjtNum rmax = -1.0;
-      for (int k = 0; k < 7; k++) {
-        const mjtNum* uk = m->jnt_user + (j0 + k) * nu;
-        const mjtNum tau = d->qfrc_actuator[m->jnt_dofadr[j0 + k]] + uk[14];
-        const mjtNum r = fabs(tau) / uk[13];
-        if (r > rmax) {
-          rmax = r, jk = k, value = tau;
-        }
-      }
-      if (rmax > 1.0) {
-        code = 3;
-      }
+    if (rmax > 1.0) {
+      code = 3;
     }
-    if (code) {
-      s[0] = code, s[3] = d->time, s[4] = jk, s[5] = value;
-      for (int k = 0; k < 7; k++) {
-        s[6 + k] = d->qpos[m->jnt_qposadr[j0 + k]];
-      }
+  }
+  if (code) {
+    s[0] = code, s[3] = d->time, s[4] = jk, s[5] = value;
+    for (int k = 0; k < 7; k++) {
+      s[6 + k] = d->qpos[m->jnt_qposadr[j0 + k]];
+    }
+    fvs_brake(m, d, j0, s);
+  }
+  return code;
+}
+
+static void fvs_reflexes(const mjModel* m, mjData* d) {
+  for (int j0 = 0; j0 + 7 <= m->njnt; j0++) {
+    mjtNum* s = fvs_record(m, d, j0);
+    if (s == NULL) {
+      continue;
+    }
+    if (s[0] > 0.0) {
       fvs_brake(m, d, j0, s);
+    } else if (s[0] == FVS_ARMED && d->time > s[1]) {
+      fvs_check(m, d, j0, s);
     }
   }
 }
@@ -173,9 +191,47 @@ static PyObject* callback_address(PyObject* self, PyObject* args) {
   return PyLong_FromVoidPtr((void*)&fvs_passive);
 }
 
+/* check(model_address, data_address, j0) -> 0: the robot is not armed (Python checks), 1: a violation is recorded
+ * (now or during the last call), 2: armed and within its limits (the state is marked checked). */
+static PyObject* check(PyObject* self, PyObject* const* args, Py_ssize_t nargs) {
+  (void)self;
+  if (nargs != 3) {
+    PyErr_SetString(PyExc_TypeError, "check(model_address, data_address, first_joint)");
+    return NULL;
+  }
+  const mjModel* m = (const mjModel*)PyLong_AsVoidPtr(args[0]);
+  mjData* d = (mjData*)PyLong_AsVoidPtr(args[1]);
+  const long j0 = PyLong_AsLong(args[2]);
+  if (PyErr_Occurred()) {
+    return NULL;
+  }
+  if (m == NULL || d == NULL) {
+    PyErr_SetString(PyExc_ValueError, "check: null model or data");
+    return NULL;
+  }
+  mjtNum* s = fvs_record(m, d, (int)j0);
+  if (s == NULL) {
+    return PyLong_FromLong(0);
+  }
+  if (s[0] > 0.0) {
+    return PyLong_FromLong(1);
+  }
+  if (s[0] != FVS_ARMED) {
+    return PyLong_FromLong(0);
+  }
+  if (fvs_check(m, d, (int)j0, s)) {
+    return PyLong_FromLong(1);
+  }
+  s[1] = d->time;
+  return PyLong_FromLong(2);
+}
+
 static PyMethodDef methods[] = {
     {"callback_address", callback_address, METH_NOARGS,
      "Address of the C passive-force callback (for mujoco.set_mjcb_passive through ctypes)."},
+    {"check", (PyCFunction)(void (*)(void))check, METH_FASTCALL,
+     "check(model_address, data_address, first_joint): the plant's reflex check on the current state (0 not armed, "
+     "1 violation recorded, 2 within the limits)."},
     {NULL, NULL, 0, NULL},
 };
 

@@ -38,7 +38,7 @@ and tau_J range) at every physics step; a watched robot's joints carry its limit
 
 and each robot has a record of :data:`RSLOT` numbers in ``mjData.userdata`` (the scene declares
 ``<size nuserdata="13 x robots"/>``; it is part of MuJoCo's integration state, so ``mj_getState``/``mujoco.batch``
-carry it): status (0 armed, < 0 off, 1/2/3 the first violation: position, velocity, tau_J), the time after which
+carry it): status (-1 armed, 0 off, 1/2/3 the first violation: position, velocity, tau_J), the time after which
 states are checked (s), whether tau_J is checked, then the violation's time (s), joint, value, and the held joint
 positions (7, rad). From the violating step on the callback holds the robot (joints put back at the held position
 with zero velocity, its joint actuators' controls zeroed, at every step); Python reads the record after the call.
@@ -97,6 +97,9 @@ else:
 NATIVE: bool = _native is not None
 _CB_TYPE = ctypes.CFUNCTYPE(None, ctypes.c_void_p, ctypes.c_void_p)
 _callback = _CB_TYPE(_native.callback_address()) if NATIVE else None
+#: ``check(model._address, data._address, first_joint)``: the plant's reflex check on the current state (0: the
+#: robot is not armed, 1: a violation is recorded, 2: within its limits; the state is then marked checked).
+check = _native.check if NATIVE else None
 
 
 def unavailable_reason() -> str | None:
@@ -162,5 +165,5 @@ def plant_friction_torque(model: mujoco.MjModel, data: mujoco.MjData, dofs: Any)
     return -(with_cb - d.qfrc_passive)[np.asarray(dofs)]
 
 
-__all__ = ["FRICTION_COLS", "NATIVE", "NUSER", "RSLOT", "RTAG", "TAG", "friction_rows",
+__all__ = ["FRICTION_COLS", "check", "NATIVE", "NUSER", "RSLOT", "RTAG", "TAG", "friction_rows",
            "install", "plant_friction_torque", "unavailable_reason"]
