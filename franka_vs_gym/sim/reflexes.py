@@ -29,11 +29,12 @@ period (10-50 steps) stays one ``mj_step(m, d, n)`` call (one ``mujoco.batch`` c
 the first physics step whose resulting state violates a limit the plant records the violation (time, joint, value,
 reason) in the robot's record in ``mjData.userdata`` and engages the brakes from that step on (joints held at that
 position, zero velocity, the robot's actuator controls zeroed); the ``SimWorld.step(n)`` call then raises the
-ControlException, whose detail names that time, joint and value. The state a call ends with is checked by Python
-after the call. Without the compiled plant the same checks run in Python before every physics step (and after the
-call), which raises at the violating step itself: the same reasons, times, joints and values, slower. After a
-recovery from beyond a position limit (relaxed limits, tightened step by step as the joint comes back) the checks run
-in Python at every step.
+ControlException, whose detail names that time, joint and value. The state a call ends with is checked right
+after the call by the same compiled check (``plant.check``), which marks it checked for the next call. Without the
+compiled plant the same checks run in Python before every physics step (and after the call), which raises at the
+violating step itself: the same reasons, times, joints and values, slower. After a recovery from beyond a position
+limit (relaxed limits, tightened step by step as the joint comes back) the checks run in Python at every step. A
+reset or recovered state is not checked; the checks start with the state after the next physics step.
 
 The last three are limits on what a controller sends (libfranka's motion-generator and torque-command checks);
 ``command_rates`` chooses how FrankaSim treats them:
