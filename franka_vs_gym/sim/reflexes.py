@@ -294,6 +294,23 @@ class Reflexes:
         native_check = plant.check if self._native else None
         addr = (self._world.model._address, self._world.data._address, int(sim._jids[0])) if self._native else ()
 
+        data = self._world.data
+
+        def python_step() -> None:
+            """Before each physics step without the compiled plant: the same prefilter, on the state the previous
+            step produced."""
+            if data.time > self._t_from:
+                if self._relaxed or self._check_tau:
+                    self.check_state()
+                    return
+                sub(q, center, out=bq)
+                bd[:] = dq
+                absolute(buf, out=buf)
+                if (buf > lim).any():
+                    self.check_state()
+
+        self._python_step = python_step
+
         def after_steps() -> None:
             if native_check is not None:
                 r = native_check(*addr)
@@ -323,14 +340,18 @@ class Reflexes:
 
     def _update_mode(self) -> None:
         self._arm()
-        slow = self._hold is not None or self._ramp_tau or self._ramp_vel or self._relaxed or \
-            (self._enabled and not self._native)  # without the compiled plant, Python checks every step
+        slow = self._hold is not None or self._ramp_tau or self._ramp_vel or self._relaxed
         world = getattr(self, "_world", None)
         if world is None:
             return
         from franka_vs_gym.sim.world import no_op
 
-        hook = self.pre_step if slow else no_op
+        if slow:
+            hook = self.pre_step
+        elif self._enabled and not self._native:  # without the compiled plant, Python checks every step
+            hook = self._python_step
+        else:
+            hook = no_op
         if hook is not self._hook:
             world.replace_pre_step(self._hook, hook)
             self._hook = hook
