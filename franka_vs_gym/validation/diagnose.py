@@ -30,6 +30,9 @@ Method (all on the inverse-dynamics residual ``r = tau_J - tau_model`` of the ba
 7. **What remains.** The residual of the selected set is tested for structure (see
    :mod:`~franka_vs_gym.validation.structure`): ``explained`` is false when something above the noise follows the
    motion, the pose, the load or time, and the report says what.
+8. **Lack of fit.** Each selected effect's law is compared with nonparametric functions of its own driving
+   variables (:mod:`~franka_vs_gym.validation.lackfit`); an effect whose law misses the shape its variable shows
+   is kept as the closest library effect with ``lack_of_fit``, and ``explained`` is false.
 """
 
 from __future__ import annotations
@@ -116,11 +119,17 @@ class Selected:
     contribution: np.ndarray
     score: float
     channel: str = "inverse_dynamics"
+    lack_of_fit: list[Any] = field(default_factory=list)  # failed lack-of-fit tests (lackfit.LackOfFit)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"effect": self.effect, "joints": list(map(int, self.joints)), "params": self.params,
-                "contribution": np.round(self.contribution, 4).tolist(), "score": round(float(self.score), 2),
-                "channel": self.channel}
+        d = {"effect": self.effect, "joints": list(map(int, self.joints)), "params": self.params,
+             "contribution": np.round(self.contribution, 4).tolist(), "score": round(float(self.score), 2),
+             "channel": self.channel}
+        if self.lack_of_fit:
+            d["lack_of_fit"] = {"status": "closest library effect, lack of fit",
+                                "joints": sorted({f.joint for f in self.lack_of_fit}),
+                                "tests": [f.to_dict() for f in self.lack_of_fit]}
+        return d
 
 
 @dataclass
@@ -580,11 +589,37 @@ def diagnose(log: MeasurementLog | ProcessedLog | str, model: Any = None, *, rig
     if select:
         progress("testing the remaining residual for structure", verbose)
         unexplained = test_structure(ctx, residual, noise, fl)
+        if chosen:
+            progress("lack-of-fit test of each selected effect along its own variables", verbose)
+            _lack_of_fit(ctx, eng, chosen, cur, residual, noise, folds, selection, unexplained)
     d = Diagnosis(rmse(y), float(np.sqrt(np.mean(y ** 2))), noise.copy(), ranking, verdict, selection, cfg, ctx,
                   rmse_sel, unexplained, assumptions_of(data, cfg, tool), notes, residual, data)
     if fx is not data:
         d.assumptions["effects_analysed_at_hz"] = fx.settings.rate
     return d
+
+
+def _lack_of_fit(ctx: Context, eng: Engine, chosen: list[Term], cur: SetFit, residual: np.ndarray,
+                 noise: np.ndarray, folds: int, selection: list[Selected], unexplained: Any) -> None:
+    """Mark the selected effects whose law does not capture the shape of their own driving variables (see
+    :mod:`~franka_vs_gym.validation.lackfit`): the name is kept as the closest library effect, ``explained`` is
+    false and the description says what remains."""
+    from franka_vs_gym.validation.lackfit import describe, test_lack_of_fit
+    from franka_vs_gym.validation.structure import Finding
+
+    fails = test_lack_of_fit(ctx, chosen, eng.contributions(cur), residual, noise, folds)
+    if not fails:
+        return
+    if unexplained.explained:
+        unexplained.text = [s for s in unexplained.text if not s.startswith(("The residual is at the noise",
+                                                                             "No structure left"))]
+    unexplained.explained = False
+    for i, fl in sorted(fails.items()):
+        selection[i].lack_of_fit = fl
+        unexplained.text.append(describe(selection[i].effect, fl, noise))
+        for f in fl:
+            unexplained.findings.append(Finding(f.joint, "lack_of_fit", f.removed_rms, f.score,
+                                                f"{f.effect}: {f.alternative} of {f.driver} {f.detail}".strip()))
 
 
 @dataclass

@@ -169,6 +169,14 @@ class Effect:
     #: ridge prior, relative to the diagonal of the effect's normal equations: shrinks the coefficients the log
     #: barely excites toward zero (0: plain least squares)
     ridge = 0.0
+    #: the law's step height does not depend on the pose or load (tested by the lack-of-fit test's ``pose``
+    #: alternative, :mod:`~franka_vs_gym.validation.lackfit`)
+    lof_constant_height = False
+
+    def lof_drivers(self, ctx: Context) -> dict[str, np.ndarray]:
+        """The variables the law says the effect depends on, name -> (N, 7) per joint (the lack-of-fit test compares
+        the fitted law with a nonparametric function of them); ``{}``: the effect's own contribution is used."""
+        return {}
 
     # --- the linear model ------------------------------------------------------------------------------------
     def shape(self, ctx: Context, target: np.ndarray) -> dict[str, Any]:
@@ -295,6 +303,9 @@ class ViscousFriction(Effect):
     plausible = "total F_v >= 0 and < 0.2 tau_max (Nm s/rad)"
     SIZES = np.array([0.5, 0.5, 0.4, 0.4, 0.15, 0.15, 0.08])
 
+    def lof_drivers(self, ctx):
+        return {"dq": ctx.data.dq}
+
     def design(self, ctx, shape):
         return viscous_friction(ctx.data.dq, 1.0)[:, :, None]
 
@@ -334,6 +345,11 @@ class CoulombFriction(Effect):
     plausible = "total F_c >= 0 and < 0.25 tau_max (Nm)"
     SIZES = np.array([0.8, 0.8, 0.6, 0.6, 0.25, 0.25, 0.15])
     VC = 0.05  # smoothing of injected Coulomb friction (a sharper step chatters in the 1 ms explicit plant)
+
+    lof_constant_height = True
+
+    def lof_drivers(self, ctx):
+        return {"dq": ctx.data.dq}
 
     def shape(self, ctx, target):
         return {"coulomb_vel": _vc_choice(ctx, target, lambda dq, vc: coulomb_friction(dq, 1.0, vc))}
@@ -420,6 +436,11 @@ class SigmoidFriction(Effect):
     description = "Gaz et al. sigmoid friction (a Stribeck-like rounded, possibly off-centre step)"
     signature = "a rounded step in residual vs dq whose width is phi2's inverse, possibly off-centre (phi3)"
     plausible = "phi1 > 0 and < 0.25 tau_max (Nm), phi2 in [0.5, 400] s/rad, abs(phi3) <= 0.3 rad/s"
+
+    lof_constant_height = True
+
+    def lof_drivers(self, ctx):
+        return {"dq": ctx.data.dq}
 
     def shape(self, ctx, target):
         basis = ctx.sigmoid_basis()  # (g, nc, 7)
@@ -581,6 +602,11 @@ class AsymmetricFriction(Effect):
     signature = "a step at zero velocity whose positive and negative levels differ"
     plausible = "F_plus, F_minus >= 0 (total) and < 0.25 tau_max (Nm)"
 
+    lof_constant_height = True
+
+    def lof_drivers(self, ctx):
+        return {"dq": ctx.data.dq}
+
     def shape(self, ctx, target):
         return {"coulomb_vel": _vc_choice(ctx, target, lambda dq, vc: np.tanh(dq / vc))}
 
@@ -685,6 +711,11 @@ class StribeckFriction(Effect):
     plausible = "0 <= F_s < 0.25 tau_max (Nm)"
     injectable = False
 
+    lof_constant_height = True
+
+    def lof_drivers(self, ctx):
+        return {"dq": ctx.data.dq}
+
     def shape(self, ctx, target):
         def law(dq, vs):
             return coulomb_friction(dq, 1.0, 0.01) * np.exp(-(dq / vs) ** 2)
@@ -751,6 +782,9 @@ class Armature(Effect):
     signature = "residual proportional to the joint's own acceleration"
     plausible = "total >= 0 and < 2 (kg m^2)"
     SIZES = np.array([0.25, 0.25, 0.2, 0.2, 0.06, 0.06, 0.03])
+
+    def lof_drivers(self, ctx):
+        return {"ddq": ctx.data.ddq}
 
     def design(self, ctx, shape):
         return ctx.data.ddq[:, :, None]
@@ -1147,6 +1181,9 @@ class Delay(Effect):
     signature = "residual ~ -delay x time derivative of the predicted torque: largest where torque changes fast"
     plausible = "1.5 sample periods <= d <= 0.1 s"
     channel = "measurement"
+
+    def lof_drivers(self, ctx):
+        return {"d(predicted torque)/dt": ctx.dpred}
 
     def design(self, ctx, shape):
         return -ctx.dpred[:, :, None]

@@ -68,7 +68,8 @@ FOLLOWS = {"constant": "a constant offset", "position": "the joint position q", 
            "load": "the joint's load torque", "time": "time (a drift)", "periodic_t": "a periodic disturbance in time",
            "step_drift": "a friction-like step whose height drifts over time",
            "step_pose": "a friction-like step whose height depends on the position",
-           "slow": "time (slow residual that follows no single variable)"}
+           "slow": "time (slow residual that follows no single variable)",
+           "lack_of_fit": "a shape of a selected effect's own variable that its law does not capture"}
 
 
 @dataclass
