@@ -342,7 +342,7 @@ class FrankaSim:
         """Check the current state against the limits now (the simulator also does it before every physics
         step); raises ControlException on a violation."""
         if self._reflexes.enabled and not self._reflexes.errors:
-            self._reflexes.check_state()
+            self._reflexes.check_now()
 
     def automatic_error_recovery(self) -> None:
         """Clear the reflex errors and release the brakes (libfranka's ``automaticErrorRecovery``). The robot is
