@@ -172,11 +172,14 @@ class Effect:
     #: the law's step height does not depend on the pose or load (tested by the lack-of-fit test's ``pose``
     #: alternative, :mod:`~franka_vs_gym.validation.lackfit`)
     lof_constant_height = False
+    #: the processed log's signals the law depends on (e.g. ``("dq",)``), the default :meth:`lof_drivers`
+    lof_signals: tuple[str, ...] = ()
 
     def lof_drivers(self, ctx: Context) -> dict[str, np.ndarray]:
         """The variables the law says the effect depends on, name -> (N, 7) per joint (the lack-of-fit test compares
-        the fitted law with a nonparametric function of them); ``{}``: the effect's own contribution is used."""
-        return {}
+        the fitted law with a nonparametric function of them); ``{}``: the effect's own contribution is used.
+        By default the log signals named in ``lof_signals``; override for derived variables."""
+        return {name: getattr(ctx.data, name) for name in self.lof_signals}
 
     # --- the linear model ------------------------------------------------------------------------------------
     def shape(self, ctx: Context, target: np.ndarray) -> dict[str, Any]:
@@ -303,8 +306,7 @@ class ViscousFriction(Effect):
     plausible = "total F_v >= 0 and < 0.2 tau_max (Nm s/rad)"
     SIZES = np.array([0.5, 0.5, 0.4, 0.4, 0.15, 0.15, 0.08])
 
-    def lof_drivers(self, ctx):
-        return {"dq": ctx.data.dq}
+    lof_signals = ("dq",)
 
     def design(self, ctx, shape):
         return viscous_friction(ctx.data.dq, 1.0)[:, :, None]
@@ -347,9 +349,7 @@ class CoulombFriction(Effect):
     VC = 0.05  # smoothing of injected Coulomb friction (a sharper step chatters in the 1 ms explicit plant)
 
     lof_constant_height = True
-
-    def lof_drivers(self, ctx):
-        return {"dq": ctx.data.dq}
+    lof_signals = ("dq",)
 
     def shape(self, ctx, target):
         return {"coulomb_vel": _vc_choice(ctx, target, lambda dq, vc: coulomb_friction(dq, 1.0, vc))}
@@ -438,9 +438,7 @@ class SigmoidFriction(Effect):
     plausible = "phi1 > 0 and < 0.25 tau_max (Nm), phi2 in [0.5, 400] s/rad, abs(phi3) <= 0.3 rad/s"
 
     lof_constant_height = True
-
-    def lof_drivers(self, ctx):
-        return {"dq": ctx.data.dq}
+    lof_signals = ("dq",)
 
     def shape(self, ctx, target):
         basis = ctx.sigmoid_basis()  # (g, nc, 7)
@@ -603,9 +601,7 @@ class AsymmetricFriction(Effect):
     plausible = "F_plus, F_minus >= 0 (total) and < 0.25 tau_max (Nm)"
 
     lof_constant_height = True
-
-    def lof_drivers(self, ctx):
-        return {"dq": ctx.data.dq}
+    lof_signals = ("dq",)
 
     def shape(self, ctx, target):
         return {"coulomb_vel": _vc_choice(ctx, target, lambda dq, vc: np.tanh(dq / vc))}
@@ -712,9 +708,7 @@ class StribeckFriction(Effect):
     injectable = False
 
     lof_constant_height = True
-
-    def lof_drivers(self, ctx):
-        return {"dq": ctx.data.dq}
+    lof_signals = ("dq",)
 
     def shape(self, ctx, target):
         def law(dq, vs):
@@ -783,8 +777,7 @@ class Armature(Effect):
     plausible = "total >= 0 and < 2 (kg m^2)"
     SIZES = np.array([0.25, 0.25, 0.2, 0.2, 0.06, 0.06, 0.03])
 
-    def lof_drivers(self, ctx):
-        return {"ddq": ctx.data.ddq}
+    lof_signals = ("ddq",)
 
     def design(self, ctx, shape):
         return ctx.data.ddq[:, :, None]
