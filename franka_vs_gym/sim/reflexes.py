@@ -297,18 +297,23 @@ class Reflexes:
 
         data = self._world.data
 
+        def prefiltered_check() -> None:
+            """|q - centre| <= half range and |dq| <= dq_max in one comparison; only a violation (or a relaxed range,
+            a torque offset) goes on to check_state, which names it."""
+            if self._relaxed or self._check_tau:
+                self.check_state()
+                return
+            sub(q, center, out=bq)
+            bd[:] = dq
+            absolute(buf, out=buf)
+            if (buf > lim).any():
+                self.check_state()
+
         def python_step() -> None:
             """Before each physics step without the compiled plant: the same prefilter, on the state the previous
             step produced."""
             if data.time > self._t_from:
-                if self._relaxed or self._check_tau:
-                    self.check_state()
-                    return
-                sub(q, center, out=bq)
-                bd[:] = dq
-                absolute(buf, out=buf)
-                if (buf > lim).any():
-                    self.check_state()
+                prefiltered_check()
 
         self._python_step = python_step
 
@@ -323,14 +328,7 @@ class Reflexes:
                 self._trip_recorded()
             if not self._enabled or self._hold is not None:
                 return
-            if self._relaxed or self._check_tau:
-                self.check_state()
-                return
-            sub(q, center, out=bq)
-            bd[:] = dq
-            absolute(buf, out=buf)
-            if (buf > lim).any():
-                self.check_state()
+            prefiltered_check()
 
         return after_steps
 
