@@ -38,6 +38,7 @@ from gymnasium.vector.utils import batch_space, create_empty_array
 from franka_vs_gym.envs.batched import batched_task
 from franka_vs_gym.sim import SimulationDiverged, plant
 from franka_vs_gym.sim.reflexes import ControlException
+from franka_vs_gym.sim.rendering import SharedRenderers
 
 _STATE = mujoco.mjtState.mjSTATE_INTEGRATION
 _BAD = [int(mujoco.mjtWarning.mjWARN_BADQPOS), int(mujoco.mjtWarning.mjWARN_BADQVEL),
@@ -119,6 +120,10 @@ class FrankaVectorEnv(VectorEnv):
         self._warning = self.batch.warning
         self._needs_scene = e0.observation_type in ("image", "features+image") or \
             getattr(e0, "feature_source", "ideal") == "detection"
+        # cameras: one OpenGL context for all robots (their models share meshes and textures), not one per robot
+        self._renderers = SharedRenderers()
+        for e in self.envs:
+            e.world.share_renderers(self._renderers)
         self._obs = create_empty_array(self.single_observation_space, self.num_envs)
         # the packed (float32) keys as views of one (N, size) matrix, written one row per robot
         pack = getattr(e0, "_pack", None)
@@ -456,6 +461,7 @@ class FrankaVectorEnv(VectorEnv):
     def close_extras(self, **kwargs: Any) -> None:
         for env in self._envs:
             env.close()
+        self._renderers.close()
 
 
 __all__ = ["FrankaVectorEnv", "make_vector_env"]

@@ -22,7 +22,13 @@ from franka_vs_gym.model.config import ModelConfig, RigidBody, Tool, resolve_con
 from franka_vs_gym.model.description import FER, RobotDescription
 from franka_vs_gym.model.franka_model import FrankaModel
 from franka_vs_gym.model.friction import make_plant_friction
-from franka_vs_gym.model.geometry import CAMERA_VISP_TO_MUJOCO, combine_inertials, pose_vector, twist_transform
+from franka_vs_gym.model.geometry import (
+    CAMERA_VISP_TO_MUJOCO,
+    combine_inertials,
+    homogeneous,
+    pose_vector,
+    twist_transform,
+)
 from franka_vs_gym.sim import plant
 from franka_vs_gym.sim.reflexes import ARMED, ControlException, Reflexes, position_profile_time
 from franka_vs_gym.sim.world import SimulationDiverged, SimWorld
@@ -422,7 +428,7 @@ class FrankaSim:
 
         Torques beyond the FER limits are saturated. Only JOINT_STATE is supported (as on vpRobotFranka).
         """
-        if ControlFrame(frame) != ControlFrame.JOINT_STATE:
+        if frame is not ControlFrame.JOINT_STATE and ControlFrame(frame) != ControlFrame.JOINT_STATE:
             raise ValueError("set_force_torque supports JOINT_STATE only")
         if self._state != RobotState.STATE_FORCE_TORQUE_CONTROL:
             raise RuntimeError("set_force_torque needs the robot in STATE_FORCE_TORQUE_CONTROL "
@@ -664,11 +670,8 @@ class FrankaSim:
 
     def get_wMf(self) -> np.ndarray:
         """Pose of the robot base in the world (4, 4)."""
-        d = self._d
-        M = np.eye(4)
-        M[:3, :3] = d.xmat[self._base_body].reshape(3, 3)
-        M[:3, 3] = d.xpos[self._base_body]
-        return M
+        d, b = self._d, self._base_body
+        return homogeneous(d.xmat[b].reshape(3, 3), d.xpos[b])
 
     def set_tool(self, flMe: Any, mass: float = 0.0, flMcom: Any = (0, 0, 0), inertia: Any = None, *,
                  plant: bool = False) -> None:

@@ -131,16 +131,15 @@ class WristCamera:
         self.period = float(period)
         self.name = sim.camera_name()
         set_mujoco_camera(sim.world.model, self.name, self.intrinsics)
-        self._renderer = sim.world.renderer(self.intrinsics.width, self.intrinsics.height)
+        self._cam_id = mujoco.mj_name2id(sim.world.model, mujoco.mjtObj.mjOBJ_CAMERA, self.name)
+        sim.world.renderer(self.intrinsics.width, self.intrinsics.height)  # made now: fails here if it cannot render
         self._last_t = -math.inf
         self._image: np.ndarray | None = None
         self.frame_count = 0
 
     def render(self) -> np.ndarray:
-        """Render the camera's view now, (height, width, 3) uint8."""
-        r = self._renderer
-        r.update_scene(self.sim.world.data, self.name)
-        return r.render().copy()
+        """Render the camera's view now, (height, width, 3) uint8 (a new array)."""
+        return self.sim.world.render(self._cam_id, self.intrinsics.width, self.intrinsics.height)
 
     def new_frame_due(self) -> bool:
         return self.sim.time >= self._last_t + self.period - 1e-9
