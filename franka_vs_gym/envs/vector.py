@@ -122,7 +122,7 @@ class FrankaVectorEnv(VectorEnv):
             getattr(e0, "feature_source", "ideal") == "detection"
         # cameras: one OpenGL context for all robots (their models share meshes and textures), not one per robot
         self._renderers = SharedRenderers()
-        for e in self.envs:
+        for e in self._envs:
             e.world.share_renderers(self._renderers)
         self._obs = create_empty_array(self.single_observation_space, self.num_envs)
         # the packed (float32) keys as views of one (N, size) matrix, written one row per robot

@@ -233,29 +233,23 @@ def project_tag(cMo: np.ndarray, size: float, intrinsics: CameraIntrinsics,
     bool): a tag is visible when it is in front of the camera (every Z > 1 um), faces it (its z axis towards the
     camera) and all corners are in the image, ``margin_px`` from the border; uv and xy are zeros where a tag is
     behind the camera or not facing it."""
-    P = np.matmul(tag_corners_T(size).T, cMo[:, :3, :3].swapaxes(1, 2)) + cMo[:, None, :3, 3]
+    P = np.matmul(tag_corners_T(size).T, cMo[:, :3, :3].swapaxes(1, 2))
+    P += cMo[:, None, :3, 3]
     Z = P[:, :, 2]
     ok = (Z > 1e-6).all(axis=1) & (cMo[:, 2, 2] < 0)
-    f, c, hi = _pixel_constants(intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy, intrinsics.width,
-                                intrinsics.height, margin_px)
+    f, c, hi = intrinsics.pixel_arrays
     if ok.all():
         xy = P[:, :, :2] / Z[:, :, None]
-        uv = f * xy + c
+        uv = xy * f + c
     else:
         uv = np.zeros(P.shape[:2] + (2,))
         xy = np.zeros_like(uv)
         xy[ok] = P[ok, :, :2] / Z[ok, :, None]
-        uv[ok] = f * xy[ok] + c
-    visible = ok & (uv.min(axis=(1, 2)) >= -0.5 + margin_px) & (uv.max(axis=1) <= hi).all(axis=1)
+        uv[ok] = xy[ok] * f + c
+    n = len(uv)
+    visible = ok & (uv.reshape(n, 8).min(axis=1) >= -0.5 + margin_px) & \
+        (uv.max(axis=1) <= (hi - margin_px if margin_px else hi)).all(axis=1)
     return uv, xy, Z, visible
-
-
-@lru_cache(maxsize=32)
-def _pixel_constants(fx: float, fy: float, cx: float, cy: float, width: int, height: int, margin_px: float
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(f (2,), c (2,), the largest pixel coordinates inside the image (2,)) of a camera, cached."""
-    return (np.array([fx, fy]), np.array([cx, cy]),
-            np.array([width - 0.5 - margin_px, height - 0.5 - margin_px]))
 
 
 @lru_cache(maxsize=32)
