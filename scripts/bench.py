@@ -140,6 +140,16 @@ def bench_envs(quick: bool) -> dict:
           "FrankaSim stepping (mj_step + the plant's friction law), same run",
           rows, ("env", "steps/s", "us/step", "substeps", "raw mj_step us", "ratio to raw", "target",
                  "FrankaSim stepping us", "ratio to FrankaSim stepping"))
+    from franka_vs_gym.envs.benchmark import bench_step_parts
+
+    res["parts"] = {env_id: bench_step_parts(env_id, rounds=3 if quick else 7) for env_id in res["envs"]}
+    names = list(next(iter(res["parts"].values()))["parts"])
+    table("Where an env step's time goes besides its physics: each part alone, as a share of the step's raw "
+          "mj_step time (same run, alternating blocks)",
+          [(env_id, p["substeps"], p["physics_us"], p["ratio"],
+            *(p["parts"][k]["share"] if k in p["parts"] else "-" for k in names))
+           for env_id, p in res["parts"].items()],
+          ("env", "substeps", "physics us", "step / physics", *names))
     if "async" in res:
         a = res["async"]
         table(f"gymnasium AsyncVectorEnv of {a['n_envs']} {a['env_id']} / one plain env, env steps/s, same run",

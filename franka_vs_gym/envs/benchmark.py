@@ -273,3 +273,51 @@ def bench_image_batched(env_id: str = "FrankaIBVS-v0", num_envs: int = 8, n_step
     frames = num_envs * n_steps * frames_per_step
     return {"env_id": env_id, "num_envs": num_envs, "width": width, "height": height, "frames_per_s": frames / wall,
             "frames_per_s_per_core": frames / cpu, "cpu_cores_busy": cpu / wall, "render_ms": render * 1e3}
+
+
+def bench_step_parts(env_id: str, n: int | None = None, rounds: int = 7, seed: int = 0) -> dict[str, Any]:
+    """Where an environment step's time goes besides its physics: the parts of ``FrankaEnv.step`` (a zero action)
+    called on their own, each timed in blocks alternating with the raw ``mj_step`` calls of one step (on a copy of
+    the env's state) and with the whole ``env.step`` (``gymnasium.make``, so with Gymnasium's wrappers), fastest
+    block of each.
+
+    Returns ``{"env_id", "substeps", "physics_us", "step_us", "ratio", "parts": {part: {"us", "share"}}}`` where a
+    share is the part's time over the physics time. The parts overlap the step only partly (the camera frame is taken
+    at camera frames only), so they need not add up to ``step_us - physics_us``."""
+    import franka_vs_gym  # noqa: F401
+
+    kw = {} if env_id == "FrankaTorqueTracking-v0" else {"observation_type": "features"}
+    env = gym.make(env_id, **kw)
+    u = env.unwrapped
+    try:
+        a = np.zeros(env.action_space.shape, dtype=env.action_space.dtype)
+        env.reset(seed=seed)
+        env.step(a)
+        m = u.world.model
+        d_raw = mujoco.MjData(m)
+        mujoco.mj_copyData(d_raw, m, u.world.data)
+        n_sub = u.n_substeps
+        checked = u._check_action(a)
+
+        def step() -> None:
+            if any(env.step(a)[2:4]):
+                env.reset()
+
+        fns: dict[str, Any] = {
+            "step": step,
+            "physics": lambda: mujoco.mj_step(m, d_raw, n_sub),
+            "action check and command": lambda: u._step_begin(a),
+            "reflex check after the period": u.sim.check_reflexes,
+            "observation": u._get_obs,
+            "reward and task checks": lambda: u._evaluate(checked),
+            "joint limits and contacts": u._robot_failure,
+        }
+        if hasattr(u, "_capture"):
+            fns["camera frame"] = u._capture
+        n = n if n is not None else (60 if n_sub >= 50 else 300)
+        t = _interleaved(fns, dict.fromkeys(fns, n), rounds)
+    finally:
+        env.close()
+    phys, st = t.pop("physics") * 1e6, t.pop("step") * 1e6
+    return {"env_id": env_id, "substeps": n_sub, "physics_us": phys, "step_us": st, "ratio": st / phys,
+            "parts": {k: {"us": v * 1e6, "share": v * 1e6 / phys} for k, v in t.items()}}

@@ -452,7 +452,8 @@ class FrankaSim:
         if self._state != RobotState.STATE_VELOCITY_CONTROL:
             raise RuntimeError("set_velocity needs the robot in STATE_VELOCITY_CONTROL "
                                "(call set_robot_state(VELOCITY) first)")
-        frame = ControlFrame(frame)
+        if frame is not ControlFrame.JOINT_STATE:  # (the enum lookup is skipped on the common path)
+            frame = ControlFrame(frame)
         if frame == ControlFrame.JOINT_STATE:
             dq = as_vector(v, 7, "joint velocity")
         else:
@@ -470,7 +471,7 @@ class FrankaSim:
         self._apply_joint_velocity(dq)
 
     def _apply_joint_velocity(self, dq: np.ndarray) -> None:
-        ratio = np.max(np.abs(dq) / (self.dq_max * VELOCITY_COMMAND_SCALE))
+        ratio = (np.abs(dq) / (self.dq_max * VELOCITY_COMMAND_SCALE)).max()
         if ratio > 1.0:
             dq = dq / ratio
         self._reflexes.command_velocity(dq)
