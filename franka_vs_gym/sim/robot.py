@@ -10,6 +10,7 @@ from __future__ import annotations
 import enum
 import math
 from collections import deque
+from dataclasses import dataclass
 from typing import Any
 
 import mujoco
@@ -29,7 +30,7 @@ from franka_vs_gym.model.geometry import (
     twist_transform,
 )
 from franka_vs_gym.sim import plant
-from franka_vs_gym.sim.reflexes import ControlException, Reflexes, position_profile_time
+from franka_vs_gym.sim.reflexes import ARMED, ControlException, Reflexes, position_profile_time
 from franka_vs_gym.sim.world import SimulationDiverged, SimWorld
 from franka_vs_gym.sim.world import no_op as _no_op
 
@@ -70,6 +71,23 @@ VELOCITY_GAINS = np.array(FER.servo_gains)
 # Velocity commands are scaled to 98 % of the limits at most, so that the joint servo's small overshoot does not trip
 # the velocity reflex (libfranka's rate limiter likewise keeps commands a margin below the limits).
 VELOCITY_COMMAND_SCALE = 0.98
+
+
+@dataclass(frozen=True)
+class BatchLayout:
+    """A robot's place in its MuJoCo data (:meth:`FrankaSim.batch_layout`): index slices of its joints in ``qpos``
+    and ``qvel``, of its torque motors and velocity servos in ``ctrl``, the offset of its reflex record in
+    ``userdata`` (-1 without the compiled plant; see :mod:`franka_vs_gym.sim.reflexes`) and its reflex limits
+    q_min, q_max (rad) and dq_max (rad/s), (7,) each."""
+
+    qpos: slice
+    qvel: slice
+    ctrl_torque: slice
+    ctrl_velocity: slice
+    reflex_record: int
+    q_min: np.ndarray
+    q_max: np.ndarray
+    dq_max: np.ndarray
 
 
 class FrankaSim:
@@ -784,6 +802,39 @@ class FrankaSim:
         m = self._m
         return m.actuator_gainprm[self._vel, 0], m.actuator_biasprm[self._vel, 2], self._ctrl_vel
 
+    def batch_layout(self) -> BatchLayout:
+        """Where this robot lives in its MuJoCo data, for code that steps many robots' data at once (the batched
+        vector env writes commands into, and reads joint states from, ``mujoco.batch`` views of the same fields)."""
+        r = self._reflexes
+        off = int(self._m.jnt_user[self._jids[0], 8]) if r._native else -1
+        return BatchLayout(self._qs, self._vs, self._motor, self._vel, off, r.q_min.copy(), r.q_max.copy(),
+                           r.dq_max.copy())
+
+    def runs_inside_mj_step(self, control_state: RobotState | int) -> bool:
+        """Whether a control period of this robot, in ``control_state``, is plain MuJoCo steps: nothing per physics
+        step in Python (compiled plant, no command delay or rate limiting, no brakes holding it, no relaxed limits),
+        reflexes armed in the plant (recording any violation in the data's userdata), commands passed as given
+        (``command_rates="pass"``), no torque-measurement noise or offset to check and no error pending. Code that
+        steps such a robot's data elsewhere (``mujoco.batch``) writes its controls as ``set_force_torque`` /
+        ``set_velocity`` would and then calls :meth:`commands_from_controls`."""
+        r, w = self._reflexes, self.world
+        return (self._native and r._native and r._enabled and r._mode == "pass" and r._hold is None
+                and not r._relaxed and not r._check_tau and not r.errors and r._ud[0] == ARMED
+                and not self._delay_steps and self._meas_fifo is None and not w._active and not w._post_hooks
+                and len(w._checks) == 1 and self._state == RobotState(control_state))
+
+    def commands_from_controls(self) -> None:
+        """After the controls in the data were written from outside (see :meth:`runs_inside_mj_step`), make the
+        robot's command state what ``set_force_torque`` (torque control) or ``set_velocity`` (velocity control)
+        leaves behind with ``command_rates="pass"`` for those controls."""
+        r = self._reflexes
+        if self._state == RobotState.STATE_FORCE_TORQUE_CONTROL:
+            self._tau_cmd[:] = self._ctrl_tau
+            r._tau_applied[:] = self._ctrl_tau
+        elif self._state == RobotState.STATE_VELOCITY_CONTROL:
+            r._v_target[:] = self._ctrl_vel
+            r._v_ref[:] = self._ctrl_vel
+
     def stop_joints(self) -> None:
         """Zero the joint velocities at once (the brakes engaging after a reflex)."""
         self._qvel[:] = 0.0
@@ -810,6 +861,6 @@ class FrankaSim:
     getTime = get_time
 
 
-__all__ = ["CAMERA_FRAME", "ControlFrame", "DEFAULT_eMc", "END_EFFECTOR_FRAME", "FORCE_TORQUE", "FrankaSim",
-           "JOINT_STATE", "POSITION", "REFERENCE_FRAME", "RobotState", "STOP", "SimulationDiverged", "VELOCITY",
-           "Tool", "ModelConfig", "twist_transform", "pose_vector", "ControlException"]
+__all__ = ["BatchLayout", "CAMERA_FRAME", "ControlFrame", "DEFAULT_eMc", "END_EFFECTOR_FRAME", "FORCE_TORQUE",
+           "FrankaSim", "JOINT_STATE", "POSITION", "REFERENCE_FRAME", "RobotState", "STOP", "SimulationDiverged",
+           "VELOCITY", "Tool", "ModelConfig", "twist_transform", "pose_vector", "ControlException"]
