@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import mujoco
 import numpy as np
@@ -51,6 +52,16 @@ class CameraIntrinsics:
     @property
     def fovy_deg(self) -> float:
         return math.degrees(2 * math.atan((self.height / 2) / self.fy))
+
+    @cached_property
+    def pixel_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(f = (fx, fy), c = (cx, cy), the largest pixel coordinates inside the image (width - 0.5, height - 0.5)),
+        (2,) each in pixels, read-only: u = fx x + cx, v = fy y + cy of normalized coordinates (x, y)."""
+        out = (np.array([self.fx, self.fy]), np.array([self.cx, self.cy]),
+               np.array([self.width - 0.5, self.height - 0.5]))
+        for a in out:
+            a.flags.writeable = False
+        return out
 
     @property
     def K(self) -> np.ndarray:
