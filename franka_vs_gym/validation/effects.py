@@ -1045,9 +1045,10 @@ class LinkInertials(Effect):
     identification to physically consistent values. The effect is plausible when these consistent links reproduce
     the fitted torque change on every joint to within a quarter of the noise floor RMS or half of the change itself
     (the consistent arm then keeps at least 3/4 of the fit's reduction of the mean squared error: the misfit lies in
-    the span of the regressor, orthogonal to the least-squares residual) (otherwise the residual needs an unphysical arm, and the note says how far the closest physical one
-    stays, per joint) and no link mass changes by more than a factor 2. Not in the hidden-effect generator's random draw (``injectable`` False: the seeds of
-    the existing studies keep drawing the same effects); ``make_hidden_effect_log("link_inertials")`` injects it.
+    the span of the regressor, orthogonal to the least-squares residual; otherwise the residual needs an unphysical
+    arm, and the note says how far the closest physical one stays, per joint) and no link mass changes by more than
+    a factor 2. Not in the hidden-effect generator's random draw (``injectable`` False: the seeds of the existing
+    studies keep drawing the same effects); ``make_hidden_effect_log("link_inertials")`` injects it.
 
     Signature: pose-, velocity- and acceleration-dependent torque errors on all joints (mass-matrix, Coriolis and
     gravity terms), the structure test's "acceleration" and "position" groups. ``apply`` writes the corrected link
