@@ -178,9 +178,10 @@ def bench_throughput(quick: bool) -> dict:
           "(threads / raw mj_step time of one env step's substeps), same run",
           [(r["env_id"], r["num_envs"], r["nthread"], r["env_steps_per_s"], r["limit_steps_per_s"], r["ratio"],
             ">= 0.85 " + ("yes" if r["ratio"] >= 0.85 else "NO") if r["num_envs"] == 64 else "-",
-            r["batch_physics_ratio"], r["ratio_to_batch_physics"]) for r in out["batched"]],
+            r["batch_physics_ratio"], r["ratio_to_batch_physics"],
+            1e6 / r["env_steps_per_s"] - 1e6 / r["batch_physics_steps_per_s"]) for r in out["batched"]],
           ("env", "N", "threads", "env steps/s", "raw-physics limit", "ratio", "target",
-           "Batch.step alone / limit", "env steps / Batch.step alone"))
+           "Batch.step alone / limit", "env steps / Batch.step alone", "rest per robot-step (us)"))
     for env_id in ("FrankaTorqueTracking-v0", "FrankaIBVS-v0"):
         out["vector_modes"].append(bench_vector_modes(env_id, 2, 100 if quick else 400))
     table("gymnasium.make_vec(id, 2, mode) / one plain env, env steps per second, same run",

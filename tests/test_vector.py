@@ -40,7 +40,7 @@ def _compare_with_single_envs(env_id, kwargs, n_steps, *, n=3, seed=7, torque_sc
     observation, reward, flag and info must be equal, bit for bit. Returns (episode ends, failures, robot-steps
     taken in the batch by the task's logic)."""
     vkw = {} if autoreset_mode is None else {"autoreset_mode": autoreset_mode}
-    vec = gym.make_vec(env_id, num_envs=n, nthread=2, **vkw, **kwargs)
+    vec = gym.make_vec(env_id, num_envs=n, nthread=2, task_logic=True, **vkw, **kwargs)
     assert isinstance(vec, FrankaVectorEnv)
     ref = gym.make_vec(env_id, num_envs=n, vectorization_mode="sync", vector_kwargs=vkw, **kwargs)
     o1, i1 = vec.reset(seed=seed)
@@ -199,12 +199,13 @@ def test_image_observations_equal_single_envs():
     ref.close()
 
 
-def test_batched_env_reports_a_reflex_at_its_crossing_step_as_single_envs():
+@pytest.mark.parametrize("task_logic", [True, False])
+def test_batched_env_reports_a_reflex_at_its_crossing_step_as_single_envs(task_logic):
     """Full wrist torque: the velocity reflex fires inside a control period (one batch call); the batched env's robots
     end their episodes at the same step as single envs, with the same reason and detail (the time, joint and value
     of the crossing step, inside the period)."""
     n, env_id = 2, "FrankaTorqueTracking-v0"
-    vec = gym.make_vec(env_id, num_envs=n, nthread=2)
+    vec = gym.make_vec(env_id, num_envs=n, nthread=2, task_logic=task_logic)
     singles = [gym.make(env_id) for _ in range(n)]
     vec.reset(seed=3)
     for i, s in enumerate(singles):

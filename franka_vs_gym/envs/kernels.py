@@ -9,6 +9,7 @@ Nm, m, s); poses are 4x4 homogeneous matrices ``aMb`` (frame b expressed in fram
 from __future__ import annotations
 
 import numpy as np
+from pinocchio import log3
 
 from franka_vs_gym.model.geometry import pose_vector
 
@@ -72,10 +73,14 @@ def pose_vectors(M: np.ndarray) -> np.ndarray:
 
 
 def pbvs_errors(cdMo: np.ndarray, cMo: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """FrankaPBVS-v0's pose error of the camera: (||t|| (N,) m, ||theta u|| (N,) rad) of cdMc = cdMo (cMo)^-1, with
-    cdMo (4, 4) the goal and cMo (N, 4, 4) the true tag poses."""
-    e = pose_vectors(np.matmul(cdMo, inverse_poses(cMo)))
-    return row_norm(e[:, :3]), row_norm(e[:, 3:])
+    """FrankaPBVS-v0's pose error of the camera: (||t|| (N,) m, ||theta u|| (N,) rad) of cdMc = cdMo (cMo)^-1 =
+    [R, t] with R = cdRo cRo^T and t = cdto - R cto, from the goal cdMo (4, 4) and the true tag poses cMo
+    (N, 4, 4); theta u is the rotation's logarithm (pinocchio's, as in
+    :func:`franka_vs_gym.model.geometry.pose_vector`)."""
+    R = np.matmul(cdMo[:3, :3], cMo[:, :3, :3].swapaxes(1, 2))
+    t = cdMo[:3, 3] - np.matmul(R, cMo[:, :3, 3:4])[:, :, 0]
+    w = np.array([log3(r) for r in R]).reshape(len(R), 3)
+    return row_norm(t), row_norm(w)
 
 
 __all__ = ["camera_tag_poses", "clip_observation", "inverse_poses", "pbvs_errors", "pose_vectors", "row_norm",

@@ -66,6 +66,11 @@ class FrankaVectorEnv(VectorEnv):
     copy : bool
         Return copies of the observation buffers (default True); False returns the same preallocated arrays
         every step, overwritten by the next step.
+    task_logic : bool or None
+        Run the tasks' per-step logic once for all robots (``franka_vs_gym.envs.batched``) where the configuration
+        allows it (True), or each robot's own Python in turn (False); None (default): from 4 robots on, below which
+        the fixed cost of the vectorised calls exceeds the per-robot Python they replace. The results are the same
+        bit for bit either way.
     **kwargs :
         The environment's ``gymnasium.make`` keyword arguments (the same for every robot).
 
@@ -75,7 +80,7 @@ class FrankaVectorEnv(VectorEnv):
 
     def __init__(self, env_id: str, num_envs: int = 1, *, nthread: int | None = None,
                  autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP, copy: bool = True,
-                 max_episode_steps: int | None = None, **kwargs: Any) -> None:
+                 max_episode_steps: int | None = None, task_logic: bool | None = None, **kwargs: Any) -> None:
         from mujoco import batch as mjbatch
 
         from franka_vs_gym.envs.registration import ENVS
@@ -142,7 +147,10 @@ class FrankaVectorEnv(VectorEnv):
         self._truncated = np.zeros(self.num_envs, dtype=np.bool_)
         self._autoreset = np.zeros(self.num_envs, dtype=np.bool_)
         # the task logic over all robots (None: this configuration steps robot by robot around the batched physics)
-        self._task = None if self._needs_scene or self._flat is None else batched_task(self._envs, self.batch)
+        if task_logic is None:
+            task_logic = self.num_envs >= 4
+        self._task = batched_task(self._envs, self.batch) if task_logic and not self._needs_scene and \
+            self._flat is not None else None
         self._in_batch = np.zeros(self.num_envs, dtype=np.bool_)  # robot i's state lives in the batch (self._task)
 
     @property
