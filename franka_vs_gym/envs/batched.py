@@ -15,9 +15,10 @@ the robot's own environment from the state before it, exactly as a single env ru
 middle of a period, or any access to ``FrankaVectorEnv.envs``. :meth:`BatchedTask.load` brings it back.
 
 Which configurations step here (:meth:`BatchedTask.supports`): the registered tasks with joint-torque or
-joint-velocity actions, feature or state observations from the ideal projection, no observation noise, the
-compiled plant with its reflexes armed, no command delay and libfranka's command rates passed through ("pass").
-Every other configuration steps robot by robot around the batched physics, as before.
+joint-velocity actions, feature or state observations from the ideal projection (observation noise is drawn
+robot by robot from each environment's generator, in a single env's order), the compiled plant with its reflexes
+armed, no command delay and libfranka's command rates passed through ("pass"). Every other configuration steps
+robot by robot around the batched physics, as before.
 """
 
 from __future__ import annotations
