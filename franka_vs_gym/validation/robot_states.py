@@ -290,8 +290,9 @@ def table_to_fields(cols: dict[str, np.ndarray], where: str, kind: str) -> tuple
         g = groups.get(f)
         if not g:
             if f in REQUIRED:
-                raise ValueError(f"{where}: no {_WHAT[f]} {f!r} (looked for {f}, {f}[0], {f}_0, {f}0, {f}.0 ...); "
-                                 f"found {_short(found)}")
+                item = "array" if kind.startswith("NPZ") else "field"
+                raise ValueError(f"{where}: no {_WHAT[f]} {f!r} (missing {item} {f!r}; looked for {f}, {f}[0], "
+                                 f"{f}_0, {f}0, {f}.0 ...); found {_short(found)}")
             continue
         if None in g:
             a = _floats(g[None][1], g[None][0], where)
