@@ -140,8 +140,21 @@ def bench_envs(quick: bool) -> dict:
           "FrankaSim stepping (mj_step + the plant's friction law), same run",
           rows, ("env", "steps/s", "us/step", "substeps", "raw mj_step us", "ratio to raw", "target",
                  "FrankaSim stepping us", "ratio to FrankaSim stepping"))
+    from franka_vs_gym.envs.benchmark import bench_step_parts
+
+    res["parts"] = {env_id: bench_step_parts(env_id, rounds=3 if quick else 7) for env_id in res["envs"]}
+    names = list(next(iter(res["parts"].values()))["parts"])
+    table("Where an env step's time goes besides its physics: each part alone, as a share of the step's raw "
+          "mj_step time (same run, alternating blocks)",
+          [(env_id, p["substeps"], p["physics_us"], p["ratio"],
+            *(p["parts"][k]["share"] if k in p["parts"] else "-" for k in names))
+           for env_id, p in res["parts"].items()],
+          ("env", "substeps", "physics us", "step / physics", *names))
     if "async" in res:
-        table("AsyncVectorEnv", [(k, v) for k, v in res["async"].items()], ("what", "value"))
+        a = res["async"]
+        table(f"gymnasium AsyncVectorEnv of {a['n_envs']} {a['env_id']} / one plain env, env steps/s, same run",
+              [(a["env_id"], a["single_steps_per_s"], a["env_steps_per_s"], a["ratio_to_single"])],
+              ("env", "plain env steps/s", "async env steps/s", "ratio"))
     return res
 
 
@@ -165,19 +178,26 @@ def bench_throughput(quick: bool) -> dict:
           "(threads / raw mj_step time of one env step's substeps), same run",
           [(r["env_id"], r["num_envs"], r["nthread"], r["env_steps_per_s"], r["limit_steps_per_s"], r["ratio"],
             ">= 0.85 " + ("yes" if r["ratio"] >= 0.85 else "NO") if r["num_envs"] == 64 else "-",
-            r["batch_physics_ratio"], r["ratio_to_batch_physics"]) for r in out["batched"]],
+            r["batch_physics_ratio"], r["ratio_to_batch_physics"],
+            1e6 / r["env_steps_per_s"] - 1e6 / r["batch_physics_steps_per_s"]) for r in out["batched"]],
           ("env", "N", "threads", "env steps/s", "raw-physics limit", "ratio", "target",
-           "Batch.step alone / limit", "env steps / Batch.step alone"))
+           "Batch.step alone / limit", "env steps / Batch.step alone", "rest per robot-step (us)"))
     for env_id in ("FrankaTorqueTracking-v0", "FrankaIBVS-v0"):
         out["vector_modes"].append(bench_vector_modes(env_id, 2, 100 if quick else 400))
     table("gymnasium.make_vec(id, 2, mode) / one plain env, env steps per second, same run",
           [(r["env_id"], r["single_steps_per_s"], r["async_ratio"], r["sync_ratio"], r["native_ratio"])
            for r in out["vector_modes"]], ("env", "plain env steps/s", "async", "sync", "native (batched)"))
-    img = bench_image_batched(num_envs=4 if quick else 8, n_steps=10 if quick else 40)
-    out["image"] = img
-    table("Image observations (128x96) on the batched env, one batch thread",
-          [(img["env_id"], img["num_envs"], img["frames_per_s"], img["frames_per_s_per_core"])],
-          ("env", "N", "frames/s", "frames/s per core"))
+    out["image"] = []
+    for w, h in ((128, 96), (320, 240)):
+        for n in ((4,) if quick else (8, 64)):
+            img = bench_image_batched(num_envs=n, n_steps=max(2, (80 if w == 128 else 40) // n), width=w, height=h)
+            out["image"].append(img)
+            print(f"  image {w}x{h} N={n}: {img['frames_per_s']:.0f} frames/s", file=sys.stderr, flush=True)
+    table("Image observations (FrankaIBVS-v0, observation_type='image') on the batched env, one batch thread: camera "
+          "frames per second, per core (process CPU time, the OpenGL rasteriser's threads included), and one frame "
+          "drawn alone", [(f"{r['width']}x{r['height']}", r["num_envs"], r["frames_per_s"], r["frames_per_s_per_core"],
+                           r["cpu_cores_busy"], r["render_ms"]) for r in out["image"]],
+          ("image", "N", "frames/s", "frames/s per core", "cores busy", "render alone ms"))
     return out
 
 

@@ -50,10 +50,13 @@ def test_frankasim_step_costs_little_more_than_mj_step(reflexes, bound):
 
 
 @pytest.mark.skipif(not plant.NATIVE, reason="the batched vector env needs the compiled plant")
-def test_batched_env_keeps_most_of_the_physics_rate():
-    """8 IBVS robots on one batch thread: env steps/s today about 0.78 of the same batch's physics alone (0.75 of
-    the raw-physics limit); the bound catches a doubling of the per-robot overhead. Both sides are timed in
-    alternating blocks of the same run, the fastest block of each kept."""
-    r = bench_batched("FrankaIBVS-v0", 8, 1, seconds=1.0)
+@pytest.mark.parametrize("env_id, n, bound", [("FrankaIBVS-v0", 8, 0.6), ("FrankaTorqueTracking-v0", 32, 0.7)])
+def test_batched_env_keeps_most_of_the_physics_rate(env_id, n, bound):
+    """Env steps/s of the batched env over the same batch's physics alone (Batch.step on the same states and
+    threads), one batch thread: today about 0.95 for both (the task logic runs once for all robots, about 1 us per
+    robot and step for torque tracking, 5-10 us for IBVS); it was 0.78 (IBVS, 8 robots) and 0.6 (torque tracking)
+    when each robot's Python ran in turn, which these bounds catch. Both sides are timed in alternating blocks of
+    the same run, the fastest block of each kept."""
+    r = bench_batched(env_id, n, 1, seconds=1.0)
     assert np.isfinite(r["env_steps_per_s"])
-    assert r["ratio_to_batch_physics"] >= 0.35, r
+    assert r["ratio_to_batch_physics"] >= bound, r

@@ -14,16 +14,59 @@ from franka_vs_gym.sim import plant
 pytestmark = pytest.mark.skipif(not plant.NATIVE, reason="the batched vector env needs the compiled plant")
 
 
+def _same(x, y) -> bool:
+    if isinstance(x, dict):
+        return set(x) == set(y) and all(_same(x[k], y[k]) for k in x)
+    if x is None or y is None:
+        return x is y
+    if isinstance(x, np.ndarray) and x.dtype == object:
+        return x.shape == y.shape and all(_same(u, v) for u, v in zip(x, y, strict=True))
+    if isinstance(x, (np.ndarray, np.generic, float, int, bool)):
+        return np.array_equal(np.asarray(x), np.asarray(y), equal_nan=True)
+    return x == y
+
+
 def _same_info(a: dict, b: dict, where: str) -> None:
     assert set(a) == set(b), where
     for k in a:
         if isinstance(a[k], dict):
             _same_info(a[k], b[k], f"{where}/{k}")
-        elif isinstance(a[k], np.ndarray) and a[k].dtype != object:
-            assert np.array_equal(a[k], b[k], equal_nan=True), f"{where}/{k}"
         else:
-            assert all(x is y or x == y or (np.asarray(x) == np.asarray(y)).all() for x, y in zip(a[k], b[k],
-                                                                                                  strict=True)), k
+            assert _same(a[k], b[k]), f"{where}/{k}"
+
+
+def _compare_with_single_envs(env_id, kwargs, n_steps, *, n=3, seed=7, torque_scale=5.0, autoreset_mode=None):
+    """Step the batched env and Gymnasium's SyncVectorEnv of single envs with the same seeds and actions; every
+    observation, reward, flag and info must be equal, bit for bit. Returns (episode ends, failures, robot-steps
+    taken in the batch by the task's logic)."""
+    vkw = {} if autoreset_mode is None else {"autoreset_mode": autoreset_mode}
+    vec = gym.make_vec(env_id, num_envs=n, nthread=2, task_logic=True, **vkw, **kwargs)
+    assert isinstance(vec, FrankaVectorEnv)
+    ref = gym.make_vec(env_id, num_envs=n, vectorization_mode="sync", vector_kwargs=vkw, **kwargs)
+    o1, i1 = vec.reset(seed=seed)
+    o2, i2 = ref.reset(seed=seed)
+    _same_info(i1, i2, "reset")
+    rng = np.random.default_rng(0)
+    scale = 0.4 if vec.single_action_space.shape == (7,) and vec.envs[0].action_type != "torque" else torque_scale
+    ends, failures, in_batch = 0, set(), 0
+    for t in range(n_steps):
+        a = (rng.uniform(-1, 1, vec.action_space.shape) * scale).astype(np.float32)
+        r1, r2 = vec.step(a), ref.step(a)
+        for k in r1[0]:
+            assert np.array_equal(r1[0][k], r2[0][k]), (t, k)
+        for j in (1, 2, 3):
+            assert np.array_equal(r1[j], r2[j]), (t, j)
+        _same_info(r1[4], r2[4], f"step {t}")
+        ends += int((r1[2] | r1[3]).sum())
+        failures |= {f for f, m in zip(r1[4].get("failure", []), r1[4].get("_failure", []), strict=False) if m and f}
+        in_batch += int(vec._in_batch.sum())
+        if t == n_steps // 2:  # the robots' environments hold their current state when read (then step on)
+            for e1, e2 in zip(vec.envs, ref.envs, strict=True):
+                np.testing.assert_array_equal(e1.unwrapped.sim.q, e2.unwrapped.sim.q)
+                assert e1.unwrapped._steps == e2.unwrapped._steps
+    vec.close()
+    ref.close()
+    return ends, failures, in_batch
 
 
 @pytest.mark.parametrize("env_id, kwargs, n_steps", [
@@ -38,34 +81,37 @@ def _same_info(a: dict, b: dict, where: str) -> None:
     ("FrankaTorqueTracking-v0", dict(time_limit=1.0, clip_actions=True, torque_scale=80.0), 40),
 ])
 def test_batched_vector_env_is_bit_identical_to_single_envs(env_id, kwargs, n_steps):
-    n = 3
     kwargs = dict(kwargs)
     torque_scale = kwargs.pop("torque_scale", 5.0)
-    vec = gym.make_vec(env_id, num_envs=n, nthread=2, **kwargs)
-    assert isinstance(vec, FrankaVectorEnv)
-    ref = gym.make_vec(env_id, num_envs=n, vectorization_mode="sync", **kwargs)
-    o1, i1 = vec.reset(seed=7)
-    o2, i2 = ref.reset(seed=7)
-    _same_info(i1, i2, "reset")
-    rng = np.random.default_rng(0)
-    scale = 0.4 if vec.single_action_space.shape == (7,) and "Torque" not in env_id else torque_scale
-    ends, failures = 0, set()
-    for t in range(n_steps):
-        a = (rng.uniform(-1, 1, vec.action_space.shape) * scale).astype(np.float32)
-        r1, r2 = vec.step(a), ref.step(a)
-        for k in r1[0]:
-            assert np.array_equal(r1[0][k], r2[0][k]), (t, k)
-        for j in (1, 2, 3):
-            assert np.array_equal(r1[j], r2[j]), (t, j)
-        _same_info(r1[4], r2[4], f"step {t}")
-        ends += int((r1[2] | r1[3]).sum())
-        failures |= {f for f, m in zip(r1[4].get("failure", []), r1[4].get("_failure", []), strict=False) if m and f}
-    assert ends >= n  # every robot's episode ended at least once and was reset (autoreset)
+    ends, failures, _ = _compare_with_single_envs(env_id, kwargs, n_steps, torque_scale=torque_scale)
+    assert ends >= 3  # every robot's episode ended at least once and was reset (autoreset)
     if torque_scale > 50:
         assert failures, "the large torques should have tripped a reflex"
-    vec.close()
-    ref.close()
 
+
+@pytest.mark.parametrize("env_id, kwargs, n_steps, mode", [
+    # every registered id on the task logic over all robots, a few hundred steps across autoresets
+    ("FrankaIBVS-v0", dict(link_mass_range=(0.8, 1.2), time_limit=0.6), 200, None),
+    ("FrankaIBVS-v0", dict(observation_type="state", payload_mass_range=(0.0, 0.5), time_limit=0.5), 150,
+     "SameStep"),
+    ("FrankaPBVS-v0", dict(friction_scale_range=(0.5, 1.5), time_limit=0.6), 200, None),
+    ("FrankaVisualTorque-v0", dict(link_mass_range=(0.9, 1.1), time_limit=0.3, torque_scale=1.0), 300, None),
+    ("FrankaTorqueTracking-v0", dict(action_type="joint_velocity", link_mass_range=(0.8, 1.2), time_limit=0.5), 300,
+     None),
+    ("FrankaTorqueTracking-v0", dict(friction_scale_range=(0.5, 1.5), time_limit=0.4, clip_actions=True,
+                                     torque_scale=1.0), 300,
+     "SameStep"),
+])
+def test_task_logic_over_all_robots_is_bit_identical_to_single_envs(env_id, kwargs, n_steps, mode):
+    """The configurations whose per-step logic runs once for all robots (franka_vs_gym.envs.batched): the same
+    trajectories, rewards, flags and infos as single envs, through failures (tag lost, joint limits, reflexes)
+    and autoresets, and most robot-steps really taken in the batch."""
+    kwargs = dict(kwargs)
+    torque_scale = kwargs.pop("torque_scale", 5.0)
+    ends, _, in_batch = _compare_with_single_envs(env_id, kwargs, n_steps, torque_scale=torque_scale,
+                                                  autoreset_mode=mode)
+    assert ends >= 6
+    assert in_batch >= 0.6 * 3 * n_steps
 
 def test_same_step_autoreset_and_partial_reset():
     kw = dict(time_limit=0.05)  # 5 steps of FrankaTorqueTracking-v0
@@ -153,12 +199,13 @@ def test_image_observations_equal_single_envs():
     ref.close()
 
 
-def test_batched_env_reports_a_reflex_at_its_crossing_step_as_single_envs():
+@pytest.mark.parametrize("task_logic", [True, False])
+def test_batched_env_reports_a_reflex_at_its_crossing_step_as_single_envs(task_logic):
     """Full wrist torque: the velocity reflex fires inside a control period (one batch call); the batched env's robots
     end their episodes at the same step as single envs, with the same reason and detail (the time, joint and value
     of the crossing step, inside the period)."""
     n, env_id = 2, "FrankaTorqueTracking-v0"
-    vec = gym.make_vec(env_id, num_envs=n, nthread=2)
+    vec = gym.make_vec(env_id, num_envs=n, nthread=2, task_logic=task_logic)
     singles = [gym.make(env_id) for _ in range(n)]
     vec.reset(seed=3)
     for i, s in enumerate(singles):

@@ -19,6 +19,7 @@ import mujoco
 import numpy as np
 from gymnasium import spaces
 
+from franka_vs_gym.envs.kernels import clip_observation
 from franka_vs_gym.model.config import ModelConfig, RigidBody, resolve_config
 from franka_vs_gym.sim import CAMERA_FRAME, FORCE_TORQUE, JOINT_STATE, VELOCITY, FrankaSim, SimulationDiverged
 from franka_vs_gym.sim.reflexes import ControlException
@@ -101,12 +102,7 @@ class ObservationPacker:
         v = self._work
         for k, sl, _ in self._views:
             v[sl] = raw[k]
-        np.maximum(v, self.low, out=v)
-        np.minimum(v, self.high, out=v)
-        total = v.sum()
-        if total != total:  # NaN somewhere (defensive: a NaN never reaches the agent)
-            v[np.isnan(v)] = 0.0
-        buf = self.last = v.astype(np.float32)
+        buf = self.last = clip_observation(v, self.low, self.high)
         return {k: buf[sl] if sh is None else buf[sl].reshape(sh) for k, sl, sh in self._views}
 
 

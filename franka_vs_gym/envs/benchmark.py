@@ -74,33 +74,14 @@ def _time_env(env_id: str, n_steps: int, seed: int, kwargs: dict[str, Any], bloc
     }
 
 
-def _time_async(env_id: str, n_envs: int, n_steps: int, seed: int, kwargs: dict[str, Any]) -> dict[str, Any]:
-    import franka_vs_gym  # noqa: F401
-
-    fns = [lambda: gym.make(env_id, **kwargs) for _ in range(n_envs)]
-    venv = gym.vector.AsyncVectorEnv(fns)
-    try:
-        venv.reset(seed=seed)
-        actions = np.zeros(venv.action_space.shape, dtype=venv.action_space.dtype)
-        venv.step(actions)
-        t0 = time.perf_counter()
-        for _ in range(n_steps):
-            venv.step(actions)
-        dt = time.perf_counter() - t0
-    finally:
-        venv.close()
-    return {"env_id": env_id, "n_envs": n_envs, "vector_steps_per_s": n_steps / dt,
-            "env_steps_per_s": n_envs * n_steps / dt}
-
-
 def bench(env_ids: list[str] | None = None, n_steps: int = 300, seed: int = 0, async_envs: int = 2,
           async_steps: int = 300, async_env_id: str = "FrankaIBVS-v0", verbose: bool = False) -> dict[str, Any]:
     """Environment steps/s next to the raw ``mj_step`` cost of the same steps, and AsyncVectorEnv throughput.
 
     Returns ``{"envs": {env_id: {"steps_per_s", "us_per_step", "substeps", "mj_step_us", "physics_us_per_step",
     "robot_step_us_per_step", "ratio", "overhead_pct", "reset_ms", ...}}, "async": {...}}``; ``ratio`` is the env
-    step time over the raw physics time of its substeps (1.5 = 50 % overhead). ``async_envs=0`` skips the vector
-    test.
+    step time over the raw physics time of its substeps (1.5 = 50 % overhead). ``"async"`` is
+    :func:`bench_vector_modes` for Gymnasium's AsyncVectorEnv of ``async_envs`` envs (``async_envs=0`` skips it).
     """
     import franka_vs_gym  # noqa: F401
     from franka_vs_gym.envs.registration import ENVS
@@ -121,10 +102,13 @@ def bench(env_ids: list[str] | None = None, n_steps: int = 300, seed: int = 0, a
                   f"robot step {r['robot_step_us_per_step']:7.1f} us (ratio {r['ratio_vs_robot_step']:.2f})",
                   flush=True)
     if async_envs:
-        out["async"] = _time_async(async_env_id, async_envs, async_steps, seed, {"observation_type": "features"})
+        a = bench_vector_modes(async_env_id, async_envs, async_steps, seed, modes=("async",))
+        out["async"] = {"env_id": async_env_id, "n_envs": async_envs, "env_steps_per_s": a["async_steps_per_s"],
+                        "vector_steps_per_s": a["async_steps_per_s"] / async_envs,
+                        "single_steps_per_s": a["single_steps_per_s"], "ratio_to_single": a["async_ratio"]}
         if verbose:
-            a = out["async"]
-            print(f"AsyncVectorEnv({async_envs}) {async_env_id}: {a['env_steps_per_s']:.0f} env steps/s", flush=True)
+            print(f"AsyncVectorEnv({async_envs}) {async_env_id}: {a['async_steps_per_s']:.0f} env steps/s "
+                  f"({a['async_ratio']:.2f} x one plain env)", flush=True)
     return out
 
 
@@ -191,61 +175,149 @@ def bench_batched(env_id: str, num_envs: int, nthread: int, seconds: float = 1.0
             "ratio_to_batch_physics": best_phys / best}
 
 
-def bench_vector_modes(env_id: str, num_envs: int = 2, n_steps: int = 200, seed: int = 0) -> dict[str, Any]:
-    """Env steps/s of ``gymnasium.make_vec(env_id, num_envs, mode)`` for the async, sync and native (batched)
-    modes, each as a ratio to one plain env (``gymnasium.make``), in one run."""
+def _interleaved(steps: dict[str, Any], per_block: dict[str, int], rounds: int) -> dict[str, float]:
+    """Seconds per call of each ``steps[name]()``, timed in ``rounds`` alternating blocks of ``per_block[name]``
+    calls; the fastest block of each is kept, so load from other processes (which only ever slows a block down)
+    affects every side alike."""
+    best = dict.fromkeys(steps, math.inf)
+    for _ in range(rounds):
+        for name, step in steps.items():
+            n = per_block[name]
+            t0 = time.perf_counter()
+            for _ in range(n):
+                step()
+            best[name] = min(best[name], (time.perf_counter() - t0) / n)
+    return best
+
+
+def bench_vector_modes(env_id: str, num_envs: int = 2, n_steps: int = 200, seed: int = 0,
+                       modes: tuple[str, ...] = ("async", "sync", "vector_entry_point")) -> dict[str, Any]:
+    """Env steps/s of ``gymnasium.make_vec(env_id, num_envs, mode)`` for each mode (Gymnasium's async and sync
+    vector envs, the native batched env), each as a ratio to one plain env (``gymnasium.make``): all of them built
+    first, then timed in alternating blocks of the same run (``n_steps`` calls of ``step`` per side in all), the
+    fastest block of each kept.
+
+    Returns ``{"env_id", "num_envs", "single_steps_per_s", "<mode>_steps_per_s", "<mode>_ratio", ...}`` with
+    ``native`` for the batched env."""
     import franka_vs_gym  # noqa: F401
 
     kw = {} if env_id == "FrankaTorqueTracking-v0" else {"observation_type": "features"}
-    env = gym.make(env_id, **kw)
-    env.reset(seed=seed)
-    a = np.zeros(env.action_space.shape, dtype=env.action_space.dtype)
-    env.step(a)
-    t0 = time.perf_counter()
-    for _ in range(n_steps):
-        _, _, term, trunc, _ = env.step(a)
-        if term or trunc:
-            env.reset()
-    single = n_steps / (time.perf_counter() - t0)
-    env.close()
+    envs: dict[str, Any] = {"single": gym.make(env_id, **kw)}
+    try:
+        for mode in modes:
+            envs["native" if mode == "vector_entry_point" else mode] = gym.make_vec(
+                env_id, num_envs=num_envs, vectorization_mode=mode, **kw)
+        steps: dict[str, Any] = {}
+        for name, e in envs.items():
+            e.reset(seed=seed)
+            a = np.zeros(e.action_space.shape, dtype=e.action_space.dtype)
+            e.step(a)  # the first step runs Gymnasium's passive checker: not timed
+            if name == "single":
+                def step(e=e, a=a):
+                    if any(e.step(a)[2:4]):
+                        e.reset()
+            else:  # vector envs reset their robots themselves
+                def step(e=e, a=a):
+                    e.step(a)
+            steps[name] = step
+        rounds = 5
+        per_block = dict.fromkeys(steps, max(1, n_steps // rounds))  # vector steps: num_envs env steps each
+        t = _interleaved(steps, per_block, rounds)
+    finally:
+        for e in envs.values():
+            e.close()
+    single = 1.0 / t["single"]
     out: dict[str, Any] = {"env_id": env_id, "num_envs": num_envs, "single_steps_per_s": single}
-    for mode in ("async", "sync", "vector_entry_point"):
-        venv = gym.make_vec(env_id, num_envs=num_envs, vectorization_mode=mode, **kw)
-        try:
-            venv.reset(seed=seed)
-            va = np.zeros(venv.action_space.shape, dtype=venv.action_space.dtype)
-            venv.step(va)
-            t0 = time.perf_counter()
-            for _ in range(n_steps):
-                venv.step(va)
-            rate = num_envs * n_steps / (time.perf_counter() - t0)
-        finally:
-            venv.close()
-        name = "native" if mode == "vector_entry_point" else mode
-        out[f"{name}_steps_per_s"] = rate
-        out[f"{name}_ratio"] = rate / single
+    for name in envs:
+        if name != "single":
+            rate = num_envs / t[name]
+            out[f"{name}_steps_per_s"] = rate
+            out[f"{name}_ratio"] = rate / single
     return out
 
 
-def bench_image_batched(env_id: str = "FrankaIBVS-v0", num_envs: int = 8, n_steps: int = 30,
-                        seed: int = 0) -> dict[str, Any]:
-    """Camera frames per second per core of an image-observation env on the batched vector env (one thread: the
-    physics on the batch, each robot's 128x96 wrist image rendered in turn by MuJoCo's offscreen renderer)."""
+def bench_image_batched(env_id: str = "FrankaIBVS-v0", num_envs: int = 8, n_steps: int = 30, seed: int = 0,
+                        width: int = 128, height: int = 96, nthread: int = 1, blocks: int = 3) -> dict[str, Any]:
+    """Camera frames per second, and per core (CPU time of the process, OpenGL's rasteriser threads included), of
+    an image-observation env (``observation_type="image"``, ``width`` x ``height``) on the batched vector env: the
+    physics on the batch (``nthread`` threads), each robot's wrist image drawn through the robots' shared OpenGL
+    context. The fastest of ``blocks`` blocks of ``n_steps`` env steps is kept.
+
+    Returns ``{"env_id", "num_envs", "width", "height", "frames_per_s", "frames_per_s_per_core", "cpu_cores_busy",
+    "render_ms"}``; ``render_ms`` is one robot's frame drawn alone (best of 20), the rest of a frame's cost being
+    its physics and the environment's Python."""
     import franka_vs_gym  # noqa: F401
 
-    venv = gym.make_vec(env_id, num_envs=num_envs, nthread=1, observation_type="image")
+    venv = gym.make_vec(env_id, num_envs=num_envs, nthread=nthread, observation_type="image", image_width=width,
+                        image_height=height)
     try:
         venv.reset(seed=seed)
         a = np.zeros(venv.action_space.shape, dtype=venv.action_space.dtype)
         venv.step(a)
-        cpu0, t0 = time.process_time(), time.perf_counter()
-        for _ in range(n_steps):
-            venv.step(a)
-        wall, cpu = time.perf_counter() - t0, time.process_time() - cpu0
+        best = (math.inf, math.inf)
+        for _ in range(blocks):
+            cpu0, t0 = time.process_time(), time.perf_counter()
+            for _ in range(n_steps):
+                venv.step(a)
+            best = min(best, (time.perf_counter() - t0, time.process_time() - cpu0))
         e = venv.envs[0]
         frames_per_step = e.control_period / e.camera_period
+        render = math.inf
+        for _ in range(20):
+            t0 = time.perf_counter()
+            e.world.render(e.sim.camera_name(), width, height)
+            render = min(render, time.perf_counter() - t0)
     finally:
         venv.close()
+    wall, cpu = best
     frames = num_envs * n_steps * frames_per_step
-    return {"env_id": env_id, "num_envs": num_envs, "frames_per_s": frames / wall,
-            "frames_per_s_per_core": frames / cpu, "cpu_cores_busy": cpu / wall}
+    return {"env_id": env_id, "num_envs": num_envs, "width": width, "height": height, "frames_per_s": frames / wall,
+            "frames_per_s_per_core": frames / cpu, "cpu_cores_busy": cpu / wall, "render_ms": render * 1e3}
+
+
+def bench_step_parts(env_id: str, n: int | None = None, rounds: int = 7, seed: int = 0) -> dict[str, Any]:
+    """Where an environment step's time goes besides its physics: the parts of ``FrankaEnv.step`` (a zero action)
+    called on their own, each timed in blocks alternating with the raw ``mj_step`` calls of one step (on a copy of
+    the env's state) and with the whole ``env.step`` (``gymnasium.make``, so with Gymnasium's wrappers), fastest
+    block of each.
+
+    Returns ``{"env_id", "substeps", "physics_us", "step_us", "ratio", "parts": {part: {"us", "share"}}}`` where a
+    share is the part's time over the physics time. The parts overlap the step only partly (the camera frame is taken
+    at camera frames only), so they need not add up to ``step_us - physics_us``."""
+    import franka_vs_gym  # noqa: F401
+
+    kw = {} if env_id == "FrankaTorqueTracking-v0" else {"observation_type": "features"}
+    env = gym.make(env_id, **kw)
+    u = env.unwrapped
+    try:
+        a = np.zeros(env.action_space.shape, dtype=env.action_space.dtype)
+        env.reset(seed=seed)
+        env.step(a)
+        m = u.world.model
+        d_raw = mujoco.MjData(m)
+        mujoco.mj_copyData(d_raw, m, u.world.data)
+        n_sub = u.n_substeps
+        checked = u._check_action(a)
+
+        def step() -> None:
+            if any(env.step(a)[2:4]):
+                env.reset()
+
+        fns: dict[str, Any] = {
+            "step": step,
+            "physics": lambda: mujoco.mj_step(m, d_raw, n_sub),
+            "action check and command": lambda: u._step_begin(a),
+            "reflex check after the period": u.sim.check_reflexes,
+            "observation": u._get_obs,
+            "reward and task checks": lambda: u._evaluate(checked),
+            "joint limits and contacts": u._robot_failure,
+        }
+        if hasattr(u, "_capture"):
+            fns["camera frame"] = u._capture
+        n = n if n is not None else (60 if n_sub >= 50 else 300)
+        t = _interleaved(fns, dict.fromkeys(fns, n), rounds)
+    finally:
+        env.close()
+    phys, st = t.pop("physics") * 1e6, t.pop("step") * 1e6
+    return {"env_id": env_id, "substeps": n_sub, "physics_us": phys, "step_us": st, "ratio": st / phys,
+            "parts": {k: {"us": v * 1e6, "share": v * 1e6 / phys} for k, v in t.items()}}

@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 
 from franka_vs_gym.envs.base import _positive
+from franka_vs_gym.envs.kernels import row_norm
 from franka_vs_gym.envs.visual import VisualServoEnv
 
 
@@ -99,8 +100,8 @@ class FrankaIBVSEnv(VisualServoEnv):
     def _task_error(self) -> float:
         t = self._truth
         if not t["visible"][0]:
-            return float(np.linalg.norm(self.features_desired)) + 1.0
-        return float(np.linalg.norm(t["features"] - self.features_desired))
+            return float(row_norm(self.features_desired)) + 1.0
+        return float(row_norm(t["features"] - self.features_desired))
 
     def _evaluate(self, action: np.ndarray) -> tuple[float, bool, str | None, dict[str, Any]]:
         err = self._task_error()

@@ -8,9 +8,8 @@ from typing import Any
 import numpy as np
 
 from franka_vs_gym.envs.base import _positive
+from franka_vs_gym.envs.kernels import pbvs_errors
 from franka_vs_gym.envs.visual import VisualServoEnv
-from franka_vs_gym.model.geometry import inverse_pose
-from franka_vs_gym.sim import pose_vector
 
 
 class FrankaPBVSEnv(VisualServoEnv):
@@ -54,8 +53,8 @@ class FrankaPBVSEnv(VisualServoEnv):
         super().__init__(action_type=action_type, control_period=control_period, time_limit=time_limit, **kwargs)
 
     def _pose_error(self) -> tuple[float, float]:
-        e = pose_vector(self.cdMo @ inverse_pose(self._truth["cMo"]))
-        return float(np.linalg.norm(e[:3])), float(np.linalg.norm(e[3:]))
+        et, er = pbvs_errors(self.cdMo, self._truth["cMo"][None])
+        return float(et[0]), float(er[0])
 
     def _task_error(self) -> float:
         return self._pose_error()[0]

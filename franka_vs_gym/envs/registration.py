@@ -29,6 +29,7 @@ def _vector_env(env_id: str, num_envs: int = 1, **kwargs):
 
         return make_vector_env(env_id, num_envs, **kwargs)
     kwargs.pop("nthread", None)
+    kwargs.pop("task_logic", None)
     vec_kw = {k: kwargs.pop(k) for k in ("autoreset_mode", "copy") if k in kwargs}
     return gym.vector.SyncVectorEnv([functools.partial(gym.make, env_id, **kwargs) for _ in range(num_envs)],
                                     **vec_kw)

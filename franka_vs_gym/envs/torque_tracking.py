@@ -9,6 +9,7 @@ import numpy as np
 from gymnasium import spaces
 
 from franka_vs_gym.envs.base import FrankaEnv, ObservationPacker, _positive
+from franka_vs_gym.envs.kernels import row_norm, tracking_desired
 
 
 class FrankaTorqueTrackingEnv(FrankaEnv):
@@ -102,9 +103,7 @@ class FrankaTorqueTrackingEnv(FrankaEnv):
 
     def desired(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(q_d, dq_d, ddq_d) (7,) at time t (s since the episode start)."""
-        A, w = self._A, self._w
-        c, s = np.cos(w * t), np.sin(w * t)
-        return self._q0 + A * (1.0 - c), A * w * s, A * w * w * c
+        return tracking_desired(self._q0, self._A, self._w, t)
 
     def _reset_task(self, options: dict[str, Any]) -> np.ndarray:
         rng = self.np_random
@@ -133,7 +132,7 @@ class FrankaTorqueTrackingEnv(FrankaEnv):
 
     def _evaluate(self, action: np.ndarray) -> tuple[float, bool, str | None, dict[str, Any]]:
         qd = self._desired_now[0]  # computed for this step's observation
-        err = float(np.linalg.norm(self.sim.q - qd))
+        err = float(row_norm(self.sim.q - qd))
         self._sq_err += err * err
         rms = float(np.sqrt(self._sq_err / max(self._steps, 1)))
         success = self._steps >= self.max_steps and rms < self.success_threshold

@@ -35,8 +35,10 @@ import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space, create_empty_array
 
+from franka_vs_gym.envs.batched import batched_task
 from franka_vs_gym.sim import SimulationDiverged, plant
 from franka_vs_gym.sim.reflexes import ControlException
+from franka_vs_gym.sim.rendering import SharedRenderers
 
 _STATE = mujoco.mjtState.mjSTATE_INTEGRATION
 _BAD = [int(mujoco.mjtWarning.mjWARN_BADQPOS), int(mujoco.mjtWarning.mjWARN_BADQVEL),
@@ -64,6 +66,11 @@ class FrankaVectorEnv(VectorEnv):
     copy : bool
         Return copies of the observation buffers (default True); False returns the same preallocated arrays
         every step, overwritten by the next step.
+    task_logic : bool or None
+        Run the tasks' per-step logic once for all robots (``franka_vs_gym.envs.batched``) where the configuration
+        allows it (True), or each robot's own Python in turn (False); None (default): from 4 robots on, below which
+        the fixed cost of the vectorised calls exceeds the per-robot Python they replace. The results are the same
+        bit for bit either way.
     **kwargs :
         The environment's ``gymnasium.make`` keyword arguments (the same for every robot).
 
@@ -73,7 +80,7 @@ class FrankaVectorEnv(VectorEnv):
 
     def __init__(self, env_id: str, num_envs: int = 1, *, nthread: int | None = None,
                  autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP, copy: bool = True,
-                 max_episode_steps: int | None = None, **kwargs: Any) -> None:
+                 max_episode_steps: int | None = None, task_logic: bool | None = None, **kwargs: Any) -> None:
         from mujoco import batch as mjbatch
 
         from franka_vs_gym.envs.registration import ENVS
@@ -95,8 +102,8 @@ class FrankaVectorEnv(VectorEnv):
         entry = gym.spec(env_id).entry_point
         mod, cls = entry.split(":")
         env_cls = getattr(__import__(mod, fromlist=[cls]), cls)
-        self.envs = [env_cls(**kwargs) for _ in range(self.num_envs)]
-        e0 = self.envs[0]
+        self._envs = [env_cls(**kwargs) for _ in range(self.num_envs)]
+        e0 = self._envs[0]
         self.metadata = dict(e0.metadata, autoreset_mode=self.autoreset_mode)
         self.render_mode = e0.render_mode
         self.spec = None
@@ -108,8 +115,8 @@ class FrankaVectorEnv(VectorEnv):
         self.nthread = min(self.num_envs, os.cpu_count() or 1) if nthread is None else int(nthread)
         if self.nthread < 1:
             raise ValueError(f"nthread must be >= 1, got {nthread}")
-        self._models = [e.world.model for e in self.envs]
-        self._datas = [e.world.data for e in self.envs]
+        self._models = [e.world.model for e in self._envs]
+        self._datas = [e.world.data for e in self._envs]
         # persistent: every simulation keeps its MjData, so contacts and the scene are there to copy after a step
         self.batch = mjbatch.Batch(self._models[0], self.num_envs, nthread=self.nthread, persistent=True)
         self.batch.set_models(self._models)
@@ -118,6 +125,10 @@ class FrankaVectorEnv(VectorEnv):
         self._warning = self.batch.warning
         self._needs_scene = e0.observation_type in ("image", "features+image") or \
             getattr(e0, "feature_source", "ideal") == "detection"
+        # cameras: one OpenGL context for all robots (their models share meshes and textures), not one per robot
+        self._renderers = SharedRenderers()
+        for e in self._envs:
+            e.world.share_renderers(self._renderers)
         self._obs = create_empty_array(self.single_observation_space, self.num_envs)
         # the packed (float32) keys as views of one (N, size) matrix, written one row per robot
         pack = getattr(e0, "_pack", None)
@@ -135,6 +146,26 @@ class FrankaVectorEnv(VectorEnv):
         self._terminated = np.zeros(self.num_envs, dtype=np.bool_)
         self._truncated = np.zeros(self.num_envs, dtype=np.bool_)
         self._autoreset = np.zeros(self.num_envs, dtype=np.bool_)
+        # the task logic over all robots (None: this configuration steps robot by robot around the batched physics)
+        if task_logic is None:
+            task_logic = self.num_envs >= 4
+        self._task = batched_task(self._envs, self.batch) if task_logic and not self._needs_scene and \
+            self._flat is not None else None
+        self._in_batch = np.zeros(self.num_envs, dtype=np.bool_)  # robot i's state lives in the batch (self._task)
+
+    @property
+    def envs(self) -> list[Any]:
+        """The N environments, each holding its robot's current state (robots stepping in the batch are written
+        back first)."""
+        for i in np.flatnonzero(self._in_batch):
+            self._to_env(int(i))
+        return self._envs
+
+    def _to_env(self, i: int) -> None:
+        """Robot i's state back into its environment, which then steps it until it is eligible again."""
+        if self._in_batch[i]:
+            self._task.store(i)
+            self._in_batch[i] = False
 
     # ------------------------------------------------------------------ Gymnasium API
     def reset(self, *, seed: int | list[int | None] | None = None, options: dict[str, Any] | None = None):
@@ -154,14 +185,13 @@ class FrankaVectorEnv(VectorEnv):
             raise ValueError(f"reset_mask must have shape ({n},), got {mask.shape}")
         items = []
         obs_list = []
-        for i, env in enumerate(self.envs):
+        for i, env in enumerate(self._envs):
             if mask[i]:
+                self._to_env(i)
                 o, info = env.reset(seed=seeds[i], options=options)
                 items.append((i, info))
+                obs_list.append((i, o))
                 self._autoreset[i] = False
-            else:
-                o = env._last_obs
-            obs_list.append(o)
         self.batch.set_models(self._models)  # the resets edited the models (randomised dynamics, control gains)
         self._write_obs(obs_list)
         return (self._copy(self._obs), self._batch_infos(items))
@@ -172,43 +202,115 @@ class FrankaVectorEnv(VectorEnv):
         if actions.shape[:1] != (n,):
             raise ValueError(f"actions must have shape ({n}, ...), got {actions.shape}")
         results: list[Any] = [None] * n
-        stepping = []
         reset_any = False
-        for i, env in enumerate(self.envs):
-            if self._autoreset[i]:  # NEXT_STEP: this step resets the environment, ignoring its action
-                o, info = env.reset()
-                results[i] = (o, 0.0, False, False, info)
-                reset_any = True
-            else:
-                stepping.append(i)
+        for i in np.flatnonzero(self._autoreset):  # NEXT_STEP: this step resets the environment, ignoring its action
+            i = int(i)
+            self._to_env(i)
+            o, info = self._envs[i].reset()
+            results[i] = (o, 0.0, False, False, info)
+            reset_any = True
         if reset_any:
             self.batch.set_models(self._models)
-        if stepping:
-            self._step_groups(stepping, actions, results)
+        stepping = np.flatnonzero(~self._autoreset)
+        fast = self._fast_rows(stepping) if self._task is not None and len(stepping) else stepping[:0]
+        if len(fast) < len(stepping):
+            alone = np.setdiff1d(stepping, fast, assume_unique=True)
+            self._step_groups([int(i) for i in alone], actions, results)
+        cols = self._step_fast(fast, actions, results) if len(fast) else None
+        if cols is not None:
+            ids, reward, term, trunc, cinfo = cols
+            self._rewards[ids], self._terminated[ids], self._truncated[ids] = reward, term, trunc
+        per_robot = [i for i in range(n) if results[i] is not None]
         obs_list, items = [], []
-        for i in range(n):
-            o, r, term, trunc, info = results[i]
-            if self.autoreset_mode == AutoresetMode.SAME_STEP and (term or trunc):
+        if self.autoreset_mode == AutoresetMode.SAME_STEP and cols is not None:
+            ended = ids[term | trunc]
+            if len(ended):  # these robots reset now: their last observation and info go into final_obs/final_info
+                for i in ended:
+                    i = int(i)
+                    j = int(np.searchsorted(ids, i))
+                    info = {k: (v[j].item() if isinstance(v[j], np.generic) else v[j]) for k, v in cinfo.items()}
+                    o = {k: self._flat[i, sl].reshape(shape).copy() for k, sl, shape in self._task.pack_items}
+                    results[i] = (o, float(reward[j]), bool(term[j]), bool(trunc[j]), info)
+                    per_robot.append(i)
+                keep = ~np.isin(ids, ended)
+                ids, cinfo = ids[keep], {k: v[keep] for k, v in cinfo.items()}
+                per_robot.sort()
+        for i in per_robot:
+            o, r, term_i, trunc_i, info = results[i]
+            if self.autoreset_mode == AutoresetMode.SAME_STEP and (term_i or trunc_i):
                 final_obs, final_info = o, info
-                o, info = self.envs[i].reset()
+                self._to_env(i)
+                o, info = self._envs[i].reset()
                 info = dict(info, final_obs=final_obs, final_info=final_info)
                 reset_any = True
-            obs_list.append(o)
-            self._rewards[i], self._terminated[i], self._truncated[i] = r, term, trunc
+            obs_list.append((i, o))
+            self._rewards[i], self._terminated[i], self._truncated[i] = r, term_i, trunc_i
             items.append((i, info))
         if reset_any and self.autoreset_mode == AutoresetMode.SAME_STEP:
             self.batch.set_models(self._models)
         self._autoreset[:] = (self._terminated | self._truncated) & (self.autoreset_mode == AutoresetMode.NEXT_STEP)
         self._write_obs(obs_list)
-        return (self._copy(self._obs), self._rewards.copy(), self._terminated.copy(), self._truncated.copy(),
-                self._batch_infos(items))
+        info = self._batch_infos(items, cinfo if cols is not None else None, ids if cols is not None else None)
+        return (self._copy(self._obs), self._rewards.copy(), self._terminated.copy(), self._truncated.copy(), info)
 
-    def _write_obs(self, obs_list: list[dict[str, np.ndarray]]) -> None:
-        """The robots' observations into the preallocated batched observation: one row copy per robot when its
-        observation is the environment's packed buffer (every regular step), key by key otherwise."""
+    def _fast_rows(self, ids: np.ndarray) -> np.ndarray:
+        """The robots of ``ids`` that step in the batch this step: those already there, and those eligible again
+        (loaded into it); a robot whose next period is not one physics segment goes back to its environment."""
+        task, inb = self._task, self._in_batch
+        for i in ids[~inb[ids]]:
+            i = int(i)
+            if task.eligible(self._envs[i]):
+                task.load(i)
+                inb[i] = True
+        fast = ids[inb[ids]]
+        if hasattr(task, "single_segment") and len(fast):
+            single, capture = task.single_segment(fast)
+            if not single.all():
+                for i in fast[~single]:
+                    self._to_env(int(i))
+                fast = fast[single]
+        return fast
+
+    def _step_fast(self, ids: np.ndarray, actions: np.ndarray, results: list[Any]):
+        """One period of the robots ``ids`` (all in the batch): the task's logic for all of them at once around one
+        ``Batch.step``. A robot whose step needs anything per robot (a reflex, a divergence, a joint at its stop, a
+        contact) is put back where it was before the step and re-runs the step alone in its environment, exactly
+        as a single env. Returns (ids stepped here, reward, terminated, truncated, info columns)."""
+        task = self._task
+        a = task.check_actions(ids, actions)
+        capture = task.single_segment(ids)[1] if hasattr(task, "single_segment") else None
+        before = task.state[ids]  # (a copy: fancy indexing)
+        task.command(ids, a)
+        warn0 = self._warning[ids][:, _BAD, 1].sum(axis=1)
+        self.batch.step(None if len(ids) == self.num_envs else ids.astype(np.int32), nstep=task.n_substeps)
+        bad = self._warning[ids][:, _BAD, 1].sum(axis=1) > warn0
+        bad |= self._ncon[ids] > 0
+        bad |= task.anomalies(ids)
+        if bad.any():
+            for j in np.flatnonzero(bad):
+                i = int(ids[j])
+                task.state[i] = before[j]
+                self._to_env(i)
+                self._envs[i]._step_begin(actions[i])
+                results[i] = self._step_alone(i)
+            ids = ids[~bad]
+            if capture is not None:
+                capture = capture[~bad]
+        if not len(ids):
+            return None
+        if capture is None:
+            reward, term, trunc, info = task.step_end(ids, self._flat)
+        else:
+            reward, term, trunc, info = task.step_end(ids, self._flat, capture)
+        return ids, reward, term, trunc, info
+
+    def _write_obs(self, obs_list: list[tuple[int, dict[str, np.ndarray]]]) -> None:
+        """Observations of robots stepped by their own environment into the preallocated batched observation: one
+        row copy per robot when its observation is the environment's packed buffer (every regular step), key by key
+        otherwise. (The robots stepped in the batch have their rows written by the task.)"""
         flat, keys = self._flat, self._flat_keys
-        for i, (o, env) in enumerate(zip(obs_list, self.envs, strict=True)):
-            pack = getattr(env, "_pack", None)
+        for i, o in obs_list:
+            pack = getattr(self._envs[i], "_pack", None)
             if flat is not None and pack is not None and pack.last is not None and keys and \
                     o[keys[0]].base is pack.last:
                 flat[i] = pack.last
@@ -218,35 +320,47 @@ class FrankaVectorEnv(VectorEnv):
                 for k, v in o.items():
                     self._obs[k][i] = v
 
-    def _batch_infos(self, items: list[tuple[int, dict[str, Any]]]) -> dict[str, Any]:
+    def _batch_infos(self, items: list[tuple[int, dict[str, Any]]], columns: dict[str, np.ndarray] | None = None,
+                     col_ids: np.ndarray | None = None) -> dict[str, Any]:
         """Gymnasium's vector info layout (as ``VectorEnv._add_info`` builds it, one key at a time instead of one
-        environment at a time): ``info[key]`` (N, ...) typed by its first value, and the mask ``info["_" + key]``."""
+        environment at a time): ``info[key]`` (N, ...) typed by its first value (in robot order), and the mask
+        ``info["_" + key]``. ``items`` are (robot, info) of robots stepped alone, in robot order; ``columns`` the
+        info of the robots ``col_ids`` stepped in the batch, one array per key."""
         n = self.num_envs
         by_key: dict[str, list[tuple[int, Any]]] = {}
         for i, info in items:
             for k, v in info.items():
                 by_key.setdefault(k, []).append((i, v))
+        columns = columns if columns is not None and len(col_ids) else {}
         out: dict[str, Any] = {}
-        for k, pairs in by_key.items():
-            first = pairs[0][1]
-            if k == "final_obs":
-                arr = np.full(n, None, dtype=object)
-            elif isinstance(first, dict):
-                out[k] = self._batch_infos(pairs)
-                arr = None
-            elif type(first) in (int, float, bool) or isinstance(first, np.number):
-                arr = np.zeros(n, dtype=type(first))
-            elif isinstance(first, np.ndarray):
-                arr = np.zeros((n, *first.shape), dtype=first.dtype)
+        for k in dict.fromkeys([*columns, *by_key]):
+            pairs = by_key.get(k, [])
+            col = columns.get(k)
+            if col is not None and (not pairs or col_ids[0] < pairs[0][0]):
+                arr = np.full(n, None, dtype=object) if col.dtype == object else np.zeros(n, dtype=col.dtype)
             else:
-                arr = np.full(n, None, dtype=object)
-            idx = [i for i, _ in pairs]
+                first = pairs[0][1]
+                if k == "final_obs":
+                    arr = np.full(n, None, dtype=object)
+                elif isinstance(first, dict):
+                    out[k] = self._batch_infos(pairs)
+                    arr = None
+                elif type(first) in (int, float, bool) or isinstance(first, np.number):
+                    arr = np.zeros(n, dtype=type(first))
+                elif isinstance(first, np.ndarray):
+                    arr = np.zeros((n, *first.shape), dtype=first.dtype)
+                else:
+                    arr = np.full(n, None, dtype=object)
+            mask = np.zeros(n, dtype=np.bool_)
             if arr is not None:
                 for i, v in pairs:
                     arr[i] = v
+                if col is not None:
+                    arr[col_ids] = col
                 out[k] = arr
-            mask = np.zeros(n, dtype=np.bool_)
-            mask[idx] = True
+            mask[[i for i, _ in pairs]] = True
+            if col is not None:
+                mask[col_ids] = True
             out["_" + k] = mask
         return out
 
@@ -255,7 +369,7 @@ class FrankaVectorEnv(VectorEnv):
         run of MuJoCo's step (the common case) share one batch call; a robot with Python work between its physics
         steps (brakes holding it after a reflex, rate-limited commands, a command or measurement delay, a camera
         frame in the middle of the period) or already stopped by a reflex steps alone, exactly as a single env."""
-        envs = self.envs
+        envs = self._envs
         batched = []
         for i in ids:
             env = envs[i]
@@ -270,7 +384,7 @@ class FrankaVectorEnv(VectorEnv):
 
     def _step_alone(self, i: int):
         """The rest of a single env's ``step`` after ``_step_begin`` (its own physics)."""
-        env = self.envs[i]
+        env = self._envs[i]
         try:
             if env._reflex is None:
                 env._advance()
@@ -283,7 +397,7 @@ class FrankaVectorEnv(VectorEnv):
     def _physics(self, ids: list[int], results: list[Any]) -> None:
         """One control period of the environments ``ids`` (one physics segment each) in one batch call, then what
         ``SimWorld.step`` does after its physics (divergence, the robots' reflex checks) and the step results."""
-        envs, models, datas, state = self.envs, self._models, self._datas, self._state
+        envs, models, datas, state = self._envs, self._models, self._datas, self._state
         for i in ids:
             mujoco.mj_getState(models[i], datas[i], state[i], _STATE)
         before = state.copy()
@@ -330,8 +444,9 @@ class FrankaVectorEnv(VectorEnv):
         """Each environment's ``render()`` (``render_mode="rgb_array"``), as a tuple."""
         if self.render_mode is None:
             return None
-        for i in range(self.num_envs):
-            self.batch.get_data(i, self._datas[i])
+        for i in range(self.num_envs):  # the scene of each robot's last batch call (its derived quantities too)
+            if self._in_batch[i]:
+                self.batch.get_data(i, self._datas[i])
         return tuple(env.render() for env in self.envs)
 
     def call(self, name: str, *args: Any, **kwargs: Any) -> tuple[Any, ...]:
@@ -352,8 +467,9 @@ class FrankaVectorEnv(VectorEnv):
             setattr(env, name, v)
 
     def close_extras(self, **kwargs: Any) -> None:
-        for env in self.envs:
+        for env in self._envs:
             env.close()
+        self._renderers.close()
 
 
 __all__ = ["FrankaVectorEnv", "make_vector_env"]

@@ -15,8 +15,10 @@ from gymnasium import spaces
 
 from franka_vs_gym.assets.mjcf import TagSpec, mat2quat
 from franka_vs_gym.envs.base import FrankaEnv, ObservationPacker, _nonneg, _positive, _range, substeps
+from franka_vs_gym.envs.kernels import camera_tag_poses
 from franka_vs_gym.model.description import TAG_SIZE
 from franka_vs_gym.model.geometry import desired_tag_pose, homogeneous, inverse_pose, pose_vector, rot_x, rot_y, rot_z
+from franka_vs_gym.vision.tags import project_tag
 
 FEATURE_SOURCES = ("ideal", "detection")
 
@@ -158,7 +160,7 @@ class VisualServoEnv(FrankaEnv):
 
     def get_cMo(self) -> np.ndarray:
         """True pose of the tag in the camera frame c (4, 4)."""
-        return inverse_pose(self.sim.get_fMc()) @ self._fMo
+        return camera_tag_poses(self.sim.get_fMe()[None], self.sim.get_eMc(), self._fMo[None])[0]
 
     # ------------------------------------------------------------------ episode
     def _place_tag(self) -> None:
@@ -237,9 +239,9 @@ class VisualServoEnv(FrankaEnv):
     # ------------------------------------------------------------------ observation
     def _measure_true(self) -> dict[str, np.ndarray]:
         cMo = self.get_cMo()
-        feats, depth, visible = self._project(cMo)
+        _, xy, Z, visible = project_tag(cMo[None], self.tag_size, self.intrinsics)
         # tag_pose (theta-u of cMo) is added only where an observation needs it (see _with_pose)
-        return {"features": feats, "feature_depth": depth, "visible": np.array([1.0 if visible else 0.0]),
+        return {"features": xy[0].ravel(), "feature_depth": Z[0], "visible": np.array([1.0 if visible[0] else 0.0]),
                 "cMo": cMo}
 
     @staticmethod

@@ -6,6 +6,7 @@ from __future__ import annotations
 from typing import Any
 
 from franka_vs_gym.envs.ibvs import FrankaIBVSEnv
+from franka_vs_gym.envs.kernels import row_sumsq
 
 
 class FrankaVisualTorqueEnv(FrankaIBVSEnv):
@@ -44,6 +45,5 @@ class FrankaVisualTorqueEnv(FrankaIBVSEnv):
     def _evaluate(self, action):
         reward, success, failure, info = super()._evaluate(action)
         if self.action_type == "torque" and self.torque_cost:
-            x = action / self.tau_max
-            reward -= self.torque_cost * float(x @ x) / 7.0
+            reward -= self.torque_cost * float(row_sumsq(action / self.tau_max)) / 7.0
         return reward, success, failure, info

@@ -14,10 +14,13 @@ import pinocchio as pin
 # x: R_mujoco = R_visp @ CAMERA_VISP_TO_MUJOCO and back (the matrix is its own inverse).
 CAMERA_VISP_TO_MUJOCO = np.diag([1.0, -1.0, -1.0])
 
+_EYE4 = np.eye(4)  # copied where a pose is built (a copy costs a fifth of np.eye(4); these run every env step)
+_EYE4.flags.writeable = False
+
 
 def homogeneous(R: np.ndarray, t: np.ndarray | tuple | list) -> np.ndarray:
     """4x4 pose from a rotation matrix (3, 3) and a translation (3,)."""
-    M = np.eye(4)
+    M = _EYE4.copy()
     M[:3, :3] = R
     M[:3, 3] = t
     return M
@@ -43,7 +46,7 @@ def pose_vector(M: np.ndarray) -> np.ndarray:
 def inverse_pose(aMb: np.ndarray) -> np.ndarray:
     """bMa (4, 4) of a rigid pose aMb."""
     R, t = aMb[:3, :3], aMb[:3, 3]
-    out = np.eye(4)
+    out = _EYE4.copy()
     out[:3, :3] = R.T
     out[:3, 3] = -R.T @ t
     return out
@@ -51,7 +54,7 @@ def inverse_pose(aMb: np.ndarray) -> np.ndarray:
 
 def pose_from_vector(p: np.ndarray) -> np.ndarray:
     """4x4 pose from a pose vector (tx, ty, tz, thetaux, thetauy, thetauz), as vpHomogeneousMatrix(vpPoseVector)."""
-    M = np.eye(4)
+    M = _EYE4.copy()
     M[:3, :3] = pin.exp3(np.asarray(p[3:], dtype=np.float64))
     M[:3, 3] = p[:3]
     return M

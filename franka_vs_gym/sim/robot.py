@@ -10,6 +10,7 @@ from __future__ import annotations
 import enum
 import math
 from collections import deque
+from dataclasses import dataclass
 from typing import Any
 
 import mujoco
@@ -21,9 +22,15 @@ from franka_vs_gym.model.config import ModelConfig, RigidBody, Tool, resolve_con
 from franka_vs_gym.model.description import FER, RobotDescription
 from franka_vs_gym.model.franka_model import FrankaModel
 from franka_vs_gym.model.friction import make_plant_friction
-from franka_vs_gym.model.geometry import CAMERA_VISP_TO_MUJOCO, combine_inertials, pose_vector, twist_transform
+from franka_vs_gym.model.geometry import (
+    CAMERA_VISP_TO_MUJOCO,
+    combine_inertials,
+    homogeneous,
+    pose_vector,
+    twist_transform,
+)
 from franka_vs_gym.sim import plant
-from franka_vs_gym.sim.reflexes import ControlException, Reflexes, position_profile_time
+from franka_vs_gym.sim.reflexes import ARMED, ControlException, Reflexes, position_profile_time
 from franka_vs_gym.sim.world import SimulationDiverged, SimWorld
 from franka_vs_gym.sim.world import no_op as _no_op
 
@@ -64,6 +71,23 @@ VELOCITY_GAINS = np.array(FER.servo_gains)
 # Velocity commands are scaled to 98 % of the limits at most, so that the joint servo's small overshoot does not trip
 # the velocity reflex (libfranka's rate limiter likewise keeps commands a margin below the limits).
 VELOCITY_COMMAND_SCALE = 0.98
+
+
+@dataclass(frozen=True)
+class BatchLayout:
+    """A robot's place in its MuJoCo data (:meth:`FrankaSim.batch_layout`): index slices of its joints in ``qpos``
+    and ``qvel``, of its torque motors and velocity servos in ``ctrl``, the offset of its reflex record in
+    ``userdata`` (-1 without the compiled plant; see :mod:`franka_vs_gym.sim.reflexes`) and its reflex limits
+    q_min, q_max (rad) and dq_max (rad/s), (7,) each."""
+
+    qpos: slice
+    qvel: slice
+    ctrl_torque: slice
+    ctrl_velocity: slice
+    reflex_record: int
+    q_min: np.ndarray
+    q_max: np.ndarray
+    dq_max: np.ndarray
 
 
 class FrankaSim:
@@ -404,7 +428,7 @@ class FrankaSim:
 
         Torques beyond the FER limits are saturated. Only JOINT_STATE is supported (as on vpRobotFranka).
         """
-        if ControlFrame(frame) != ControlFrame.JOINT_STATE:
+        if frame is not ControlFrame.JOINT_STATE and ControlFrame(frame) != ControlFrame.JOINT_STATE:
             raise ValueError("set_force_torque supports JOINT_STATE only")
         if self._state != RobotState.STATE_FORCE_TORQUE_CONTROL:
             raise RuntimeError("set_force_torque needs the robot in STATE_FORCE_TORQUE_CONTROL "
@@ -428,7 +452,8 @@ class FrankaSim:
         if self._state != RobotState.STATE_VELOCITY_CONTROL:
             raise RuntimeError("set_velocity needs the robot in STATE_VELOCITY_CONTROL "
                                "(call set_robot_state(VELOCITY) first)")
-        frame = ControlFrame(frame)
+        if frame is not ControlFrame.JOINT_STATE:  # (the enum lookup is skipped on the common path)
+            frame = ControlFrame(frame)
         if frame == ControlFrame.JOINT_STATE:
             dq = as_vector(v, 7, "joint velocity")
         else:
@@ -446,7 +471,7 @@ class FrankaSim:
         self._apply_joint_velocity(dq)
 
     def _apply_joint_velocity(self, dq: np.ndarray) -> None:
-        ratio = np.max(np.abs(dq) / (self.dq_max * VELOCITY_COMMAND_SCALE))
+        ratio = (np.abs(dq) / (self.dq_max * VELOCITY_COMMAND_SCALE)).max()
         if ratio > 1.0:
             dq = dq / ratio
         self._reflexes.command_velocity(dq)
@@ -646,11 +671,8 @@ class FrankaSim:
 
     def get_wMf(self) -> np.ndarray:
         """Pose of the robot base in the world (4, 4)."""
-        d = self._d
-        M = np.eye(4)
-        M[:3, :3] = d.xmat[self._base_body].reshape(3, 3)
-        M[:3, 3] = d.xpos[self._base_body]
-        return M
+        d, b = self._d, self._base_body
+        return homogeneous(d.xmat[b].reshape(3, 3), d.xpos[b])
 
     def set_tool(self, flMe: Any, mass: float = 0.0, flMcom: Any = (0, 0, 0), inertia: Any = None, *,
                  plant: bool = False) -> None:
@@ -780,6 +802,39 @@ class FrankaSim:
         m = self._m
         return m.actuator_gainprm[self._vel, 0], m.actuator_biasprm[self._vel, 2], self._ctrl_vel
 
+    def batch_layout(self) -> BatchLayout:
+        """Where this robot lives in its MuJoCo data, for code that steps many robots' data at once (the batched
+        vector env writes commands into, and reads joint states from, ``mujoco.batch`` views of the same fields)."""
+        r = self._reflexes
+        off = int(self._m.jnt_user[self._jids[0], 8]) if r._native else -1
+        return BatchLayout(self._qs, self._vs, self._motor, self._vel, off, r.q_min.copy(), r.q_max.copy(),
+                           r.dq_max.copy())
+
+    def runs_inside_mj_step(self, control_state: RobotState | int) -> bool:
+        """Whether a control period of this robot, in ``control_state``, is plain MuJoCo steps: nothing per physics
+        step in Python (compiled plant, no command delay or rate limiting, no brakes holding it, no relaxed limits),
+        reflexes armed in the plant (recording any violation in the data's userdata), commands passed as given
+        (``command_rates="pass"``), no torque-measurement noise or offset to check and no error pending. Code that
+        steps such a robot's data elsewhere (``mujoco.batch``) writes its controls as ``set_force_torque`` /
+        ``set_velocity`` would and then calls :meth:`commands_from_controls`."""
+        r, w = self._reflexes, self.world
+        return (self._native and r._native and r._enabled and r._mode == "pass" and r._hold is None
+                and not r._relaxed and not r._check_tau and not r.errors and r._ud[0] == ARMED
+                and not self._delay_steps and self._meas_fifo is None and not w._active and not w._post_hooks
+                and len(w._checks) == 1 and self._state == RobotState(control_state))
+
+    def commands_from_controls(self) -> None:
+        """After the controls in the data were written from outside (see :meth:`runs_inside_mj_step`), make the
+        robot's command state what ``set_force_torque`` (torque control) or ``set_velocity`` (velocity control)
+        leaves behind with ``command_rates="pass"`` for those controls."""
+        r = self._reflexes
+        if self._state == RobotState.STATE_FORCE_TORQUE_CONTROL:
+            self._tau_cmd[:] = self._ctrl_tau
+            r._tau_applied[:] = self._ctrl_tau
+        elif self._state == RobotState.STATE_VELOCITY_CONTROL:
+            r._v_target[:] = self._ctrl_vel
+            r._v_ref[:] = self._ctrl_vel
+
     def stop_joints(self) -> None:
         """Zero the joint velocities at once (the brakes engaging after a reflex)."""
         self._qvel[:] = 0.0
@@ -806,6 +861,6 @@ class FrankaSim:
     getTime = get_time
 
 
-__all__ = ["CAMERA_FRAME", "ControlFrame", "DEFAULT_eMc", "END_EFFECTOR_FRAME", "FORCE_TORQUE", "FrankaSim",
-           "JOINT_STATE", "POSITION", "REFERENCE_FRAME", "RobotState", "STOP", "SimulationDiverged", "VELOCITY",
-           "Tool", "ModelConfig", "twist_transform", "pose_vector", "ControlException"]
+__all__ = ["BatchLayout", "CAMERA_FRAME", "ControlFrame", "DEFAULT_eMc", "END_EFFECTOR_FRAME", "FORCE_TORQUE",
+           "FrankaSim", "JOINT_STATE", "POSITION", "REFERENCE_FRAME", "RobotState", "STOP", "SimulationDiverged",
+           "VELOCITY", "Tool", "ModelConfig", "twist_transform", "pose_vector", "ControlException"]

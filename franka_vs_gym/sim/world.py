@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable
 
 import mujoco
 import numpy as np
 
 from franka_vs_gym.assets.mjcf import SceneSpec, scene_xml
+from franka_vs_gym.sim.rendering import SharedRenderers, make_renderer, render_view
 
 
 class SimulationDiverged(RuntimeError):
@@ -49,6 +49,7 @@ class SimWorld:
         self._post_hooks: list[Callable[[], None]] = []
         self._checks: list[Callable[[], None]] = []  # run after every step(n) call (the robots' reflexes)
         self._renderers: dict[tuple[int, int], mujoco.Renderer] = {}
+        self._shared: SharedRenderers | None = None
         self.diverged: str | None = None
         self._wn = self.data.warning.number  # live view of MuJoCo's warning counters
         self._w_pos, self._w_vel, self._w_acc = (int(mujoco.mjtWarning.mjWARN_BADQPOS),
@@ -122,57 +123,30 @@ class SimWorld:
 
     # ------------------------------------------------------------------ rendering
     def renderer(self, width: int, height: int) -> mujoco.Renderer:
-        """A cached offscreen renderer (headless: set MUJOCO_GL=egl or osmesa; chosen automatically)."""
+        """A cached offscreen renderer (headless: set MUJOCO_GL=egl or osmesa; chosen automatically), or the shared
+        one of :meth:`share_renderers`. Draw through :func:`franka_vs_gym.sim.rendering.render_view` with this
+        world's model and data (a shared renderer belongs to another model with the same visual assets)."""
+        if self._shared is not None:
+            return self._shared.renderer(width, height)
         key = (width, height)
         if key not in self._renderers:
-            ensure_gl_backend()
-            try:
-                r = mujoco.Renderer(self.model, height, width)
-            except Exception as e:  # pragma: no cover - depends on the machine
-                raise RuntimeError(
-                    f"offscreen rendering failed (MUJOCO_GL={os.environ.get('MUJOCO_GL')!r}): {e}. MuJoCo picks its "
-                    "OpenGL backend when it is first imported: on a machine without a display install Mesa (EGL or "
-                    "OSMesa) and set MUJOCO_GL=egl (or osmesa) in the environment, or import franka_vs_gym before "
-                    "mujoco so that it can choose EGL for you.") from e
-            scene_option = mujoco.MjvOption()
-            self._renderers[key] = r
-            r._fvs_option = scene_option  # type: ignore[attr-defined]
+            self._renderers[key] = make_renderer(self.model, width, height)
         return self._renderers[key]
+
+    def share_renderers(self, pool: SharedRenderers) -> bool:
+        """Draw this world's images through ``pool`` (one OpenGL context for many worlds of the same scene) when its
+        model's visual assets are the pool's; returns whether it does. Images are unchanged."""
+        if pool.accepts(self.model):
+            self._shared = pool
+            return True
+        return False
 
     def render(self, camera: str | int = "overview", width: int = 640, height: int = 480) -> np.ndarray:
         """RGB image (height, width, 3) uint8 from a named camera."""
-        r = self.renderer(width, height)
-        r.update_scene(self.data, camera)
-        return r.render()
+        return render_view(self.renderer(width, height), self.model, self.data, camera)
 
     def close(self) -> None:
         for r in self._renderers.values():
             r.close()
         self._renderers.clear()
-
-
-def ensure_gl_backend() -> str:
-    """Make sure offscreen rendering has a headless OpenGL backend on a machine without a display; returns the
-    backend name.
-
-    MuJoCo picks its backend from MUJOCO_GL when it is first imported (franka_vs_gym sets EGL before that when no
-    display is present). If MuJoCo was imported first and fell back to GLFW, which needs a display, the EGL context
-    is swapped in here, before the first renderer is made.
-    """
-    if os.environ.get("DISPLAY"):
-        return os.environ.get("MUJOCO_GL", "glfw")
-    if "MUJOCO_GL" not in os.environ:
-        os.environ["MUJOCO_GL"] = "egl"
-    from mujoco.rendering.classic import gl_context
-
-    current = getattr(gl_context, "GLContext", None)
-    if current is not None and "glfw" in getattr(current, "__module__", ""):
-        os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
-        try:
-            from mujoco.egl import GLContext as EGLContext
-        except Exception as e:  # pragma: no cover - depends on the machine
-            raise RuntimeError(f"no display and no EGL for headless rendering ({e}); install Mesa's EGL "
-                               "(libegl1) or set MUJOCO_GL=osmesa before importing mujoco") from e
-        gl_context.GLContext = EGLContext
-        return "egl"
-    return os.environ.get("MUJOCO_GL", "glfw")
+        self._shared = None

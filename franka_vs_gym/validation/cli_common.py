@@ -11,7 +11,9 @@ from franka_vs_gym.validation.signals import GAP_FACTOR, CleanSettings
 def add_common(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("log", help="measurement log: CSV or NPZ (with optional <log>.json sidecar), a ROS 2 bag "
                                     "folder (sqlite3 or MCAP) or .mcap file of sensor_msgs/JointState, a libfranka "
-                                    "logToCSV file, or a Gaz et al. 2019 text folder")
+                                    "logToCSV file, a Gaz et al. 2019 text folder, or a dump of pylibfranka/franky "
+                                    "robot states (JSON, JSON lines, CSV, NPZ/NPY, franky pickle; detected from the "
+                                    "content)")
     parser.add_argument("--model", metavar="FILE", default=None,
                         help="calibrated model file (JSON) to compare; default: the FER with the log's declared tool")
     parser.add_argument("--rigid-body", action="store_true",

@@ -61,6 +61,8 @@ def main(args: argparse.Namespace) -> int:
     print(f"assumptions: tool {a['tool']} ({a['tool_source']}), gravity {a['gravity_m_per_s2']} m/s^2, log rate "
           f"{a['log_rate_hz']} Hz, processed at {a['resampled_to_hz']:g} Hz, low-pass {a['cleaning']['lowpass_hz']:g} "
           f"Hz, {a['cleaning']['stale_rows_dropped']} stale rows dropped")
+    if a.get("log_read_as"):
+        print(f"log read as: {a['log_read_as']}")
     for w in a["warnings"]:
         print(f"warning: {w}")
     print(f"baseline RMSE (Nm): {np.round(d.rmse_tau, 3).tolist()}  total {d.rmse_tau_total:.3f}")

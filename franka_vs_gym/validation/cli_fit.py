@@ -65,6 +65,8 @@ def main(args: argparse.Namespace) -> int:
     a = res.assumptions
     print(f"assumptions: tool {a['tool']} ({a['tool_source']}), gravity {a['gravity_m_per_s2']} m/s^2, log rate "
           f"{a['log_rate_hz']} Hz, processed at {a['resampled_to_hz']:g} Hz")
+    if a.get("log_read_as"):
+        print(f"log read as: {a['log_read_as']}")
     for w in a["warnings"]:
         print(f"warning: {w}")
     if res.holdout is not None:

@@ -307,6 +307,8 @@ def format_compare(res: CompareResult) -> str:
     lines.append(f"assumptions: tool {a['tool']} ({a['tool_source']}), gravity {a['gravity_m_per_s2']} m/s^2, log "
                  f"rate {a['log_rate_hz']} Hz, processed at {a['resampled_to_hz']:g} Hz, low-pass "
                  f"{a['cleaning']['lowpass_hz']:g} Hz, {a['cleaning']['stale_rows_dropped']} stale rows dropped")
+    if a.get("log_read_as"):
+        lines.append(f"log read as: {a['log_read_as']}")
     lines += [f"warning: {w}" for w in a["warnings"]]
     if res.replay is not None:
         rp = res.replay

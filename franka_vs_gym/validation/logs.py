@@ -206,6 +206,8 @@ def _read_sidecar(path: Path) -> dict[str, Any]:
             except json.JSONDecodeError as e:
                 raise ValueError(f"sidecar {s} is not valid JSON: {e}") from None
             if not isinstance(d, dict):
+                if s != sidecar_path(path):  # run.json next to run.pkl may be a dump of robot states, not metadata
+                    continue
                 raise ValueError(f"sidecar {s} must hold a JSON object")
             return d
     return {}
@@ -448,10 +450,62 @@ def _load_gaz(folder: Path) -> dict[str, np.ndarray]:
     return out
 
 
+def _native_header(header: list[str]) -> bool:
+    """Our CSV format (``time`` and ``field[i]``/``field_i`` columns of the log's fields only) or logToCSV's."""
+    from franka_vs_gym.validation.readers import is_libfranka_csv
+
+    if is_libfranka_csv(header):
+        return True
+    names = [h.strip() for h in header]
+    if "time" not in names:
+        return False
+    for n in names:
+        m = _COL.match(n)
+        if n != "time" and not (m and m.group(1) in JOINT_FIELDS):
+            return False
+    return True
+
+
+def _load_file(p: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """Arrays and metadata of a log file; the format is detected from the content (see :func:`load_log`)."""
+    from franka_vs_gym.validation import robot_states as rs
+
+    kind = rs.sniff(p)
+    if kind == "npz":
+        z = io.load_npz(p, what="log")
+        keys = set(z)
+        native = {"time", *REQUIRED} <= keys and z["q"].ndim == 2
+        if native:
+            t = np.asarray(z["time"], dtype=np.float64).ravel()
+            dt = np.diff(t)
+            native = not (dt > 0).any() or float(np.median(dt[dt > 0])) <= 0.05
+        return _load_npz(p) if native else rs.read_npz_dump(p)
+    if kind == "npy":
+        return rs.read_npy(p)
+    if kind == "pickle":
+        return rs.read_pickle(p)
+    if kind == "json":
+        return rs.read_json(p)
+    with io.open_input(p, "r", what="log", newline="") as fh:
+        first = fh.readline()
+    if not first.strip():
+        raise ValueError(f"{p}: empty file" if not first else f"{p}: the first line must be a header")
+    header = next(csv.reader([first]))
+    if len(header) == 1 and "," not in first:
+        header = first.split()
+    if all(_isfloat(h) for h in header):
+        raise ValueError(f"{p}: the first line must be a header with column names (time, q[0], ...)")
+    if _native_header(header):
+        return _load_csv(p), {}
+    return rs.read_csv_dump(p, first)
+
+
 def load_log(path: str | os.PathLike, topic: str | None = None) -> MeasurementLog:
     """Read a log: a CSV file (ours or libfranka's logToCSV), an NPZ file, a ROS 2 bag of JointState messages
-    (``topic`` chooses the topic; see :mod:`franka_vs_gym.validation.readers`), or a Gaz et al. 2019 text folder
-    (see the module docstring).
+    (``topic`` chooses the topic; see :mod:`franka_vs_gym.validation.readers`), a Gaz et al. 2019 text folder (see
+    the module docstring), or a dump of pylibfranka/franky robot states (JSON, JSON lines, CSV with flattened or
+    whole-list fields, NPZ/NPY, a pickle of franky states; see :mod:`franka_vs_gym.validation.robot_states`). The
+    format of a file is detected from its content.
 
     The sidecar ``<log>.json`` supplies tool, gravity and controller. Raises FileNotFoundError when the path does
     not exist and ValueError when the content is malformed. The file is only read.
@@ -470,14 +524,9 @@ def load_log(path: str | os.PathLike, topic: str | None = None) -> MeasurementLo
         arrays = _load_gaz(p)
         meta: dict[str, Any] = {"tool": None, "source_format": "gaz2019"}
         meta.update(_read_sidecar(p / "log"))
-    elif p.suffix.lower() not in (".npz", ".csv", ".txt", ".tsv", ""):
-        raise ValueError(f"{p}: unknown log format {p.suffix!r} (use .csv, .npz or a Gaz text folder)")
-    elif p.suffix.lower() == ".npz":
-        arrays, meta = _load_npz(p)
+    else:
+        arrays, meta = _load_file(p)
         meta = {**meta, **_read_sidecar(p)}
-    elif p.suffix.lower() in (".csv", ".txt", ".tsv") or p.suffix == "":
-        arrays = _load_csv(p)
-        meta = _read_sidecar(p)
     kw = _meta_kwargs(meta)
     t = arrays.pop("time")
     return MeasurementLog(t, **arrays, **kw, source=str(p))

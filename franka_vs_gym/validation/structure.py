@@ -308,7 +308,7 @@ def assumptions_of(data: ProcessedLog, config: Any, tool: str | None = None) -> 
         tool_src = f"--tool {tool}" + (" (mass, centre of mass and inertia fitted as a payload)"
                                        if tool == "unknown" else "")
     elif log.tool_declared:
-        tool_src = "declared by the log"
+        tool_src = "declared by the log" + (f" ({log.extra['tool_source']})" if log.extra.get("tool_source") else "")
     else:
         tool_src = "not declared by the log: the Franka Hand assumed (use --tool to say otherwise)"
     raw_rate = 1.0 / rep.dt_median if rep.dt_median > 0 else float("nan")
@@ -324,6 +324,8 @@ def assumptions_of(data: ProcessedLog, config: Any, tool: str | None = None) -> 
                         "resampling": "linear interpolation onto a uniform grid"},
            "samples": int(data.n), "duration_s": round(float(data.n / data.settings.rate), 3),
            "warnings": list(getattr(rep, "warnings", []))}
+    if log.extra.get("read_as"):  # how a foreign dump was read (format, time unit)
+        out["log_read_as"] = log.extra["read_as"]
     return out
 
 

@@ -9,8 +9,10 @@ from franka_vs_gym.vision.tags import (
                                        detected_measurement,
                                        estimate_pose,
                                        ideal_measurement,
+                                       project_tag,
                                        tag_corners,
 )
 
 __all__ = ["CameraIntrinsics", "TagDetection", "TagDetector", "TagMeasurement", "WristCamera", "bench",
-           "detected_measurement", "estimate_pose", "ideal_measurement", "set_mujoco_camera", "tag_corners"]
+           "detected_measurement", "estimate_pose", "ideal_measurement", "project_tag", "set_mujoco_camera",
+           "tag_corners"]

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import mujoco
 import numpy as np
@@ -51,6 +52,16 @@ class CameraIntrinsics:
     @property
     def fovy_deg(self) -> float:
         return math.degrees(2 * math.atan((self.height / 2) / self.fy))
+
+    @cached_property
+    def pixel_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(f = (fx, fy), c = (cx, cy), the largest pixel coordinates inside the image (width - 0.5, height - 0.5)),
+        (2,) each in pixels, read-only: u = fx x + cx, v = fy y + cy of normalized coordinates (x, y)."""
+        out = (np.array([self.fx, self.fy]), np.array([self.cx, self.cy]),
+               np.array([self.width - 0.5, self.height - 0.5]))
+        for a in out:
+            a.flags.writeable = False
+        return out
 
     @property
     def K(self) -> np.ndarray:
@@ -131,16 +142,15 @@ class WristCamera:
         self.period = float(period)
         self.name = sim.camera_name()
         set_mujoco_camera(sim.world.model, self.name, self.intrinsics)
-        self._renderer = sim.world.renderer(self.intrinsics.width, self.intrinsics.height)
+        self._cam_id = mujoco.mj_name2id(sim.world.model, mujoco.mjtObj.mjOBJ_CAMERA, self.name)
+        sim.world.renderer(self.intrinsics.width, self.intrinsics.height)  # made now: fails here if it cannot render
         self._last_t = -math.inf
         self._image: np.ndarray | None = None
         self.frame_count = 0
 
     def render(self) -> np.ndarray:
-        """Render the camera's view now, (height, width, 3) uint8."""
-        r = self._renderer
-        r.update_scene(self.sim.world.data, self.name)
-        return r.render().copy()
+        """Render the camera's view now, (height, width, 3) uint8 (a new array)."""
+        return self.sim.world.render(self._cam_id, self.intrinsics.width, self.intrinsics.height)
 
     def new_frame_due(self) -> bool:
         return self.sim.time >= self._last_t + self.period - 1e-9

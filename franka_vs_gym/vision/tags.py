@@ -209,19 +209,11 @@ def ideal_measurement(cMo: np.ndarray, size: float, intrinsics: CameraIntrinsics
     cMo = np.asarray(cMo, dtype=np.float64)
     if cMo.shape != (4, 4) or not np.isfinite(cMo).all():
         raise ValueError("cMo must be a finite 4x4 pose")
-    # (this runs at every camera frame of the RL environments: plain array arithmetic, no generic helpers)
-    P = _corners_T(size).T @ cMo[:3, :3].T + cMo[:3, 3]
-    Z = P[:, 2]
-    facing = cMo[2, 2] < 0  # the tag's z axis points towards the camera
-    if (Z <= 1e-6).any() or not facing:
-        return TagMeasurement(np.zeros((4, 2)), np.zeros((4, 2)), Z, cMo, False)
-    xy = P[:, :2] / Z[:, None]
-    uv = np.empty((4, 2))
-    uv[:, 0] = intrinsics.cx + intrinsics.fx * xy[:, 0]
-    uv[:, 1] = intrinsics.cy + intrinsics.fy * xy[:, 1]
-    lo = -0.5 + margin_px
-    visible = bool(uv.min() >= lo and uv[:, 0].max() <= intrinsics.width - 0.5 - margin_px
-                   and uv[:, 1].max() <= intrinsics.height - 0.5 - margin_px)
+    uv, xy, Z, vis = project_tag(cMo[None], size, intrinsics, margin_px)
+    if not ((Z[0] > 1e-6).all() and cMo[2, 2] < 0):  # behind the camera or not facing it
+        return TagMeasurement(uv[0], xy[0], Z[0], cMo, False)
+    uv, xy, Z = uv[0], xy[0], Z[0]
+    visible = bool(vis[0])
     if rng is not None and dropout > 0 and rng.random() < dropout:
         visible = False
     if noise_px > 0:
@@ -232,8 +224,36 @@ def ideal_measurement(cMo: np.ndarray, size: float, intrinsics: CameraIntrinsics
     return TagMeasurement(uv, xy, Z, cMo, visible)
 
 
+def project_tag(cMo: np.ndarray, size: float, intrinsics: CameraIntrinsics,
+                margin_px: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Ideal projection of the corners of N tags at once (the formula of :func:`ideal_measurement`, which calls it
+    with N = 1, and of the batched environments): ``cMo`` (N, 4, 4) poses of the tags in the camera frame c.
+
+    Returns (uv (N, 4, 2) pixels, xy (N, 4, 2) normalized coordinates, Z (N, 4) corner depths in m, visible (N,)
+    bool): a tag is visible when it is in front of the camera (every Z > 1 um), faces it (its z axis towards the
+    camera) and all corners are in the image, ``margin_px`` from the border; uv and xy are zeros where a tag is
+    behind the camera or not facing it."""
+    P = np.matmul(tag_corners_T(size).T, cMo[:, :3, :3].swapaxes(1, 2))
+    P += cMo[:, None, :3, 3]
+    Z = P[:, :, 2]
+    ok = (Z > 1e-6).all(axis=1) & (cMo[:, 2, 2] < 0)
+    f, c, hi = intrinsics.pixel_arrays
+    if ok.all():
+        xy = P[:, :, :2] / Z[:, :, None]
+        uv = xy * f + c
+    else:
+        uv = np.zeros(P.shape[:2] + (2,))
+        xy = np.zeros_like(uv)
+        xy[ok] = P[ok, :, :2] / Z[ok, :, None]
+        uv[ok] = xy[ok] * f + c
+    n = len(uv)
+    visible = ok & (uv.reshape(n, 8).min(axis=1) >= -0.5 + margin_px) & \
+        (uv.max(axis=1) <= (hi - margin_px if margin_px else hi)).all(axis=1)
+    return uv, xy, Z, visible
+
+
 @lru_cache(maxsize=32)
-def _corners_T(size: float) -> np.ndarray:
+def tag_corners_T(size: float) -> np.ndarray:
     """tag_corners(size).T (3, 4), cached and read-only."""
     c = np.ascontiguousarray(tag_corners(size).T)
     c.flags.writeable = False

@@ -1,0 +1,409 @@
+"""The per-step task logic of N robots at once, for the batched vector env (:mod:`franka_vs_gym.envs.vector`).
+
+While a robot steps in the batch its state lives in the batch: its MuJoCo state in the row of ``mujoco.batch``'s
+state (read and written through ``Batch.bind`` views, (N, ...)), its task state (step count, episode start, desired
+trajectory, held camera frame, ...) in the (N, ...) arrays of a :class:`BatchedTask`. A step is then a handful of
+numpy calls for all robots: the actions checked and written into the batch's controls, one ``Batch.step``, the
+reflex and divergence checks, the observations packed into one preallocated (N, size) matrix, rewards,
+terminations and the info columns. The formulas are those of the single environments
+(:mod:`franka_vs_gym.envs.kernels`, :func:`franka_vs_gym.vision.tags.project_tag`), which call them with N = 1.
+
+A robot goes back to its own environment object (:meth:`BatchedTask.store`: its MuJoCo state into its MjData, its
+task state into its attributes) whenever something per robot happens: a reset, a step whose physics needs Python
+between physics steps, a tripped reflex, a divergence, a contact or joint-limit failure (the step is then re-run by
+the robot's own environment from the state before it, exactly as a single env runs it), a camera frame in the
+middle of a period, or any access to ``FrankaVectorEnv.envs``. :meth:`BatchedTask.load` brings it back.
+
+Which configurations step here (:meth:`BatchedTask.supports`): the registered tasks with joint-torque or
+joint-velocity actions, feature or state observations from the ideal projection, no observation noise, the
+compiled plant with its reflexes armed, no command delay and libfranka's command rates passed through ("pass").
+Every other configuration steps robot by robot around the batched physics, as before.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import mujoco
+import numpy as np
+
+from franka_vs_gym.envs.kernels import (
+    camera_tag_poses,
+    clip_observation,
+    pbvs_errors,
+    pose_vectors,
+    row_norm,
+    row_sumsq,
+    tracking_desired,
+)
+from franka_vs_gym.sim import FORCE_TORQUE, VELOCITY
+from franka_vs_gym.sim.reflexes import ARMED
+from franka_vs_gym.sim.robot import VELOCITY_COMMAND_SCALE
+from franka_vs_gym.vision.tags import project_tag
+
+_STATE = mujoco.mjtState.mjSTATE_INTEGRATION
+TAG_LOST = "tag lost: a corner left the image"
+
+
+class BatchedTask:
+    """The common part (actions, commands, reflex checks, joint state, failures, info) of N robots of one task.
+
+    Parameters
+    ----------
+    envs : the N environments (same class and configuration).
+    batch : their ``mujoco.batch.Batch`` (persistent).
+
+    Arrays (N, ...) hold the task state of the robots that step in the batch; rows of other robots are stale.
+    """
+
+    def __init__(self, envs: list[Any], batch: Any) -> None:
+        e0 = envs[0]
+        n = len(envs)
+        self.envs, self.n = envs, n
+        self.qpos, self.qvel, self.ctrl = batch.bind("qpos"), batch.bind("qvel"), batch.bind("ctrl")
+        self.userdata, self.time = batch.bind("userdata"), batch.bind("time")
+        self.state = batch.state
+        sim = e0.sim
+        lay = sim.batch_layout()
+        self.qs, self.vs, self.motor, self.vel = lay.qpos, lay.qvel, lay.ctrl_torque, lay.ctrl_velocity
+        self.ud = lay.reflex_record  # the robot's reflex record in userdata
+        self.q_min, self.q_max, self.dq_max_reflex = lay.q_min, lay.q_max, lay.dq_max
+        self.q_lo_fail, self.q_hi_fail = e0._q_lo_fail, e0._q_hi_fail
+        self.act_lo, self.act_hi = e0._act_lo_tol, e0._act_hi_tol
+        self.act_shape = e0._act_shape
+        self.torque = e0.action_type == "torque"
+        self.tau_max = sim.tau_max
+        self.dq_lim = sim.dq_max * VELOCITY_COMMAND_SCALE
+        self.friction = sim.model.friction  # the robot's model's law (the same configuration for every robot)
+        self.friction_on = np.zeros(n, dtype=np.bool_)
+        self.control_state = FORCE_TORQUE if self.torque else VELOCITY
+        self.max_steps, self.failure_penalty = e0.max_steps, e0.failure_penalty
+        self.n_substeps = e0.n_substeps
+        self.steps = np.zeros(n, dtype=np.int64)
+        self.t0 = np.zeros(n)
+        self.action = np.zeros((n, *self.act_shape))
+        pack = e0._pack
+        self.pack_items, self.pack_low, self.pack_high = pack.items, pack.low, pack.high
+        self.pack_size = pack.low.size
+        self.last_obs = np.zeros((n, self.pack_size), dtype=np.float32)  # the last packed observation of each
+
+    # ------------------------------------------------------------------ which robots step here
+    @classmethod
+    def supports(cls, env: Any) -> bool:
+        """Whether this environment's configuration can step in the batch (the same for every robot)."""
+        sim = env.sim
+        return (env.action_type in ("torque", "joint_velocity") and not env.joint_noise and not env.velocity_noise
+                and type(env)._step_begin is _base_step_begin() and sim.batch_layout().reflex_record >= 0
+                and sim.command_rates == "pass" and len(env.world.scene.robots) == 1
+                and set(env._pack.keys) == set(env.observation_space.spaces))
+
+    def eligible(self, env: Any) -> bool:
+        """Whether this robot can step in the batch now (nothing per robot pending)."""
+        return (env._diverged is None and env._last_obs is not None and env._pack.last is not None
+                and env.sim.runs_inside_mj_step(self.control_state))
+
+    # ------------------------------------------------------------------ moving a robot in and out
+    def load(self, i: int) -> None:
+        """Robot i's state from its environment into the batch."""
+        env = self.envs[i]
+        mujoco.mj_getState(env.world.model, env.world.data, self.state[i], _STATE)
+        self.steps[i], self.t0[i] = env._steps, env._t0
+        self.friction_on[i] = env.sim.friction_enabled
+        self.last_obs[i] = env._pack.last
+
+    def store(self, i: int) -> None:
+        """Robot i's state from the batch into its environment (its MjData and attributes)."""
+        env = self.envs[i]
+        mujoco.mj_setState(env.world.model, env.world.data, self.state[i], _STATE)
+        env._steps, env._t0 = int(self.steps[i]), float(self.t0[i])
+        env._reflex = None
+        buf = env._pack.last = self.last_obs[i].copy()
+        env._last_obs = {k: buf[sl].reshape(shape) for k, sl, shape in self.pack_items}
+        env.sim.commands_from_controls()
+
+    # ------------------------------------------------------------------ the step
+    def check_actions(self, ids: np.ndarray, actions: np.ndarray) -> np.ndarray:
+        """The actions (len(ids), k) as float64, checked as ``FrankaEnv._check_action`` checks them: inside the
+        space (within its tolerance) in one comparison; other rows go through the robot's own check (which clips
+        or raises its error)."""
+        a = np.asarray(actions[ids], dtype=np.float64) if actions.shape[1:] == self.act_shape else None
+        if a is not None:
+            ok = ((a >= self.act_lo) & (a <= self.act_hi)).all(axis=1)
+            if ok.all():
+                return a
+        rows = [self.envs[i]._check_action(actions[i]) for i in ids]
+        return np.array(rows, dtype=np.float64).reshape(len(ids), *self.act_shape)
+
+    def command(self, ids: np.ndarray, a: np.ndarray) -> None:
+        """``FrankaEnv._apply_action`` for the rows ids: the torque (saturated at tau_max) or the joint velocity
+        (scaled down uniformly within the servo's limit, with the model's friction as feed-forward) into the
+        batch's controls."""
+        self.action[ids] = a
+        if self.torque:
+            tau = np.minimum(a, self.tau_max)
+            np.maximum(tau, -self.tau_max, out=tau)
+            self.ctrl[ids, self.motor] = tau
+            return
+        ratio = (np.abs(a) / self.dq_lim).max(axis=1)
+        over = ratio > 1.0
+        dq = a.copy()
+        if over.any():
+            dq[over] = a[over] / ratio[over, None]
+        self.ctrl[ids, self.vel] = dq
+        ff = self.friction(dq)
+        ff[~self.friction_on[ids]] = 0.0
+        self.ctrl[ids, self.motor] = ff
+
+    def anomalies(self, ids: np.ndarray) -> np.ndarray:
+        """After the physics: rows whose robot must re-run the step alone (a reflex recorded or crossed, a joint at
+        its hard stop, a contact); for the others, what the reflexes' after-call check records (the state checked
+        at this time)."""
+        q, dq = self.qpos[ids, self.qs], self.qvel[ids, self.vs]
+        ud = self.userdata
+        bad = ud[ids, self.ud] != ARMED
+        bad |= ((q < self.q_min) | (q > self.q_max) | (np.abs(dq) > self.dq_max_reflex)).any(axis=1)
+        bad |= ((q < self.q_lo_fail) | (q > self.q_hi_fail)).any(axis=1)
+        ok = ids[~bad]
+        ud[ok, self.ud + 1] = self.time[ok]
+        return bad
+
+    def joint_state(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return self.qpos[ids, self.qs], self.qvel[ids, self.vs]
+
+    def pack(self, ids: np.ndarray, raw: dict[str, np.ndarray], out: np.ndarray) -> None:
+        """``ObservationPacker`` for the rows ids: raw[key] (len(ids), ...) into out (N, size) float32."""
+        v = np.empty((len(ids), self.pack_size))
+        for k, sl, _ in self.pack_items:
+            v[:, sl] = raw[k].reshape(len(ids), sl.stop - sl.start)
+        packed = clip_observation(v, self.pack_low, self.pack_high)
+        out[ids] = packed
+        self.last_obs[ids] = packed
+
+    def finish(self, ids: np.ndarray, reward: np.ndarray, success: np.ndarray, failure: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+        """``FrankaEnv._step_end`` after the task's evaluation: (reward, terminated, truncated, info columns) of the
+        rows ids; ``failure`` (len(ids),) object (None or the reason), ``success`` bool."""
+        steps = self.steps[ids]
+        failed = failure != None  # noqa: E711  (elementwise on an object array)
+        terminated = (success & self.terminate_on_success) | failed
+        success = success & ~failed
+        if failed.any():
+            reward = reward - np.where(failed, self.failure_penalty * (self.max_steps - steps + 1), 0.0)
+        truncated = ~terminated & (steps >= self.max_steps)
+        info = {"time": self.time[ids] - self.t0[ids], "is_success": success, "failure": failure}
+        return reward, terminated, truncated, info
+
+
+def _base_step_begin():
+    from franka_vs_gym.envs.base import FrankaEnv
+
+    return FrankaEnv._step_begin
+
+
+class TorqueTrackingBatch(BatchedTask):
+    """FrankaTorqueTracking-v0 over N robots (the task of
+    :class:`~franka_vs_gym.envs.torque_tracking.FrankaTorqueTrackingEnv`)."""
+
+    terminate_on_success = False
+
+    def __init__(self, envs: list[Any], batch: Any) -> None:
+        super().__init__(envs, batch)
+        n = self.n
+        self.q0, self.A, self.w = np.zeros((n, 7)), np.zeros((n, 7)), np.zeros((n, 7))
+        self.sq_err = np.zeros(n)
+        e0 = envs[0]
+        self.error_scale, self.success_threshold = e0.error_scale, e0.success_threshold
+
+    def load(self, i: int) -> None:
+        super().load(i)
+        env = self.envs[i]
+        self.q0[i], self.A[i], self.w[i], self.sq_err[i] = env._q0, env._A, env._w, env._sq_err
+
+    def store(self, i: int) -> None:
+        super().store(i)
+        env = self.envs[i]
+        env._sq_err = float(self.sq_err[i])
+        t = float(self.time[i] - self.t0[i])
+        env._desired_now = env.desired(t)
+
+    def step_end(self, ids: np.ndarray, out: np.ndarray):
+        self.steps[ids] += 1
+        q, dq = self.joint_state(ids)
+        t = (self.time[ids] - self.t0[ids])[:, None]
+        qd, dqd, ddqd = tracking_desired(self.q0[ids], self.A[ids], self.w[ids], t)
+        self.pack(ids, {"q": q, "dq": dq, "q_desired": qd, "dq_desired": dqd, "ddq_desired": ddqd, "time": t}, out)
+        err = row_norm(q - qd)
+        sq = self.sq_err[ids] + err * err
+        self.sq_err[ids] = sq
+        steps = self.steps[ids]
+        rms = np.sqrt(sq / np.maximum(steps, 1))
+        success = (steps >= self.max_steps) & (rms < self.success_threshold)
+        reward = -np.minimum(err / self.error_scale, 1.0)
+        failure = np.full(len(ids), None, dtype=object)
+        reward, term, trunc, info = self.finish(ids, reward, success, failure)
+        info["error"], info["rms_error"] = err, rms
+        return reward, term, trunc, info
+
+
+class VisualBatch(BatchedTask):
+    """FrankaIBVS-v0, FrankaPBVS-v0 and FrankaVisualTorque-v0 over N robots, with the ideal projection of the tag
+    corners (no feature noise) and feature or state observations. The camera geometry of all robots is computed
+    at once: the end-effector poses from each robot's kinematic model, then cMo, the projection and visibility for
+    all rows (:func:`~franka_vs_gym.envs.kernels.camera_tag_poses`, :func:`~franka_vs_gym.vision.tags.project_tag`)."""
+
+    def __init__(self, envs: list[Any], batch: Any) -> None:
+        super().__init__(envs, batch)
+        n, e0 = self.n, envs[0]
+        self.kind = type(e0).__name__
+        self.terminate_on_success = e0.terminate_on_success
+        self.state_obs = e0.observation_type == "state"
+        self.fk = [e.sim.model.fMe for e in envs]
+        self.eMc = e0.sim.get_eMc()
+        self.tag_size, self.intrinsics = e0.tag_size, e0.intrinsics
+        self.features_desired, self.depth_desired = e0.features_desired, e0.depth_desired
+        self.tag_pose_desired, self.cdMo = e0.tag_pose_desired, e0.cdMo
+        self.camera_substeps = e0.camera_substeps
+        self.terminate_on_tag_lost, self.success_bonus = e0.terminate_on_tag_lost, e0.success_bonus
+        self.k = np.zeros(n, dtype=np.int64)
+        self.fMo = np.tile(np.eye(4), (n, 1, 1))
+        # the held camera frame, the truth now, the truth at the last frame (FrankaEnv._frame/_truth/_truth_cache)
+        self.frame = {"features": np.zeros((n, 8)), "feature_depth": np.zeros((n, 4)), "visible": np.zeros((n, 1)),
+                      "cMo": np.tile(np.eye(4), (n, 1, 1)), "tag_pose": np.zeros((n, 6))}
+        self.truth = {"features": np.zeros((n, 8)), "feature_depth": np.zeros((n, 4)), "visible": np.zeros((n, 1)),
+                      "cMo": np.tile(np.eye(4), (n, 1, 1))}
+        self.cache = {k: v.copy() for k, v in self.truth.items()}
+        self.cache_k = np.full(n, -1, dtype=np.int64)
+        if self.kind == "FrankaIBVSEnv" or self.kind == "FrankaVisualTorqueEnv":
+            self.success_threshold, self.error_scale = e0.success_threshold, e0.error_scale
+            self.torque_cost = getattr(e0, "torque_cost", 0.0) if self.torque else 0.0
+        else:
+            self.translation_threshold, self.rotation_threshold = e0.translation_threshold, e0.rotation_threshold
+            self.translation_scale, self.rotation_scale = e0.translation_scale, e0.rotation_scale
+
+    @classmethod
+    def supports(cls, env: Any) -> bool:
+        return (super().supports(env) and env.observation_type in ("features", "state")
+                and env.feature_source == "ideal" and not env.feature_noise)
+
+    def eligible(self, env: Any) -> bool:
+        return (super().eligible(env) and len(env._segments()) == 1
+                and np.array_equal(env.sim.get_eMc(), self.eMc))
+
+    def single_segment(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(rows whose next period is one physics segment, whether it ends with a camera frame) (len(ids),) each."""
+        k0 = self.k[ids]
+        k1 = k0 + self.n_substeps
+        last = (k1 // self.camera_substeps) * self.camera_substeps
+        return (last <= k0) | (last == k1), last > k0
+
+    def load(self, i: int) -> None:
+        super().load(i)
+        env = self.envs[i]
+        self.k[i] = env._k
+        self.fMo[i] = env._fMo
+        for key, arr in self.frame.items():
+            arr[i] = env._frame[key]
+        for key, arr in self.truth.items():
+            arr[i] = env._truth[key]
+        ck, cache = env._truth_cache
+        self.cache_k[i] = ck
+        if ck >= 0:
+            for key, arr in self.cache.items():
+                arr[i] = cache[key]
+
+    def _row(self, src: dict[str, np.ndarray], i: int) -> dict[str, np.ndarray]:
+        return {k: (v[i].reshape(1) if k == "visible" else v[i].copy()) for k, v in src.items()}
+
+    def store(self, i: int) -> None:
+        super().store(i)
+        env = self.envs[i]
+        env._k = int(self.k[i])
+        env._frame = self._row(self.frame, i)
+        truth = self._row(self.truth, i)
+        if self.cache_k[i] == self.k[i]:  # a frame at this step: the truth is the frame's (one dict, as in the env)
+            env._truth_cache = (int(self.k[i]), truth)
+        elif self.cache_k[i] >= 0:
+            env._truth_cache = (int(self.cache_k[i]), self._row(self.cache, i))
+        else:
+            env._truth_cache = (-1, {})
+        env._truth = truth
+
+    def step_end(self, ids: np.ndarray, out: np.ndarray, capture: np.ndarray):
+        self.steps[ids] += 1
+        self.k[ids] += self.n_substeps
+        q, dq = self.joint_state(ids)
+        # the truth now (VisualServoEnv._measure_true for all rows)
+        fMe = np.array([self.fk[i](q[j]) for j, i in enumerate(ids)])
+        cMo = camera_tag_poses(fMe, self.eMc, self.fMo[ids])
+        _, xy, Z, vis = project_tag(cMo, self.tag_size, self.intrinsics)
+        feats = xy.reshape(len(ids), 8)
+        visible = vis.astype(np.float64)[:, None]
+        t = self.truth
+        t["features"][ids], t["feature_depth"][ids], t["visible"][ids], t["cMo"][ids] = feats, Z, visible, cMo
+        cap = ids[capture]
+        if len(cap):  # VisualServoEnv._capture: the frame is the truth with its pose, zeros where not seen
+            c = self.cache
+            sel = capture
+            c["features"][cap], c["feature_depth"][cap], c["visible"][cap], c["cMo"][cap] = \
+                feats[sel], Z[sel], visible[sel], cMo[sel]
+            self.cache_k[cap] = self.k[cap]
+            f = self.frame
+            pose = pose_vectors(cMo[sel])
+            seen = vis[sel]
+            f["features"][cap] = np.where(seen[:, None], feats[sel], 0.0)
+            f["feature_depth"][cap] = np.where(seen[:, None], Z[sel], self.depth_desired)
+            f["tag_pose"][cap] = np.where(seen[:, None], pose, 0.0)
+            f["visible"][cap] = visible[sel]
+            f["cMo"][cap] = cMo[sel]
+        m = len(ids)
+        if self.state_obs:
+            pose = pose_vectors(cMo)
+            raw = {"features": np.where(vis[:, None], feats, 0.0),
+                   "feature_depth": np.where(vis[:, None], Z, self.depth_desired),
+                   "tag_pose": np.where(vis[:, None], pose, 0.0), "visible": visible}
+        else:
+            f = self.frame
+            raw = {k: f[k][ids] for k in ("features", "feature_depth", "tag_pose", "visible")}
+        raw["q"], raw["dq"] = q, dq
+        raw["features_desired"] = np.broadcast_to(self.features_desired, (m, 8))
+        raw["tag_pose_desired"] = np.broadcast_to(self.tag_pose_desired, (m, 6))
+        self.pack(ids, raw, out)
+        # the task's evaluation
+        failure = np.full(m, None, dtype=object)
+        if self.terminate_on_tag_lost:
+            failure[~vis] = TAG_LOST
+        extra: dict[str, np.ndarray] = {}
+        if self.kind == "FrankaPBVSEnv":
+            et, er = pbvs_errors(self.cdMo, cMo)
+            success = (failure == None) & (et < self.translation_threshold) & (er < self.rotation_threshold)  # noqa: E711
+            reward = -np.minimum(et / self.translation_scale + er / self.rotation_scale, 1.0)
+            extra = {"error": et, "rotation_error": er}
+        else:
+            err = np.where(vis, row_norm(feats - self.features_desired), row_norm(self.features_desired) + 1.0)
+            success = (failure == None) & (err < self.success_threshold)  # noqa: E711
+            reward = -np.minimum(np.sqrt(err / self.error_scale), 1.0)
+            extra = {"error": err}
+        reward = reward + np.where(success, self.success_bonus, 0.0)
+        if self.kind == "FrankaVisualTorqueEnv" and self.torque_cost:
+            reward = reward - self.torque_cost * row_sumsq(self.action[ids] / self.tau_max) / 7.0
+        reward, term, trunc, info = self.finish(ids, reward, success, failure)
+        info.update(extra)
+        return reward, term, trunc, info
+
+
+#: The batched task of each environment class (by class name: subclasses step robot by robot).
+TASKS = {"FrankaTorqueTrackingEnv": TorqueTrackingBatch, "FrankaIBVSEnv": VisualBatch,
+         "FrankaPBVSEnv": VisualBatch, "FrankaVisualTorqueEnv": VisualBatch}
+
+
+def batched_task(envs: list[Any], batch: Any) -> BatchedTask | None:
+    """The batched task logic for these environments, or None if their configuration steps robot by robot."""
+    cls = TASKS.get(type(envs[0]).__name__)
+    if cls is None or type(envs[0]).__module__.split(".")[:2] != ["franka_vs_gym", "envs"]:
+        return None
+    if not all(cls.supports(e) for e in envs):
+        return None
+    return cls(envs, batch)
+
+
+__all__ = ["BatchedTask", "TASKS", "TorqueTrackingBatch", "VisualBatch", "batched_task"]

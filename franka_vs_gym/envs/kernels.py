@@ -1,0 +1,87 @@
+"""The environments' per-step formulas over a leading robot axis: one numpy call per quantity for N robots.
+
+A single environment (``gymnasium.make``) calls them with N = 1 (or with its (7,) vectors, where the formula
+broadcasts), the batched vector env (:mod:`franka_vs_gym.envs.vector`) with its N robots: each formula has one home,
+so both give the same numbers, bit for bit (``tests/test_vector.py``). Shapes: ``(N, ...)``, SI units (rad, rad/s,
+Nm, m, s); poses are 4x4 homogeneous matrices ``aMb`` (frame b expressed in frame a).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from pinocchio import log3
+
+from franka_vs_gym.model.geometry import pose_vector
+
+
+def row_norm(x: np.ndarray) -> np.ndarray:
+    """Euclidean norm over the last axis: (..., k) -> (...). (A 1-D vector gives a 0-d array.)"""
+    return np.sqrt(np.square(x).sum(axis=-1))
+
+
+def row_sumsq(x: np.ndarray) -> np.ndarray:
+    """Sum of squares over the last axis: (..., k) -> (...)."""
+    return np.square(x).sum(axis=-1)
+
+
+def clip_observation(v: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    """The packed observation (..., size) float64, clipped in place to [low, high] (size,), NaN replaced by 0 (a
+    NaN never reaches an agent), as float32 (a new array)."""
+    np.maximum(v, low, out=v)
+    np.minimum(v, high, out=v)
+    total = v.sum()
+    if total != total:
+        v[np.isnan(v)] = 0.0
+    return v.astype(np.float32)
+
+
+def tracking_desired(q0: np.ndarray, A: np.ndarray, w: np.ndarray, t: np.ndarray | float
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """FrankaTorqueTracking-v0's desired trajectory q_d = q0 + A (1 - cos(w t)) and its first two derivatives:
+    q0, A (rad), w (rad/s) (..., 7), t (s) broadcast against them ((N, 1) for N robots, or a float)."""
+    c, s = np.cos(w * t), np.sin(w * t)
+    return q0 + A * (1.0 - c), A * w * s, A * w * w * c
+
+
+def inverse_poses(aMb: np.ndarray) -> np.ndarray:
+    """bMa (N, 4, 4) of rigid poses aMb (N, 4, 4)."""
+    Rt = aMb[:, :3, :3].swapaxes(1, 2)
+    out = np.zeros_like(aMb)
+    out[:, :3, :3] = Rt
+    out[:, :3, 3] = -np.matmul(Rt, aMb[:, :3, 3:4])[:, :, 0]
+    out[:, 3, 3] = 1.0
+    return out
+
+
+def camera_tag_poses(fMe: np.ndarray, eMc: np.ndarray, fMo: np.ndarray) -> np.ndarray:
+    """cMo (N, 4, 4): the tag o seen from the camera c, from the end-effector poses fMe (N, 4, 4) in the robot base
+    frame f, the camera mount eMc (4, 4) and the tag poses fMo (N, 4, 4): cMo = (fMe eMc)^-1 fMo, i.e.
+    [R^T fRo, R^T (fto - t)] with (R, t) the camera pose fMc."""
+    fMc = np.matmul(fMe, eMc)
+    M = fMo[:, :3, :].copy()
+    M[:, :, 3] -= fMc[:, :3, 3]
+    cMo = np.empty_like(fMo)
+    cMo[:, :3, :] = np.matmul(fMc[:, :3, :3].swapaxes(1, 2), M)
+    cMo[:, 3, :] = (0.0, 0.0, 0.0, 1.0)
+    return cMo
+
+
+def pose_vectors(M: np.ndarray) -> np.ndarray:
+    """(N, 6) pose vectors (t, theta u) of poses M (N, 4, 4) (:func:`franka_vs_gym.model.geometry.pose_vector`
+    row by row: the rotation's logarithm is pinocchio's)."""
+    return np.array([pose_vector(m) for m in M]).reshape(len(M), 6)
+
+
+def pbvs_errors(cdMo: np.ndarray, cMo: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """FrankaPBVS-v0's pose error of the camera: (||t|| (N,) m, ||theta u|| (N,) rad) of cdMc = cdMo (cMo)^-1 =
+    [R, t] with R = cdRo cRo^T and t = cdto - R cto, from the goal cdMo (4, 4) and the true tag poses cMo
+    (N, 4, 4); theta u is the rotation's logarithm (pinocchio's, as in
+    :func:`franka_vs_gym.model.geometry.pose_vector`)."""
+    R = np.matmul(cdMo[:3, :3], cMo[:, :3, :3].swapaxes(1, 2))
+    t = cdMo[:3, 3] - np.matmul(R, cMo[:, :3, 3:4])[:, :, 0]
+    w = np.array([log3(r) for r in R]).reshape(len(R), 3)
+    return row_norm(t), row_norm(w)
+
+
+__all__ = ["camera_tag_poses", "clip_observation", "inverse_poses", "pbvs_errors", "pose_vectors", "row_norm",
+           "row_sumsq", "tracking_desired"]
