@@ -201,6 +201,8 @@ def test_dump_formats_and_their_errors_are_one_line(tmp_path):
     np.save(buf, np.array([{"q": 1}], dtype=object), allow_pickle=True)
     err("objects.npy", buf.getvalue(), r"holds Python objects")
     err("plain.npy", _npy(np.zeros((10, 22))), r"has no field names")
+    err("run.csv.json", json.dumps({"tool": None, "gravity": [0, 0, -9.81], "controller": None}),
+        r"metadata sidecar .* not a log")
     # a pickle that would run a command is refused without running it
     marker = tmp_path / "ran"
     evil = pickle.dumps(_Evil(str(marker)))

@@ -93,14 +93,16 @@ def test_batched_vector_env_is_bit_identical_to_single_envs(env_id, kwargs, n_st
     # every registered id on the task logic over all robots, a few hundred steps across autoresets
     ("FrankaIBVS-v0", dict(link_mass_range=(0.8, 1.2), time_limit=0.6), 200, None),
     ("FrankaIBVS-v0", dict(observation_type="state", payload_mass_range=(0.0, 0.5), time_limit=0.5), 150,
-     "SameStep"),
+     AutoresetMode.SAME_STEP),
     ("FrankaPBVS-v0", dict(friction_scale_range=(0.5, 1.5), time_limit=0.6), 200, None),
+    # observation noise drawn from each robot's generator in a single env's order (pixels, then joints)
+    ("FrankaIBVS-v0", dict(feature_noise=0.5, joint_noise=1e-3, velocity_noise=1e-3, time_limit=0.6), 150, None),
     ("FrankaVisualTorque-v0", dict(link_mass_range=(0.9, 1.1), time_limit=0.3, torque_scale=1.0), 300, None),
-    ("FrankaTorqueTracking-v0", dict(action_type="joint_velocity", link_mass_range=(0.8, 1.2), time_limit=0.5), 300,
-     None),
+    ("FrankaTorqueTracking-v0", dict(action_type="joint_velocity", link_mass_range=(0.8, 1.2), joint_noise=1e-3,
+                                     velocity_noise=1e-2, time_limit=0.5), 300, None),
     ("FrankaTorqueTracking-v0", dict(friction_scale_range=(0.5, 1.5), time_limit=0.4, clip_actions=True,
                                      torque_scale=1.0), 300,
-     "SameStep"),
+     AutoresetMode.SAME_STEP),
 ])
 def test_task_logic_over_all_robots_is_bit_identical_to_single_envs(env_id, kwargs, n_steps, mode):
     """The configurations whose per-step logic runs once for all robots (franka_vs_gym.envs.batched): the same

@@ -15,9 +15,10 @@ the robot's own environment from the state before it, exactly as a single env ru
 middle of a period, or any access to ``FrankaVectorEnv.envs``. :meth:`BatchedTask.load` brings it back.
 
 Which configurations step here (:meth:`BatchedTask.supports`): the registered tasks with joint-torque or
-joint-velocity actions, feature or state observations from the ideal projection, no observation noise, the
-compiled plant with its reflexes armed, no command delay and libfranka's command rates passed through ("pass").
-Every other configuration steps robot by robot around the batched physics, as before.
+joint-velocity actions, feature or state observations from the ideal projection (observation noise is drawn
+robot by robot from each environment's generator, in a single env's order), the compiled plant with its reflexes
+armed, no command delay and libfranka's command rates passed through ("pass"). Every other configuration steps
+robot by robot around the batched physics, as before.
 """
 
 from __future__ import annotations
@@ -86,13 +87,16 @@ class BatchedTask:
         self.pack_items, self.pack_low, self.pack_high = pack.items, pack.low, pack.high
         self.pack_size = pack.low.size
         self.last_obs = np.zeros((n, self.pack_size), dtype=np.float32)  # the last packed observation of each
+        # observation noise: drawn robot by robot from each environment's own generator, in a single env's order
+        self.joint_noise, self.velocity_noise = e0.joint_noise, e0.velocity_noise
+        self.rng: list[Any] = [None] * n
 
     # ------------------------------------------------------------------ which robots step here
     @classmethod
     def supports(cls, env: Any) -> bool:
         """Whether this environment's configuration can step in the batch (the same for every robot)."""
         sim = env.sim
-        return (env.action_type in ("torque", "joint_velocity") and not env.joint_noise and not env.velocity_noise
+        return (env.action_type in ("torque", "joint_velocity")
                 and type(env)._step_begin is _base_step_begin() and sim.batch_layout().reflex_record >= 0
                 and sim.command_rates == "pass" and len(env.world.scene.robots) == 1
                 and set(env._pack.keys) == set(env.observation_space.spaces))
@@ -110,6 +114,7 @@ class BatchedTask:
         self.steps[i], self.t0[i] = env._steps, env._t0
         self.friction_on[i] = env.sim.friction_enabled
         self.last_obs[i] = env._pack.last
+        self.rng[i] = env.np_random  # (a reset with a seed makes a new one: resets happen in the environment)
 
     def store(self, i: int) -> None:
         """Robot i's state from the batch into its environment (its MjData and attributes)."""
@@ -168,7 +173,21 @@ class BatchedTask:
         return bad
 
     def joint_state(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The joint positions and velocities (len(ids), 7) of the rows ids."""
         return self.qpos[ids, self.qs], self.qvel[ids, self.vs]
+
+    def observed_joint_state(self, ids: np.ndarray, q: np.ndarray, dq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``FrankaEnv._noisy_joint_state``: q and dq with the observation noise of each robot's generator."""
+        if not (self.joint_noise or self.velocity_noise):
+            return q, dq
+        q, dq = q.copy(), dq.copy()
+        for j, i in enumerate(ids):
+            rng = self.rng[i]
+            if self.joint_noise:
+                q[j] += rng.normal(0.0, self.joint_noise, 7)
+            if self.velocity_noise:
+                dq[j] += rng.normal(0.0, self.velocity_noise, 7)
+        return q, dq
 
     def pack(self, ids: np.ndarray, raw: dict[str, np.ndarray], out: np.ndarray) -> None:
         """``ObservationPacker`` for the rows ids: raw[key] (len(ids), ...) into out (N, size) float32."""
@@ -229,9 +248,10 @@ class TorqueTrackingBatch(BatchedTask):
     def step_end(self, ids: np.ndarray, out: np.ndarray):
         self.steps[ids] += 1
         q, dq = self.joint_state(ids)
+        qo, dqo = self.observed_joint_state(ids, q, dq)
         t = (self.time[ids] - self.t0[ids])[:, None]
         qd, dqd, ddqd = tracking_desired(self.q0[ids], self.A[ids], self.w[ids], t)
-        self.pack(ids, {"q": q, "dq": dq, "q_desired": qd, "dq_desired": dqd, "ddq_desired": ddqd, "time": t}, out)
+        self.pack(ids, {"q": qo, "dq": dqo, "q_desired": qd, "dq_desired": dqd, "ddq_desired": ddqd, "time": t}, out)
         err = row_norm(q - qd)
         sq = self.sq_err[ids] + err * err
         self.sq_err[ids] = sq
@@ -263,6 +283,7 @@ class VisualBatch(BatchedTask):
         self.features_desired, self.depth_desired = e0.features_desired, e0.depth_desired
         self.tag_pose_desired, self.cdMo = e0.tag_pose_desired, e0.cdMo
         self.camera_substeps = e0.camera_substeps
+        self.feature_noise = e0.feature_noise
         self.terminate_on_tag_lost, self.success_bonus = e0.terminate_on_tag_lost, e0.success_bonus
         self.k = np.zeros(n, dtype=np.int64)
         self.fMo = np.tile(np.eye(4), (n, 1, 1))
@@ -283,7 +304,7 @@ class VisualBatch(BatchedTask):
     @classmethod
     def supports(cls, env: Any) -> bool:
         return (super().supports(env) and env.observation_type in ("features", "state")
-                and env.feature_source == "ideal" and not env.feature_noise)
+                and env.feature_source == "ideal")
 
     def eligible(self, env: Any) -> bool:
         return (super().eligible(env) and len(env._segments()) == 1
@@ -302,7 +323,8 @@ class VisualBatch(BatchedTask):
         self.k[i] = env._k
         self.fMo[i] = env._fMo
         for key, arr in self.frame.items():
-            arr[i] = env._frame[key]
+            if key in env._frame:  # (a frame measured with pixel noise has no cMo)
+                arr[i] = env._frame[key]
         for key, arr in self.truth.items():
             arr[i] = env._truth[key]
         ck, cache = env._truth_cache
@@ -319,6 +341,8 @@ class VisualBatch(BatchedTask):
         env = self.envs[i]
         env._k = int(self.k[i])
         env._frame = self._row(self.frame, i)
+        if self.feature_noise:
+            del env._frame["cMo"]
         truth = self._row(self.truth, i)
         if self.cache_k[i] == self.k[i]:  # a frame at this step: the truth is the frame's (one dict, as in the env)
             env._truth_cache = (int(self.k[i]), truth)
@@ -335,22 +359,31 @@ class VisualBatch(BatchedTask):
         # the truth now (VisualServoEnv._measure_true for all rows)
         fMe = np.array([self.fk[i](q[j]) for j, i in enumerate(ids)])
         cMo = camera_tag_poses(fMe, self.eMc, self.fMo[ids])
-        _, xy, Z, vis = project_tag(cMo, self.tag_size, self.intrinsics)
+        uv, xy, Z, vis = project_tag(cMo, self.tag_size, self.intrinsics)
         feats = xy.reshape(len(ids), 8)
         visible = vis.astype(np.float64)[:, None]
         t = self.truth
         t["features"][ids], t["feature_depth"][ids], t["visible"][ids], t["cMo"][ids] = feats, Z, visible, cMo
         cap = ids[capture]
         if len(cap):  # VisualServoEnv._capture: the frame is the truth with its pose, zeros where not seen
-            c = self.cache
             sel = capture
-            c["features"][cap], c["feature_depth"][cap], c["visible"][cap], c["cMo"][cap] = \
-                feats[sel], Z[sel], visible[sel], cMo[sel]
-            self.cache_k[cap] = self.k[cap]
+            fe = feats[sel]
+            if self.feature_noise:  # ideal_measurement with pixel noise: drawn where the tag is in front and facing
+                fe = fe.copy()
+                front = (Z[sel] > 1e-6).all(axis=1) & (cMo[sel, 2, 2] < 0)
+                for j in np.flatnonzero(front):
+                    i = ids[sel][j]
+                    noisy = uv[sel][j] + self.rng[i].normal(0.0, self.feature_noise, (4, 2))
+                    fe[j] = self.intrinsics.to_normalized(noisy).ravel()
+            else:  # the frame is the truth: cached as the env caches it
+                c = self.cache
+                c["features"][cap], c["feature_depth"][cap], c["visible"][cap], c["cMo"][cap] = \
+                    feats[sel], Z[sel], visible[sel], cMo[sel]
+                self.cache_k[cap] = self.k[cap]
             f = self.frame
             pose = pose_vectors(cMo[sel])
             seen = vis[sel]
-            f["features"][cap] = np.where(seen[:, None], feats[sel], 0.0)
+            f["features"][cap] = np.where(seen[:, None], fe, 0.0)
             f["feature_depth"][cap] = np.where(seen[:, None], Z[sel], self.depth_desired)
             f["tag_pose"][cap] = np.where(seen[:, None], pose, 0.0)
             f["visible"][cap] = visible[sel]
@@ -364,7 +397,7 @@ class VisualBatch(BatchedTask):
         else:
             f = self.frame
             raw = {k: f[k][ids] for k in ("features", "feature_depth", "tag_pose", "visible")}
-        raw["q"], raw["dq"] = q, dq
+        raw["q"], raw["dq"] = self.observed_joint_state(ids, q, dq)
         raw["features_desired"] = np.broadcast_to(self.features_desired, (m, 8))
         raw["tag_pose_desired"] = np.broadcast_to(self.tag_pose_desired, (m, 6))
         self.pack(ids, raw, out)

@@ -1058,6 +1058,8 @@ def physical_problems(pi: np.ndarray, what: str) -> str | None:
 
 
 LI_TOL_NOISE = 0.25  # noise floors: a consistent arm may miss the fitted torque change by this much on a joint
+LI_MIN_RATE = 100.0  # Hz: below it (30 Hz ROS logs) the link inertials are not identified (measured: a payload was
+# taken for them at 30 Hz on the independent generator)
 LI_TOL_CHANGE = 0.5  # or by this fraction of the change itself (keeps >= 75% of its mean-square reduction)
 
 
@@ -1081,8 +1083,10 @@ class LinkInertials(Effect):
     (the consistent arm then keeps at least 3/4 of the fit's reduction of the mean squared error: the misfit lies in
     the span of the regressor, orthogonal to the least-squares residual; otherwise the residual needs an unphysical
     arm, and the note says how far the closest physical one stays, per joint) and no link mass changes by more than
-    a factor 2. Not in the hidden-effect generator's random draw (``injectable`` False: the seeds of the existing
-    studies keep drawing the same effects); ``make_hidden_effect_log("link_inertials")`` injects it.
+    a factor 2, and only for logs of at least 100 Hz (below, accelerations are too poorly resolved: on the
+    independent generator at 30 Hz a payload was taken for it). Not in the hidden-effect generator's random draw
+    (``injectable`` False: the seeds of the existing studies keep drawing the same effects);
+    ``make_hidden_effect_log("link_inertials")`` injects it.
 
     Signature: pose-, velocity- and acceleration-dependent torque errors on all joints (mass-matrix, Coriolis and
     gravity terms), the structure test's "acceleration" and "position" groups. ``apply`` writes the corrected link
@@ -1202,6 +1206,10 @@ class LinkInertials(Effect):
         return out
 
     def problems(self, ctx, fit):
+        dt = float(getattr(ctx.data.report, "dt_median", 0.0) or 0.0)
+        if dt > 1.0 / LI_MIN_RATE:  # accelerations of a slow log do not determine 43 inertial combinations
+            return {-1: f"the log's rate ({1.0 / dt:.0f} Hz) is below {LI_MIN_RATE:g} Hz: its accelerations cannot "
+                        "identify the link inertials (a payload or mass-scale law may still be named)"}
         new, old, problem = self._links(ctx, fit)
         out = [problem] if problem else []
         for i in range(7):

@@ -466,11 +466,22 @@ def _native_header(header: list[str]) -> bool:
     return True
 
 
+# suffixes under which a text table is expected; other text files (or a binary format we do not read, e.g. Parquet,
+# HDF5, MATLAB) are refused by name rather than parsed as a table
+_TEXT_SUFFIXES = frozenset({"", ".csv", ".tsv", ".txt", ".dat", ".log"})
+
+
 def _load_file(p: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """Arrays and metadata of a log file; the format is detected from the content (see :func:`load_log`)."""
     from franka_vs_gym.validation import robot_states as rs
 
     kind = rs.sniff(p)
+    suffix = p.suffix.lower()
+    if suffix == ".npz" and kind != "npz":
+        raise ValueError(f"{p}: not a valid .npz archive (empty, truncated or another format)")
+    if kind == "text" and suffix not in _TEXT_SUFFIXES:
+        raise ValueError(f"{p}: unknown log format {p.suffix!r} (readable: CSV or other text tables, NPZ, NPY, JSON, "
+                         "JSON lines, franky state pickles, ROS 2 bags, Gaz et al. 2019 folders)")
     if kind == "npz":
         z = io.load_npz(p, what="log")
         keys = set(z)

@@ -50,6 +50,7 @@ JOINT_FIELDS = ("q", "dq", "tau_J", "tau_J_d", "q_d", "dq_d", "ddq_d", "tau_ext_
 REQUIRED = ("q", "dq", "tau_J")
 TIME_NAMES = {"time": None, "robot_time": None, "time_s": "s", "time_sec": "s", "time_ms": "ms", "time_msec": "ms",
               "robot_time_ms": "ms", "robot_time_s": "s"}
+SIDECAR_KEYS = {"tool", "gravity", "controller"}
 TOOL_FIELDS = ("m_total", "F_x_Ctotal", "I_total", "m_ee", "F_x_Cee", "I_ee", "m_load", "F_x_Cload", "I_load",
                "O_ddP_O")
 # column name -> (base name, joint index or None): prefixes such as "state." or "robot_state/" are dropped
@@ -289,8 +290,9 @@ def table_to_fields(cols: dict[str, np.ndarray], where: str, kind: str) -> tuple
         g = groups.get(f)
         if not g:
             if f in REQUIRED:
-                raise ValueError(f"{where}: no {_WHAT[f]} {f!r} (looked for {f}, {f}[0], {f}_0, {f}0, {f}.0 ...); "
-                                 f"found {_short(found)}")
+                item = "array" if kind.startswith("NPZ") else "field"
+                raise ValueError(f"{where}: no {_WHAT[f]} {f!r} (missing {item} {f!r}; looked for {f}, {f}[0], "
+                                 f"{f}_0, {f}0, {f}.0 ...); found {_short(found)}")
             continue
         if None in g:
             a = _floats(g[None][1], g[None][0], where)
@@ -416,6 +418,11 @@ def read_json(path: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
                     doc.append(json.loads(line))
                 except json.JSONDecodeError as e2:
                     raise ValueError(f"{where}: line {lineno} is not a JSON object: {e2}") from None
+    if isinstance(doc, dict) and doc and set(doc) <= SIDECAR_KEYS | {"source_format", "time_origin_s", "tool_source",
+                                                                     "ticks_recorded", "ticks_dropped", "warning",
+                                                                     "generator", "check_gravity"}:
+        raise ValueError(f"{where}: this is a log's metadata sidecar (keys {sorted(doc)}), not a log; pass the log "
+                         "it describes")
     if isinstance(doc, dict):
         lists = [k for k, v in doc.items() if isinstance(v, list) and v and isinstance(v[0], dict)]
         if len(lists) == 1 and parse_name(lists[0]) not in [(f, None) for f in JOINT_FIELDS]:
