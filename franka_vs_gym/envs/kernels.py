@@ -11,8 +11,6 @@ from __future__ import annotations
 import numpy as np
 from pinocchio import log3
 
-from franka_vs_gym.model.geometry import pose_vector
-
 _sum = np.add.reduce  # (the ufunc's reduction called directly: these run at every step, also with N = 1)
 
 
@@ -65,9 +63,13 @@ def camera_tag_poses(fMe: np.ndarray, eMc: np.ndarray, fMo: np.ndarray) -> np.nd
 
 
 def pose_vectors(M: np.ndarray) -> np.ndarray:
-    """(N, 6) pose vectors (t, theta u) of poses M (N, 4, 4) (:func:`franka_vs_gym.model.geometry.pose_vector`
-    row by row: the rotation's logarithm is pinocchio's)."""
-    return np.array([pose_vector(m) for m in M]).reshape(len(M), 6)
+    """(N, 6) pose vectors (t, theta u) of poses M (N, 4, 4), as :func:`franka_vs_gym.model.geometry.pose_vector`
+    (the rotation's logarithm is pinocchio's ``log3``, one call per pose)."""
+    out = np.empty((len(M), 6))
+    out[:, :3] = M[:, :3, 3]
+    for j, m in enumerate(M):
+        out[j, 3:] = log3(m[:3, :3])
+    return out
 
 
 def pbvs_errors(cdMo: np.ndarray, cMo: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
