@@ -11,17 +11,17 @@ from __future__ import annotations
 import numpy as np
 from pinocchio import log3
 
-from franka_vs_gym.model.geometry import pose_vector
+_sum = np.add.reduce  # (the ufunc's reduction called directly: these run at every step, also with N = 1)
 
 
 def row_norm(x: np.ndarray) -> np.ndarray:
-    """Euclidean norm over the last axis: (..., k) -> (...). (A 1-D vector gives a 0-d array.)"""
-    return np.sqrt(np.square(x).sum(axis=-1))
+    """Euclidean norm over the last axis: (..., k) -> (...). (A 1-D vector gives a float64 scalar.)"""
+    return np.sqrt(_sum(x * x, axis=-1))
 
 
 def row_sumsq(x: np.ndarray) -> np.ndarray:
     """Sum of squares over the last axis: (..., k) -> (...)."""
-    return np.square(x).sum(axis=-1)
+    return _sum(x * x, axis=-1)
 
 
 def clip_observation(v: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
@@ -44,32 +44,32 @@ def tracking_desired(q0: np.ndarray, A: np.ndarray, w: np.ndarray, t: np.ndarray
 
 
 def inverse_poses(aMb: np.ndarray) -> np.ndarray:
-    """bMa (N, 4, 4) of rigid poses aMb (N, 4, 4)."""
+    """bMa (N, 4, 4) of rigid poses aMb (N, 4, 4): [R^T, -R^T t]."""
     Rt = aMb[:, :3, :3].swapaxes(1, 2)
-    out = np.zeros_like(aMb)
+    out = np.empty_like(aMb)
     out[:, :3, :3] = Rt
     out[:, :3, 3] = -np.matmul(Rt, aMb[:, :3, 3:4])[:, :, 0]
-    out[:, 3, 3] = 1.0
+    out[:, 3] = _LAST_ROW
     return out
 
 
+_LAST_ROW = np.array([0.0, 0.0, 0.0, 1.0])
+
+
 def camera_tag_poses(fMe: np.ndarray, eMc: np.ndarray, fMo: np.ndarray) -> np.ndarray:
-    """cMo (N, 4, 4): the tag o seen from the camera c, from the end-effector poses fMe (N, 4, 4) in the robot base
-    frame f, the camera mount eMc (4, 4) and the tag poses fMo (N, 4, 4): cMo = (fMe eMc)^-1 fMo, i.e.
-    [R^T fRo, R^T (fto - t)] with (R, t) the camera pose fMc."""
-    fMc = np.matmul(fMe, eMc)
-    M = fMo[:, :3, :].copy()
-    M[:, :, 3] -= fMc[:, :3, 3]
-    cMo = np.empty_like(fMo)
-    cMo[:, :3, :] = np.matmul(fMc[:, :3, :3].swapaxes(1, 2), M)
-    cMo[:, 3, :] = (0.0, 0.0, 0.0, 1.0)
-    return cMo
+    """cMo (N, 4, 4) = (fMe eMc)^-1 fMo: the tag o seen from the camera c, from the end-effector poses fMe
+    (N, 4, 4) in the robot base frame f, the camera mount eMc (4, 4) and the tag poses fMo (N, 4, 4)."""
+    return np.matmul(inverse_poses(np.matmul(fMe, eMc)), fMo)
 
 
 def pose_vectors(M: np.ndarray) -> np.ndarray:
-    """(N, 6) pose vectors (t, theta u) of poses M (N, 4, 4) (:func:`franka_vs_gym.model.geometry.pose_vector`
-    row by row: the rotation's logarithm is pinocchio's)."""
-    return np.array([pose_vector(m) for m in M]).reshape(len(M), 6)
+    """(N, 6) pose vectors (t, theta u) of poses M (N, 4, 4), as :func:`franka_vs_gym.model.geometry.pose_vector`
+    (the rotation's logarithm is pinocchio's ``log3``, one call per pose)."""
+    out = np.empty((len(M), 6))
+    out[:, :3] = M[:, :3, 3]
+    for j, m in enumerate(M):
+        out[j, 3:] = log3(m[:3, :3])
+    return out
 
 
 def pbvs_errors(cdMo: np.ndarray, cMo: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -45,12 +45,26 @@ TAU_MAX = FER.limit_arrays()["tau_max"]  # the FER's; effects judge with their c
 def _tau_max(ctx) -> np.ndarray:
     """Joint torque limits (7,) Nm of the robot the context's model describes."""
     return ctx.config.robot.limit_arrays()["tau_max"]
+
+
+def _model_step_levels(ctx) -> tuple[np.ndarray, np.ndarray]:
+    """The baseline model's dry-friction levels (7,) each, Nm: the magnitude of its step friction while a joint
+    slides positively (``L_plus``) and negatively (``L_minus``), from all its step terms: the sigmoid's asymptotes
+    (``phi1 (1 - s0)`` and ``phi1 s0`` with ``s0 = 1 / (1 + exp(-phi2 phi3))``) plus the Coulomb term. A friction
+    correction is physical when the *total* level it leaves in each direction is >= 0: a robot with less friction
+    than the model (another unit, a warm joint) is corrected by a negative step, which must not be refused."""
+    fr = ctx.config.friction
+    phi1, phi2, phi3 = (np.asarray(x, dtype=np.float64) for x in (fr.phi1, fr.phi2, fr.phi3))
+    s0 = 1.0 / (1.0 + np.exp(-np.clip(phi2 * phi3, -50.0, 50.0)))
+    c = np.asarray(fr.coulomb, dtype=np.float64)
+    return phi1 * (1.0 - s0) + c, phi1 * s0 + c
 SIG_PHI2 = np.geomspace(2.0, 100.0, 12)  # s/rad
 SIG_PHI3 = np.array([-0.08, -0.04, 0.0, 0.04, 0.08])  # rad/s
 COULOMB_VC = (0.005, 0.01, 0.02, 0.05, 0.1)  # rad/s, Coulomb smoothing velocities tried
 STRIBECK_VS = (0.02, 0.05, 0.1, 0.2)  # rad/s, Stribeck velocities tried
 MAX_PAYLOAD = 3.5  # kg (FER rated payload 3 kg, plus margin)
 MAX_DELAY = 0.1  # s
+MIN_DELAY = 0.0015  # s: 1.5 ticks of the FER's 1 kHz control cycle (the shortest lag the delay effect reports)
 MAX_TILT = math.radians(30.0)
 
 
@@ -338,13 +352,14 @@ class CoulombFriction(Effect):
     chosen from COULOMB_VC on the residual unless the model already has Coulomb friction.
 
     Signature: a step of constant height where the joint velocity changes sign.
-    Plausible: total F_c >= 0 and < 0.25 tau_max Nm (FER: 0.1-1.5 Nm).
+    Plausible: the total step level in each direction (the model's sigmoid asymptote and Coulomb term plus F_c)
+    >= 0, and the total Coulomb term < 0.25 tau_max Nm (FER: 0.1-1.5 Nm).
     """
 
     name, aliases = "coulomb_friction", ("coulomb",)
     description = "Coulomb joint friction tau_f = F_c tanh(dq / v_c)"
     signature = "a step of constant height where the joint velocity changes sign"
-    plausible = "total F_c >= 0 and < 0.25 tau_max (Nm)"
+    plausible = "total step level (model + F_c) >= 0 in each direction, total F_c < 0.25 tau_max (Nm)"
     SIZES = np.array([0.8, 0.8, 0.6, 0.6, 0.25, 0.25, 0.15])
     VC = 0.05  # smoothing of injected Coulomb friction (a sharper step chatters in the 1 ms explicit plant)
 
@@ -359,8 +374,11 @@ class CoulombFriction(Effect):
         return ctx.cached(("tanh", vc), lambda: coulomb_friction(ctx.data.dq, 1.0, vc)[:, :, None])
 
     def problems(self, ctx, fit):
-        tot = ctx.config.friction.coulomb + _joint_coef(fit)[:, 0]
-        return {j: f"negative Coulomb friction {tot[j]:.3g} Nm" for j in fit.joints if tot[j] < 0} | {
+        lp, lm = _model_step_levels(ctx)
+        c = _joint_coef(fit)[:, 0]
+        low = np.minimum(lp, lm) + c  # the total step level (model's sigmoid and Coulomb + this) per direction
+        tot = ctx.config.friction.coulomb + c
+        return {j: f"negative Coulomb friction: total level {low[j]:.3g} Nm" for j in fit.joints if low[j] < 0} | {
             j: f"Coulomb friction {tot[j]:.3g} Nm is implausibly large" for j in fit.joints
             if tot[j] > 0.25 * _tau_max(ctx)[j]}
 
@@ -604,7 +622,23 @@ class AsymmetricFriction(Effect):
     lof_signals = ("dq",)
 
     def shape(self, ctx, target):
-        return {"coulomb_vel": _vc_choice(ctx, target, lambda dq, vc: np.tanh(dq / vc))}
+        # the smoothing velocity is chosen with the effect's own two levels (a symmetric tanh would misjudge a step
+        # whose levels have the same sign, i.e. a mostly one-sided change of friction)
+        fr = ctx.config.friction
+        if fr.coulomb.any():
+            return {"coulomb_vel": fr.coulomb_vel}
+        dq, y = ctx.data.dq[ctx.coarse], target[ctx.coarse]
+        best, best_sse = COULOMB_VC[0], np.inf
+        for vc in COULOMB_VC:
+            s = np.tanh(dq / vc)
+            a, b = np.maximum(s, 0.0), np.minimum(s, 0.0)
+            # per joint 2x2 normal equations (a and b do not overlap, so they decouple)
+            ta = _lstsq_joints(a, y)
+            tb = _lstsq_joints(b, y)
+            sse = float(np.sum((y - a * ta - b * tb) ** 2))
+            if sse < best_sse:
+                best, best_sse = vc, sse
+        return {"coulomb_vel": best}
 
     def design(self, ctx, shape):
         vc = float(shape["coulomb_vel"])
@@ -616,11 +650,11 @@ class AsymmetricFriction(Effect):
 
     def problems(self, ctx, fit):
         c = _joint_coef(fit, 2)
-        base = ctx.config.friction.coulomb
+        lp, lm = _model_step_levels(ctx)  # the model's own step levels in each direction (sigmoid and Coulomb)
         out = {}
         for j in fit.joints:
-            lo = min(base[j] + c[j, 0], base[j] + c[j, 1])
-            hi = max(base[j] + c[j, 0], base[j] + c[j, 1])
+            lo = min(lp[j] + c[j, 0], lm[j] + c[j, 1])
+            hi = max(lp[j] + c[j, 0], lm[j] + c[j, 1])
             if lo < 0:
                 out[j] = f"a negative friction level {lo:.3g} Nm"
             elif hi > 0.25 * _tau_max(ctx)[j]:
@@ -1234,7 +1268,11 @@ class Delay(Effect):
     """The measured torque lags the measured motion by a constant time d (s).
 
     Signature: residual ~ -d x time derivative of the predicted torque, largest where torque changes fast.
-    Plausible: 1.5 sample periods <= d <= 0.1 s (below 1.5 samples logged signals are not aligned better).
+    Plausible: MIN_DELAY (1.5 ms, one and a half ticks of the FER's 1 kHz control cycle) <= d <= 0.1 s. The bound
+    does not scale with the log's sample period: the fields of one row (a libfranka state packet, a ROS JointState
+    message) are sampled together and the cleaning treats them alike (same interpolation, zero-phase filters), so
+    a lag shorter than a low-rate log's period still shows as ``-d dtau/dt`` and the selection's held-out evidence,
+    not the sample period, decides whether it is seen.
     """
 
     name = "delay"
@@ -1242,7 +1280,7 @@ class Delay(Effect):
     n_params = 1
     description = "the measured torque lags the measured motion by a constant time (s)"
     signature = "residual ~ -delay x time derivative of the predicted torque: largest where torque changes fast"
-    plausible = "1.5 sample periods <= d <= 0.1 s"
+    plausible = "1.5 ms <= d <= 0.1 s"
     channel = "measurement"
 
     def lof_drivers(self, ctx):
@@ -1268,10 +1306,9 @@ class Delay(Effect):
         d = float(self.coef(fit)[0])
         if d < 0:
             return {-1: f"negative delay {d * 1000:.2f} ms (the torque would lead the motion)"}
-        dt = ctx.data.report.dt_median or ctx.data.dt  # the log's own sample period (the analysis may decimate)
-        if d < 1.5 * dt:
-            return {-1: f"delay {d * 1000:.2f} ms is below 1.5 sample periods: within the alignment uncertainty of "
-                        "logged signals"}
+        if d < MIN_DELAY:
+            return {-1: f"delay {d * 1000:.2f} ms is below {MIN_DELAY * 1000:.1f} ms (1.5 ticks of the robot's 1 kHz "
+                        "cycle): within the alignment uncertainty of the robot's own signals"}
         if d > MAX_DELAY:
             return {-1: f"delay {d * 1000:.1f} ms exceeds {MAX_DELAY * 1000:.0f} ms"}
         return {}

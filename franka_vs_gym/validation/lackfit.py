@@ -19,6 +19,10 @@ For every selected effect and every joint it acts on (with a contribution of pra
                   joint's load torque (backlash against gravity, pose-dependent friction)
 ``lag``           the ``shape`` bins of the driver shifted in time by +-``LAGS_S`` (the residual follows the driver
                   late or early: a delay absorbed by an instantaneous law)
+``drift``         the law with a coefficient that changes over the log, ``c_j (a + b P1(t) + c P2(t))`` (Legendre
+                  polynomials of time): a physical constant of the law (a friction level, a viscosity, a mass, a
+                  tilt) does not change within one log, so a law that fits only with a drifting coefficient stands in
+                  for something else (friction changing as the joint warms, a slowly changing load or offset)
 ================  =================================================================================================
 
 Statistic: the alternatives are judged on held-out data (the same interleaved 1 s blocks as the structure test), on
@@ -53,7 +57,7 @@ STEP_VEL = 0.02  # rad/s, smoothing of the velocity sign of the pose alternative
 MIN_CONTRIB = 0.25  # noise floors: joints where the effect contributes less are not tested
 
 WHAT = {"shape": "a different shape of {d} than the law's", "pose": "a step whose height depends on the pose/load",
-        "lag": "{d} with a lag of {lag}"}
+        "lag": "{d} with a lag of {lag}", "drift": "the law with a coefficient that drifts over the log ({lag})"}
 
 
 @dataclass
@@ -111,6 +115,7 @@ def test_lack_of_fit(ctx: Context, terms: list[Term], contributions: list[np.nda
                     alts.append((i, j, "lag", name, x[:, j], -sh))
         if terms[i].effect.lof_constant_height:
             alts.append((i, j, "pose", "q", None, 0))
+        alts.append((i, j, "drift", "time", None, 0))
     if not alts:
         return {}
     threshold = SCORE_MIN + math.log(len(alts))
@@ -125,6 +130,13 @@ def test_lack_of_fit(ctx: Context, terms: list[Term], contributions: list[np.nda
             X = np.column_stack([cj, s * _indicators(data.q[idx, j], N_POSE),
                                  s * _indicators(ctx.ev.predicted[idx, j], N_POSE)])
             detail = ""
+        elif alt == "drift":
+            u = 2.0 * (t - t[0]) / max(float(t[-1] - t[0]), 1e-9) - 1.0
+            X = np.column_stack([cj, cj * u, cj * 0.5 * (3 * u ** 2 - 1)])
+            # the coefficient's relative change from the start to the end of the log, for the description
+            beta = np.linalg.lstsq(X, p, rcond=None)[0]
+            ends = [beta[0] + beta[1] * e + beta[2] for e in (-1.0, 1.0)]
+            detail = (f"x{ends[1] / ends[0]:.2g} from start to end" if abs(ends[0]) > 1e-12 else "")
         else:
             xs = np.roll(x, sh)[idx] if sh else x[idx]
             if sh > 0:

@@ -184,8 +184,8 @@ def clean(log: MeasurementLog, settings: CleanSettings | None = None) -> Process
     if raw_rate < 250:
         warnings.append(f"the log's rate is {raw_rate:.0f} Hz: motion is low-passed at {s.cutoff:g} Hz and the "
                         f"acceleration is the derivative of a velocity sampled every {med * 1000:.0f} ms, so "
-                        "inertial effects (armature, payload inertia) are poorly identifiable and delays shorter "
-                        f"than {1.5 * med * 1000:.0f} ms cannot be seen")
+                        "inertial effects (armature, payload inertia) are poorly identifiable and a delay "
+                        f"shorter than the {med * 1000:.0f} ms period is seen only where the torque changes fast")
     jitter = float(np.std(raw_dt) / med)
     if jitter > 0.05:
         warnings.append(f"irregular time stamps (sample period {med * 1000:.2f} ms +- {jitter * 100:.0f}%): "

@@ -28,7 +28,12 @@ coupling several joints, such as link inertial errors): the power of the low-pas
 cutoff) against what white noise at the floor leaves there (``noise^2 (1 - highpass_power_fraction)``); it
 counts when it exceeds that by ``SLOW_Z`` standard deviations of its estimate (from its effective sample size)
 and the slow RMS is at least ``SLOW_PRACTICAL`` noise floors. For logs slower than ``SLOW_MIN_RATE`` the torque's
-faster content aliases into the slow band, so the slow test is only reported there, not counted.
+faster content aliases into the slow band and the floor (estimated between the cutoff and the Nyquist frequency)
+no longer predicts it: on correctly modelled logs at 30-100 Hz (three independent generators) up to about one noise
+floor of slow residual remains. There the slow test counts only a slow residual of at least
+``SLOW_PRACTICAL_LOW`` noise floors (a larger effect than the floor's own uncertainty can produce: a contact, a cable
+spring, presliding friction, cogging or a disturbance leave 1.5-10 floors); smaller ones are reported, not
+counted.
 
 A group is *significant* on a joint when its held-out evidence
 ``N_eff ln(MSE0/MSE1) - k ln N_eff`` exceeds ``SCORE_MIN + ln(m)`` (``m`` the number of tests, a Bonferroni-like
@@ -59,7 +64,8 @@ K_MAX = 60
 BLOCK_S = 1.0  # s, length of the interleaved cross-validation blocks
 SLOW_Z = 4.0  # standard deviations of the slow-power test (about 1e-4 per joint under white noise)
 SLOW_PRACTICAL = 0.5  # slow residual RMS, in noise floors, below which nothing is reported
-SLOW_MIN_RATE = 250.0  # Hz: below this log rate the slow test is reported but does not decide ``explained``
+SLOW_MIN_RATE = 250.0  # Hz: below this log rate the slow test needs SLOW_PRACTICAL_LOW
+SLOW_PRACTICAL_LOW = 1.25  # noise floors: slow residual counted below SLOW_MIN_RATE (the floor is uncertain there)
 GROUPS = ("constant", "position", "periodic_q", "velocity", "acceleration", "load", "time", "periodic_t",
           "step_drift", "step_pose")
 STEP_VEL = 0.02  # rad/s, smoothing of the velocity sign in the step groups
@@ -256,11 +262,15 @@ def test_structure(ctx: Context, residual: np.ndarray, noise: np.ndarray, folds:
     low_rate_note = None
     if raw_rate < SLOW_MIN_RATE and slow_sig.any():
         # below ~250 Hz the torque's faster content aliases into the band below the cutoff: the floor estimated
-        # above the cutoff no longer predicts the slow band, so the slow test alone does not decide
-        low_rate_note = (f"joints {np.nonzero(slow_sig)[0].tolist()} keep {np.round(slow[slow_sig], 3).tolist()} Nm "
-                         f"of slow residual above the noise floor; at {raw_rate:.0f} Hz the floor estimate does not "
-                         "cover aliased content, so this alone is not counted as unexplained")
-        slow_sig[:] = False
+        # above the cutoff no longer predicts the slow band, so only a slow residual larger than that uncertainty
+        # counts
+        weak = slow_sig & (slow < SLOW_PRACTICAL_LOW * noise)
+        if weak.any():
+            low_rate_note = (f"joints {np.nonzero(weak)[0].tolist()} keep {np.round(slow[weak], 3).tolist()} Nm of "
+                             f"slow residual above the noise floor; at {raw_rate:.0f} Hz the floor estimate does not "
+                             f"cover aliased content, so less than {SLOW_PRACTICAL_LOW:g} noise floors of it is not "
+                             "counted as unexplained")
+        slow_sig &= ~weak
     for j in np.nonzero(slow_sig)[0]:
         if not any(f.joint == j for f in findings):
             findings.append(Finding(int(j), "slow", float(slow[j]), 0.0, "follows no single variable of this joint"))

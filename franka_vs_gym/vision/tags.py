@@ -224,6 +224,9 @@ def ideal_measurement(cMo: np.ndarray, size: float, intrinsics: CameraIntrinsics
     return TagMeasurement(uv, xy, Z, cMo, visible)
 
 
+_min, _max, _all = np.minimum.reduce, np.maximum.reduce, np.logical_and.reduce
+
+
 def project_tag(cMo: np.ndarray, size: float, intrinsics: CameraIntrinsics,
                 margin_px: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Ideal projection of the corners of N tags at once (the formula of :func:`ideal_measurement`, which calls it
@@ -233,10 +236,11 @@ def project_tag(cMo: np.ndarray, size: float, intrinsics: CameraIntrinsics,
     bool): a tag is visible when it is in front of the camera (every Z > 1 um), faces it (its z axis towards the
     camera) and all corners are in the image, ``margin_px`` from the border; uv and xy are zeros where a tag is
     behind the camera or not facing it."""
+    # (ufunc reductions called directly: this runs at every step of the visual environments, also with N = 1)
     P = np.matmul(tag_corners_T(size).T, cMo[:, :3, :3].swapaxes(1, 2))
     P += cMo[:, None, :3, 3]
     Z = P[:, :, 2]
-    ok = (Z > 1e-6).all(axis=1) & (cMo[:, 2, 2] < 0)
+    ok = (_min(Z, axis=1) > 1e-6) & (cMo[:, 2, 2] < 0)
     f, c, hi = intrinsics.pixel_arrays
     if ok.all():
         xy = P[:, :, :2] / Z[:, :, None]
@@ -246,9 +250,8 @@ def project_tag(cMo: np.ndarray, size: float, intrinsics: CameraIntrinsics,
         xy = np.zeros_like(uv)
         xy[ok] = P[ok, :, :2] / Z[ok, :, None]
         uv[ok] = xy[ok] * f + c
-    n = len(uv)
-    visible = ok & (uv.reshape(n, 8).min(axis=1) >= -0.5 + margin_px) & \
-        (uv.max(axis=1) <= (hi - margin_px if margin_px else hi)).all(axis=1)
+    visible = ok & (_min(uv.reshape(len(uv), 8), axis=1) >= -0.5 + margin_px) & \
+        _all(_max(uv, axis=1) <= (hi - margin_px if margin_px else hi), axis=1)
     return uv, xy, Z, visible
 
 
