@@ -151,6 +151,23 @@ def test_torque_control_reading_is_qfrc_actuator_bit_for_bit():
         assert np.array_equal(sim.get_force_torque(), sim.world.data.qfrc_actuator[sim.dof_slice])
 
 
+def test_saturated_servo_reading_is_the_clamped_torque():
+    """A velocity servo driving its joint into the torque limit: MuJoCo integrates the clamped torque explicitly (no
+    implicit share), and the reading is the limit, as the joint applied it."""
+    sim = FrankaSim(camera=False, reflexes=False)
+    model = FrankaModel()
+    sim.set_robot_state(VELOCITY)
+    cmd = np.zeros(7)
+    cmd[[0, 4]] = 2.0, 2.5  # rad/s from rest: Kv * 2 rad/s is beyond 87 / 12 Nm
+    for _ in range(3):
+        sim.set_velocity(JOINT_STATE, cmd)
+        qa, va = sim.q, sim.dq
+        sim.step()
+        tau = sim.get_force_torque()
+        np.testing.assert_allclose(tau[[0, 4]], [87.0, 12.0], atol=1e-9)
+        np.testing.assert_allclose(tau, model.inverse_dynamics(qa, va, (sim.dq - va) / DT), atol=1e-6)
+
+
 # ---------------------------------------------------------------------------------------------- real clients
 def _host(net: int) -> str:
     pid = os.getpid()
