@@ -231,3 +231,36 @@ def test_batched_env_reports_a_reflex_at_its_crossing_step_as_single_envs(task_l
     vec.close()
     for s in singles:
         s.close()
+
+
+def test_a_robot_diverging_in_the_batch_reports_it_as_a_single_env():
+    """One robot's integrator sabotaged (5 s steps): its batch step blows up, the robot is put back at the state
+    before the step and its environment re-runs it alone, so it reports "diverged: ..." as a single env does (and
+    the other robots, still in the batch, are unaffected), through the autoresets that follow."""
+    n, env_id = 4, "FrankaTorqueTracking-v0"
+    vec = gym.make_vec(env_id, num_envs=n, nthread=2, task_logic=True, time_limit=0.3)
+    ref = gym.make_vec(env_id, num_envs=n, vectorization_mode="sync", time_limit=0.3)
+    for v in (vec, ref):
+        m = v.envs[1].unwrapped.world.model
+        m.opt.timestep = 5.0
+        m.dof_armature[:] = 0.0
+    vec.reset(seed=2)
+    ref.reset(seed=2)
+    a = np.zeros((n, 7), np.float32)
+    a[1] = np.array([87, -87, 87, -87, 12, -12, 12]) * 0.2
+    diverged = others_in_batch = 0
+    for t in range(40):
+        r1, r2 = vec.step(a), ref.step(a)
+        for k in r1[0]:
+            assert np.array_equal(r1[0][k], r2[0][k]), (t, k)
+        for j in (1, 2, 3):
+            assert np.array_equal(r1[j], r2[j]), (t, j)
+        _same_info(r1[4], r2[4], f"step {t}")
+        f = r1[4].get("failure", [None] * n)
+        diverged += sum(1 for x, m in zip(f, r1[4].get("_failure", []), strict=False) if m and x and
+                        x.startswith("diverged"))
+        others_in_batch += int(vec._in_batch[[0, 2, 3]].all())
+    assert diverged >= 10
+    assert others_in_batch >= 35  # the other robots stepped in the batch (but at their first step and autoreset)
+    vec.close()
+    ref.close()

@@ -11,8 +11,6 @@ from __future__ import annotations
 import numpy as np
 from pinocchio import log3
 
-from franka_vs_gym.model.geometry import pose_vector
-
 _sum = np.add.reduce  # (the ufunc's reduction called directly: these run at every step, also with N = 1)
 
 
@@ -41,8 +39,10 @@ def tracking_desired(q0: np.ndarray, A: np.ndarray, w: np.ndarray, t: np.ndarray
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """FrankaTorqueTracking-v0's desired trajectory q_d = q0 + A (1 - cos(w t)) and its first two derivatives:
     q0, A (rad), w (rad/s) (..., 7), t (s) broadcast against them ((N, 1) for N robots, or a float)."""
-    c, s = np.cos(w * t), np.sin(w * t)
-    return q0 + A * (1.0 - c), A * w * s, A * w * w * c
+    wt = w * t
+    c, s = np.cos(wt), np.sin(wt)
+    Aw = A * w  # (A * w * s is (A * w) * s: the products are evaluated once, in the same order)
+    return q0 + A * (1.0 - c), Aw * s, Aw * w * c
 
 
 def inverse_poses(aMb: np.ndarray) -> np.ndarray:
@@ -65,9 +65,13 @@ def camera_tag_poses(fMe: np.ndarray, eMc: np.ndarray, fMo: np.ndarray) -> np.nd
 
 
 def pose_vectors(M: np.ndarray) -> np.ndarray:
-    """(N, 6) pose vectors (t, theta u) of poses M (N, 4, 4) (:func:`franka_vs_gym.model.geometry.pose_vector`
-    row by row: the rotation's logarithm is pinocchio's)."""
-    return np.array([pose_vector(m) for m in M]).reshape(len(M), 6)
+    """(N, 6) pose vectors (t, theta u) of poses M (N, 4, 4), as :func:`franka_vs_gym.model.geometry.pose_vector`
+    (the rotation's logarithm is pinocchio's ``log3``, one call per pose)."""
+    out = np.empty((len(M), 6))
+    out[:, :3] = M[:, :3, 3]
+    for j, m in enumerate(M):
+        out[j, 3:] = log3(m[:3, :3])
+    return out
 
 
 def pbvs_errors(cdMo: np.ndarray, cMo: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -77,7 +81,9 @@ def pbvs_errors(cdMo: np.ndarray, cMo: np.ndarray) -> tuple[np.ndarray, np.ndarr
     :func:`franka_vs_gym.model.geometry.pose_vector`)."""
     R = np.matmul(cdMo[:3, :3], cMo[:, :3, :3].swapaxes(1, 2))
     t = cdMo[:3, 3] - np.matmul(R, cMo[:, :3, 3:4])[:, :, 0]
-    w = np.array([log3(r) for r in R]).reshape(len(R), 3)
+    w = np.empty((len(R), 3))
+    for j, r in enumerate(R):
+        w[j] = log3(r)
     return row_norm(t), row_norm(w)
 
 

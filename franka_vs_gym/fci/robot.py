@@ -467,7 +467,8 @@ class FCIRobot:
         feed-forward) with one evaluation of B per cycle. Its damping ``D (dq_d - dq)`` runs in the plant's joint
         velocity servos, which MuJoCo integrates implicitly; the rest is the returned motor torque. The FER's joint
         controllers run faster than the 1 kHz interface; an explicit 1 ms damping term would be unstable on the
-        light coupled modes of the arm (e.g. joints 1 and 3 turning against each other when aligned)."""
+        light coupled modes of the arm (e.g. joints 1 and 3 turning against each other when aligned). The state's
+        tau_J (``FrankaSim.get_force_torque``) includes the servos' force as applied, at the end-of-step velocity."""
         m, ctrl = self.model, self.joint_ctrl
         B = m.mass_matrix(q)
         D = 2.0 * ctrl.zeta * np.sqrt(ctrl.k * B.diagonal())

@@ -71,6 +71,7 @@ VELOCITY_GAINS = np.array(FER.servo_gains)
 # Velocity commands are scaled to 98 % of the limits at most, so that the joint servo's small overshoot does not trip
 # the velocity reflex (libfranka's rate limiter likewise keeps commands a margin below the limits).
 VELOCITY_COMMAND_SCALE = 0.98
+_IMPLICITFAST = int(mujoco.mjtIntegrator.mjINT_IMPLICITFAST)
 
 
 @dataclass(frozen=True)
@@ -222,6 +223,7 @@ class FrankaSim:
         self._motor = slice(a0, a0 + 7)
         self._vel = slice(v0, v0 + 7)
         self._ctrl_tau, self._ctrl_vel = d.ctrl[self._motor], d.ctrl[self._vel]
+        self._bind_implicit_share()
         self._ee_site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, f"{prefix}ee")
         self._hand_body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"{prefix}hand")
         self._base_body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"{prefix}link0")
@@ -232,6 +234,52 @@ class FrankaSim:
             ts = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SENSOR, f"{prefix}ft_torque")
             self._ft = (int(m.sensor_adr[fs]), int(m.sensor_adr[ts]))
         return jids
+
+    def _bind_implicit_share(self) -> None:
+        """Views for the share of the joint actuators' torque that MuJoCo's implicit integrator applies on top of
+        ``qfrc_actuator`` (see :meth:`_applied_torque`): the diagonal of ``qDeriv`` at this robot's dofs (a strided
+        view when the entries are evenly spaced, else their indices) and the start-of-step joint velocity as the
+        actuators saw it (``actuator_velocity`` of the velocity servos). The scene's integrator and the joints'
+        passive damping (which ``qDeriv`` holds too, but which is not actuator torque) are read here, once."""
+        m, d = self._m, self._d
+        v0, v1 = self._vs.start, self._vs.stop
+        diag = []
+        for i in range(v0, v1):
+            a, n = int(m.D_rowadr[i]), int(m.D_rownnz[i])
+            cols = m.D_colind[a:a + n]
+            diag.append(a + int(np.flatnonzero(cols == i)[0]))
+        step = diag[1] - diag[0]
+        even = step > 0 and bool((np.diff(diag) == step).all())
+        self._deriv_idx = None if even else np.array(diag)
+        self._deriv_diag = d.qDeriv[diag[0]:diag[-1] + 1:step] if even else None
+        self._servo_velocity = d.actuator_velocity[self._vel]
+        damping = m.dof_damping[self._vs].copy()
+        self._joint_damping = damping if damping.any() else None
+        self._implicit_actuators = int(m.opt.integrator) == _IMPLICITFAST
+
+    def _applied_torque(self) -> np.ndarray:
+        """The joint actuators' torque over the last physics step (7,), Nm: gravity compensation, torque motors and
+        velocity servos, as the joints really applied it (a view of ``qfrc_actuator`` when nothing is added).
+
+        MuJoCo's ``qfrc_actuator`` holds the actuator torque at the start of the step. With the scene's integrator
+        (``implicitfast``) the velocity-dependent part of the actuator forces (the joint velocity servos' damping,
+        ``-Kv dq``) is integrated implicitly: the step solves ``M ddq = qfrc(dq0) + qDeriv (dq1 - dq0)``, so the
+        servos apply their force at the end-of-step velocity dq1 (``Kv (dq_set - dq1)``) and the joints applied
+        ``qfrc_actuator + (qDeriv + damping) (dq1 - dq0)`` (``qDeriv``'s diagonal at these dofs is ``-Kv -
+        damping``; it is the step's own, whatever the gains are now). Without servo gains (torque control) nothing
+        is added. A call right after a step sees that step; after ``reset`` (dq1 = dq0) nothing is added."""
+        tau = self._qfrc_actuator
+        if not self._implicit_actuators:
+            return tau
+        k = self._deriv_diag if self._deriv_idx is None else self._d.qDeriv[self._deriv_idx]
+        if self._joint_damping is not None:
+            k = k + self._joint_damping
+        if not np.count_nonzero(k):
+            return tau
+        dv = self._qvel - self._servo_velocity
+        dv *= k
+        dv += tau
+        return dv
 
     def _setup_friction(self, cfg: ModelConfig, friction: bool, jids: list[int]) -> None:
         """Friction in the plant: -tau_f(dq) of the configured law (franka_vs_gym.model.friction). The compiled plant
@@ -316,7 +364,7 @@ class FrankaSim:
             self._ctrl_tau[:] = self._tau_fifo.popleft() if len(self._tau_fifo) > self._delay_steps else 0.0
 
     def _record_measurement(self) -> None:
-        self._meas_fifo.append(self._qfrc_actuator.copy())  # type: ignore[union-attr]
+        self._meas_fifo.append(np.array(self._applied_torque()))  # type: ignore[union-attr]
 
     def step(self) -> None:
         """Advance the simulation by one physics step (``dt``, 1 ms by default); all robots of the world move.
@@ -579,17 +627,20 @@ class FrankaSim:
         return self._qacc.copy()
 
     def get_force_torque(self, frame: ControlFrame | int = ControlFrame.JOINT_STATE) -> np.ndarray:
-        """JOINT_STATE: measured link-side joint torques tau_J (7,), Nm, gravity included (libfranka's tau_J).
+        """JOINT_STATE: measured link-side joint torques tau_J (7,), Nm, gravity included (libfranka's tau_J): the
+        torque the joints applied over the last physics step in any control state, the velocity servos' implicitly
+        integrated damping included (in free motion B ddq + C dq + g + tau_f(dq) at the step's start with the step's
+        acceleration), plus the configured sensor offset, delay and noise.
         END_EFFECTOR_FRAME: wrench (6,) [f; tau] exerted by the environment on the tool, in e, from the wrist F/T
         sensor (needs ``ft_sensor=True``), with the tool's own weight removed."""
         frame = ControlFrame(frame)
         if frame == ControlFrame.JOINT_STATE:
             # the sensors report the torque of delay_channel="measurement" steps ago
-            now = self._meas_fifo[0] if self._meas_fifo else self._qfrc_actuator
-            tau = now + self._offset
+            now = self._meas_fifo[0] if self._meas_fifo else self._applied_torque()
+            tau = now + self._offset  # a new array (never a view of the simulator's)
             if self._torque_noise:
-                tau = tau + self._rng.normal(0.0, self._torque_noise, 7)
-            return np.array(tau)
+                tau += self._rng.normal(0.0, self._torque_noise, 7)
+            return tau
         if frame == ControlFrame.END_EFFECTOR_FRAME:
             return self.get_ft_wrench()
         raise ValueError(f"unsupported frame {frame!r}")
