@@ -36,6 +36,14 @@ def gaz_sigmoid(dq: ArrayLike, phi1: ArrayLike, phi2: ArrayLike, phi3: ArrayLike
     return phi1 / (1.0 + np.exp(-phi2 * (dq + phi3))) - phi1 / (1.0 + np.exp(-phi2 * phi3))
 
 
+def sigmoid_levels(phi1: ArrayLike, phi2: ArrayLike, phi3: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+    """The Gaz sigmoid's sliding levels, Nm: ``(L_plus, L_minus)`` with ``gaz_sigmoid -> L_plus`` for dq -> +inf and
+    ``-> -L_minus`` for dq -> -inf (``L_plus = phi1 (1 - s0)``, ``L_minus = phi1 s0``, ``s0 = 1 / (1 + exp(-phi2
+    phi3))``)."""
+    s0 = 1.0 / (1.0 + np.exp(-np.multiply(phi2, phi3)))
+    return np.multiply(phi1, 1.0 - s0), np.multiply(phi1, s0)
+
+
 def viscous_friction(dq: ArrayLike, viscous: ArrayLike) -> np.ndarray:
     """Viscous friction, Nm: ``viscous * dq``."""
     return np.multiply(viscous, dq)
@@ -166,4 +174,4 @@ def make_plant_friction(qvel: np.ndarray, qfrc: np.ndarray, phi1: np.ndarray, ph
 
 
 __all__ = ["compile_friction", "coulomb_friction", "gaz_sigmoid", "joint_friction", "make_plant_friction",
-           "sigmoid_tanh_coefficients", "stribeck_friction", "viscous_friction"]
+           "sigmoid_levels", "sigmoid_tanh_coefficients", "stribeck_friction", "viscous_friction"]

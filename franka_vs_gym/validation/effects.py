@@ -34,7 +34,13 @@ import pinocchio as pin
 
 from franka_vs_gym.model.config import Friction, ModelConfig, RigidBody, Tool
 from franka_vs_gym.model.description import FER
-from franka_vs_gym.model.friction import coulomb_friction, gaz_sigmoid, stribeck_friction, viscous_friction
+from franka_vs_gym.model.friction import (
+    coulomb_friction,
+    gaz_sigmoid,
+    sigmoid_levels,
+    stribeck_friction,
+    viscous_friction,
+)
 from franka_vs_gym.model.geometry import combine_inertials, parallel_axis
 from franka_vs_gym.validation.evaluate import FLANGE_OFFSET, ModelEvaluation, evaluate, shift, sigmoid_friction
 from franka_vs_gym.validation.signals import ProcessedLog
@@ -675,9 +681,9 @@ class AsymmetricFriction(Effect):
         for j in fit.joints:
             merge = fr.phi1[j] != 0
             if merge:
-                p1, p2, p3 = float(fr.phi1[j]), float(fr.phi2[j]), float(fr.phi3[j])
-                s0 = 1.0 / (1.0 + math.exp(-p2 * p3))
-                fp, fm = p1 * (1.0 - s0) + c[j, 0], p1 * s0 + c[j, 1]
+                p2 = float(fr.phi2[j])
+                lp, lm = sigmoid_levels(fr.phi1[j], p2, fr.phi3[j])
+                fp, fm = float(lp) + c[j, 0], float(lm) + c[j, 1]
             else:  # the model's Coulomb step (if any) moves into the new sigmoid
                 fp, fm = c[j, 0] + fr.coulomb[j], c[j, 1] + fr.coulomb[j]
                 p2 = 2.0 / float(fit.theta["coulomb_vel"])
