@@ -98,11 +98,24 @@ class ObservationPacker:
         self._views = [(k, sl, None if len(sh) == 1 else sh) for k, sl, sh in self.items]
         self.last: np.ndarray | None = None  # the flat float32 buffer of the last observation (its keys' base)
 
+        self._slices = {k: sl for k, sl, _ in self.items}
+
     def __call__(self, raw: dict[str, Any]) -> dict[str, np.ndarray]:
         v = self._work
         for k, sl, _ in self._views:
             v[sl] = raw[k]
-        buf = self.last = clip_observation(v, self.low, self.high)
+        return self.finish()
+
+    def write(self, key: str, value: Any) -> None:
+        """Write one key's raw value into the preallocated work vector, where it stays (clipped by the next
+        :meth:`finish`) until written again: a task writes only what changed since its last observation."""
+        self._work[self._slices[key]] = value
+
+    def finish(self) -> dict[str, np.ndarray]:
+        """The observation of the work vector as it stands (every key written at least once): clipped in place
+        (clipping a clipped value is the identity, so held keys give the same bits), cast to one fresh float32
+        buffer whose views are returned."""
+        buf = self.last = clip_observation(self._work, self.low, self.high)
         return {k: buf[sl] if sh is None else buf[sl].reshape(sh) for k, sl, sh in self._views}
 
 
@@ -221,6 +234,7 @@ class FrankaEnv(gym.Env):
         self._act_tol = 1e-6 * np.maximum(1.0, self._act_hi)
         self._act_lo_tol, self._act_hi_tol = self._act_lo - self._act_tol, self._act_hi + self._act_tol
         self._act_shape = self.action_space.shape
+        self._act_symmetric = bool(np.array_equal(-self._act_lo_tol, self._act_hi_tol))
         self._arm_geoms: frozenset[int] = self._arm_geom_ids()
         self._steps = 0
         self._t0 = 0.0
@@ -259,8 +273,12 @@ class FrankaEnv(gym.Env):
         except (TypeError, ValueError):
             raise ValueError(f"action must be a numeric array of shape {self.action_space.shape}, "
                              f"got {type(action).__name__}") from None
-        if a.shape == self._act_shape and (a >= self._act_lo_tol).all() and (a <= self._act_hi_tol).all():
-            return a  # the common case, kept cheap: finite (NaN fails the comparisons) and inside the space
+        if a.shape == self._act_shape:  # the common case, kept cheap: finite (NaN fails the comparisons), inside
+            if self._act_symmetric:  # (|a| <= hi is exactly -hi <= a <= hi: negation is exact)
+                if (np.abs(a) <= self._act_hi_tol).all():
+                    return a
+            elif (a >= self._act_lo_tol).all() and (a <= self._act_hi_tol).all():
+                return a
         if a.shape != self.action_space.shape:
             if a.size == self.action_space.shape[0]:
                 a = a.reshape(self.action_space.shape)
@@ -333,10 +351,9 @@ class FrankaEnv(gym.Env):
     def _robot_failure(self) -> str | None:
         """Joint limit reached or the arm in contact with the environment."""
         q = self.sim.q
-        low = q < self._q_lo_fail
-        high = q > self._q_hi_fail
-        if low.any() or high.any():
-            i = int(np.flatnonzero(low | high)[0])
+        out = (q < self._q_lo_fail) | (q > self._q_hi_fail)
+        if out.any():
+            i = int(np.flatnonzero(out)[0])
             return f"joint limit: joint {i} at {q[i]:.4f} rad (limits [{self.q_min[i]:.4f}, {self.q_max[i]:.4f}])"
         d = self._d
         if d.ncon:

@@ -76,6 +76,7 @@ class VisualServoEnv(FrankaEnv):
         self._q_goal_guess = self.config.robot.neutral()
         self._k = 0  # physics steps since the episode start
         self._frame: dict[str, np.ndarray] = {}
+        self._packed_frame: dict[str, np.ndarray] | None = None  # the frame whose keys the packer holds
         self._truth_cache: tuple[int, dict[str, np.ndarray]] = (-1, {})
         self.observation_space = self._make_observation_space()
         self._pack = ObservationPacker(self.observation_space)
@@ -279,14 +280,23 @@ class VisualServoEnv(FrankaEnv):
             if not m["visible"][0]:
                 m["features"], m["feature_depth"], m["tag_pose"] = np.zeros(8), self.depth_desired.copy(), np.zeros(6)
             raw.update(m)
-        else:
-            raw.update(self._frame)
-        if self.observation_type != "image":
             raw["features_desired"] = self.features_desired
             raw["tag_pose_desired"] = self.tag_pose_desired
-        obs = self._pack(raw)
-        if "image" in self.observation_space.spaces:
-            obs["image"] = raw["image"].copy()  # a held frame must not be shared between observations
+            return self._pack(raw)
+        # camera observations: the held frame's keys are written into the packer's buffer once per frame (a
+        # frame is a new dict, also when the batched vector env hands a robot back), q and dq at every step
+        pack, frame = self._pack, self._frame
+        if self._packed_frame is not frame:
+            held = dict(frame, features_desired=self.features_desired, tag_pose_desired=self.tag_pose_desired)
+            for k in pack.keys:
+                if k != "q" and k != "dq":
+                    pack.write(k, held[k])
+            self._packed_frame = frame
+        pack.write("q", q)
+        pack.write("dq", dq)
+        obs = pack.finish()
+        if "image" in frame:
+            obs["image"] = frame["image"].copy()  # a held frame must not be shared between observations
         return obs
 
     def _reset_info(self) -> dict[str, Any]:

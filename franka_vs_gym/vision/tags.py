@@ -224,7 +224,7 @@ def ideal_measurement(cMo: np.ndarray, size: float, intrinsics: CameraIntrinsics
     return TagMeasurement(uv, xy, Z, cMo, visible)
 
 
-_min, _max, _all = np.minimum.reduce, np.maximum.reduce, np.logical_and.reduce
+_min, _all = np.minimum.reduce, np.logical_and.reduce
 
 
 def project_tag(cMo: np.ndarray, size: float, intrinsics: CameraIntrinsics,
@@ -250,8 +250,10 @@ def project_tag(cMo: np.ndarray, size: float, intrinsics: CameraIntrinsics,
         xy = np.zeros_like(uv)
         xy[ok] = P[ok, :, :2] / Z[ok, :, None]
         uv[ok] = xy[ok] * f + c
-    visible = ok & (_min(uv.reshape(len(uv), 8), axis=1) >= -0.5 + margin_px) & \
-        _all(_max(uv, axis=1) <= (hi - margin_px if margin_px else hi), axis=1)
+    # every coordinate inside [-0.5 + margin, hi - margin] (NaN fails), one comparison per side
+    inside = uv >= -0.5 + margin_px
+    inside &= uv <= (hi - margin_px if margin_px else hi)
+    visible = ok & _all(inside.reshape(len(uv), 8), axis=1)
     return uv, xy, Z, visible
 
 
