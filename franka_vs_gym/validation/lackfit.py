@@ -22,7 +22,9 @@ For every selected effect and every joint it acts on (with a contribution of pra
 ``drift``         the law with a coefficient that changes over the log, ``c_j (a + b P1(t) + c P2(t))`` (Legendre
                   polynomials of time): a physical constant of the law (a friction level, a viscosity, a mass, a
                   tilt) does not change within one log, so a law that fits only with a drifting coefficient stands in
-                  for something else (friction changing as the joint warms, a slowly changing load or offset)
+                  for something else (friction changing as the joint warms, a slowly changing load or offset); a
+                  coefficient that changes by more than ``DRIFT_RATIO`` (or changes sign) counts from
+                  ``DRIFT_PRACTICAL`` noise floors
 ================  =================================================================================================
 
 Statistic: the alternatives are judged on held-out data (the same interleaved 1 s blocks as the structure test), on
@@ -55,6 +57,8 @@ N_POSE = 6
 LAGS_S = (0.02, 0.04)
 STEP_VEL = 0.02  # rad/s, smoothing of the velocity sign of the pose alternative
 MIN_CONTRIB = 0.25  # noise floors: joints where the effect contributes less are not tested
+DRIFT_PRACTICAL = 0.1  # noise floors: a drifting coefficient counts from this size when it changes by DRIFT_RATIO
+DRIFT_RATIO = 1.5  # a law's coefficient changing by more than this factor over one log is no physical constant
 
 WHAT = {"shape": "a different shape of {d} than the law's", "pose": "a step whose height depends on the pose/load",
         "lag": "{d} with a lag of {lag}", "drift": "the law with a coefficient that drifts over the log ({lag})"}
@@ -136,7 +140,8 @@ def test_lack_of_fit(ctx: Context, terms: list[Term], contributions: list[np.nda
             # the coefficient's relative change from the start to the end of the log, for the description
             beta = np.linalg.lstsq(X, p, rcond=None)[0]
             ends = [beta[0] + beta[1] * e + beta[2] for e in (-1.0, 1.0)]
-            detail = (f"x{ends[1] / ends[0]:.2g} from start to end" if abs(ends[0]) > 1e-12 else "")
+            ratio = ends[1] / ends[0] if abs(ends[0]) > 1e-12 else 1.0
+            detail = f"x{ratio:.2g} from start to end" if abs(ends[0]) > 1e-12 else ""
         else:
             xs = np.roll(x, sh)[idx] if sh else x[idx]
             if sh > 0:
@@ -152,7 +157,11 @@ def test_lack_of_fit(ctx: Context, terms: list[Term], contributions: list[np.nda
         dk = X.shape[1] - 1
         score = ne * math.log(max(mse0, 1e-30) / max(mse1, 1e-30)) - dk * math.log(ne)
         removed = math.sqrt(max(mse0 - mse1, 0.0))
-        if score > threshold and removed >= PRACTICAL * noise[j]:
+        # a coefficient that changes by a large factor within one log is qualitatively wrong even when the RMS it
+        # leaves is small (the law's contribution itself may be small): a lower size bound then, with the same evidence
+        large_drift = (alt == "drift" and removed >= DRIFT_PRACTICAL * noise[j]
+                       and (ratio <= 0 or abs(math.log(ratio)) >= math.log(DRIFT_RATIO)))
+        if score > threshold and (removed >= PRACTICAL * noise[j] or large_drift):
             out.setdefault(i, []).append(LackOfFit(terms[i].effect.name, j, alt, name, removed, score, threshold,
                                                    detail))
     # per (effect, joint): keep the strongest alternative first
