@@ -82,11 +82,12 @@ def pbvs_errors(cdMo: np.ndarray, cMo: np.ndarray) -> tuple[np.ndarray, np.ndarr
     (N, 4, 4); theta u is the rotation's logarithm (pinocchio's, as in
     :func:`franka_vs_gym.model.geometry.pose_vector`)."""
     R = np.matmul(cdMo[:3, :3], cMo[:, :3, :3].swapaxes(1, 2))
-    t = cdMo[:3, 3] - np.matmul(R, cMo[:, :3, 3:4])[:, :, 0]
-    w = np.empty((len(R), 3))
+    tw = np.empty((len(R), 2, 3))  # t and theta u of each robot, both norms in one call
+    np.subtract(cdMo[:3, 3], np.matmul(R, cMo[:, :3, 3:4])[:, :, 0], out=tw[:, 0])
     for j, r in enumerate(R):
-        w[j] = log3(r)
-    return row_norm(t), row_norm(w)
+        tw[j, 1] = log3(r)
+    e = row_norm(tw)
+    return e[:, 0], e[:, 1]
 
 
 # ---------------------------------------------------------------------------------------------------- rewards
@@ -99,7 +100,7 @@ TAG_LOST = "tag lost: a corner left the image"  # the failure reason of the visu
 def feature_error(features: np.ndarray, visible: np.ndarray | bool, features_desired: np.ndarray):
     """FrankaIBVS-v0's task error ||s - s*|| of the true corners (float, or (N,) from features (N, 8) and visible
     (N,) bool), ||s*|| + 1 where the tag is not seen."""
-    if np.ndim(visible) == 0:
+    if not isinstance(visible, np.ndarray):
         return float(row_norm(features - features_desired)) if visible else float(row_norm(features_desired)) + 1.0
     return np.where(visible, row_norm(features - features_desired), row_norm(features_desired) + 1.0)
 
