@@ -19,13 +19,13 @@ import json
 import sys
 from pathlib import Path
 
-from franka_vs_gym.validation.hidden import EFFECTS, make_hidden_effect_log
+from franka_vs_gym.validation.hidden import injecting_effects, make_hidden_effect_log
 from franka_vs_gym.validation.logs import save_log
 
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--effect", required=True, choices=list(EFFECTS) + ["none", "random"],
+    p.add_argument("--effect", required=True, choices=list(injecting_effects()) + ["none", "random"],
                    help="the hidden effect; 'random' draws effect and magnitude from the seed")
     p.add_argument("--seed", type=int, default=0, help="seed of trajectory, effect parameters and noise")
     p.add_argument("-o", "--output", required=True, help="log to write (.csv or .npz); sidecar <log>.json")

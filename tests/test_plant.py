@@ -23,13 +23,23 @@ native = pytest.mark.skipif(not plant.NATIVE, reason=f"compiled plant unavailabl
 
 def _law(fr: Friction, dq: np.ndarray) -> np.ndarray:
     """The model library's friction law (franka_vs_gym.model.friction), the reference of the plant."""
-    return joint_friction(dq, fr.phi1, fr.phi2, fr.phi3, fr.viscous, fr.coulomb, fr.coulomb_vel)
+    return joint_friction(dq, fr.phi1, fr.phi2, fr.phi3, fr.viscous, fr.coulomb, fr.coulomb_vel, fr.stribeck,
+                          fr.stribeck_vel)
 
 
 def _custom_friction(seed: int) -> Friction:
     rng = np.random.default_rng(seed)
     return Friction(phi1=rng.uniform(0.2, 1.0, 7), phi2=rng.uniform(2.0, 60.0, 7), phi3=rng.uniform(-0.1, 0.1, 7),
                     viscous=rng.uniform(0.0, 0.5, 7), coulomb=rng.uniform(0.0, 0.4, 7), coulomb_vel=0.02)
+
+
+def _stribeck_friction(seed: int) -> Friction:
+    """A custom law with a Stribeck term (heights 0.1-1 Nm, Stribeck velocities 0.02-0.3 rad/s) on six joints."""
+    fr = _custom_friction(seed)
+    rng = np.random.default_rng(seed + 100)
+    fr.stribeck = rng.uniform(0.1, 1.0, 7) * (np.arange(7) != 3)
+    fr.stribeck_vel = rng.uniform(0.02, 0.3, 7)
+    return fr
 
 
 def test_the_extension_builds_with_this_machines_compiler(tmp_path):
@@ -53,11 +63,13 @@ def test_the_extension_builds_with_this_machines_compiler(tmp_path):
 
 
 @native
-@pytest.mark.parametrize("custom", [False, True])
+@pytest.mark.parametrize("custom", [False, True, "stribeck"])
 def test_plant_friction_equals_model_library(custom):
     """At random joint velocities the torque MuJoCo's callback applies is the model library's law to 1e-12 Nm,
-    also after a friction scale (domain randomisation) and never when the plant's friction is off."""
-    cfg = ModelConfig(friction=_custom_friction(3)) if custom else ModelConfig()
+    also after a friction scale (domain randomisation) and never when the plant's friction is off; with a Stribeck
+    term too (velocities also near its Stribeck velocities)."""
+    fr = {False: None, True: _custom_friction(3), "stribeck": _stribeck_friction(3)}[custom]
+    cfg = ModelConfig(friction=fr) if custom else ModelConfig()
     sim = FrankaSim(cfg, camera=False)
     m, d, dofs = sim.world.model, sim.world.data, np.arange(sim._vs.start, sim._vs.stop)
     rng = np.random.default_rng(1)
@@ -65,6 +77,8 @@ def test_plant_friction_equals_model_library(custom):
         sim.set_friction_scale(k)
         for _ in range(20):
             dq = rng.uniform(-2.5, 2.5, 7) * rng.choice([1.0, 1e-3], 7)
+            if custom == "stribeck":
+                dq = dq * rng.choice([1.0, 0.05], 7)
             d.qvel[dofs] = dq
             np.testing.assert_allclose(plant.plant_friction_torque(m, d, dofs), k * _law(cfg.friction, dq), rtol=0,
                                        atol=1e-12)
@@ -120,11 +134,17 @@ def test_batch_of_models_with_randomised_friction_is_bit_identical_to_single_ste
 
 
 @native
-def test_pure_python_fallback_gives_the_same_motion():
+@pytest.mark.parametrize("stribeck", [False, True])
+def test_pure_python_fallback_gives_the_same_motion(stribeck):
     """FRANKA_VS_GYM_PURE_PYTHON=1 applies the same law from Python: the same trajectory to 1e-9 rad (reflexes off:
-    the wrist reaches its hard stop, which the reflexes would report as joint_position_limits_violation)."""
+    the wrist reaches its hard stop, which the reflexes would report as joint_position_limits_violation), also
+    with a Stribeck term in the law."""
+    model = ("ModelConfig(friction=Friction(stribeck=[0.8, 0.8, 0.5, 0.5, 0.3, 0.3, 0.2], stribeck_vel=[0.05] * 7))"
+             if stribeck else "None")
     code = ("import numpy as np; from franka_vs_gym.sim import FrankaSim, FORCE_TORQUE, JOINT_STATE, plant;"
-            "s = FrankaSim(camera=False, reflexes=False); s.set_friction_scale(0.8); s.set_robot_state(FORCE_TORQUE);"
+            "from franka_vs_gym.model.config import Friction, ModelConfig;"
+            f"s = FrankaSim({model}, camera=False, reflexes=False); s.set_friction_scale(0.8);"
+            "s.set_robot_state(FORCE_TORQUE);"
             "s.set_force_torque(JOINT_STATE, [3, -2, 1, 2, 0.5, -0.5, 0.3]); s.wait(0.5);"
             "print(plant.NATIVE, *s.get_position().tolist())")
     out = {}
@@ -137,3 +157,22 @@ def test_pure_python_fallback_gives_the_same_motion():
     assert out["0"][0] == "True" and out["1"][0] == "False"
     np.testing.assert_allclose(out["0"][1], out["1"][1], rtol=0, atol=1e-9)
     assert np.abs(out["0"][1] - FrankaSim(camera=False).get_position()).max() > 0.05  # the robot moved
+
+
+def test_pure_python_fallback_friction_equals_model_library():
+    """FRANKA_VS_GYM_PURE_PYTHON=1: the Python friction step (into qfrc_applied) is the model library's law to
+    1e-12 Nm at random velocities, with a Stribeck term and a friction scale."""
+    code = ("import numpy as np, sys; sys.path.insert(0, 'tests'); from test_plant import _stribeck_friction, _law;"
+            "from franka_vs_gym.model.config import ModelConfig; from franka_vs_gym.sim import FrankaSim, plant;"
+            "fr = _stribeck_friction(3); s = FrankaSim(ModelConfig(friction=fr), camera=False);"
+            "s.set_friction_scale(0.7); rng = np.random.default_rng(4); err = 0.0\n"
+            "for _ in range(50):\n"
+            "    dq = rng.uniform(-2.5, 2.5, 7) * rng.choice([1.0, 0.05, 1e-3], 7); s._qvel[:] = dq;"
+            " s._friction_step(); err = max(err, np.abs(-s._qfrc_applied - 0.7 * _law(fr, dq)).max())\n"
+            "print(plant.NATIVE, err, np.abs(_law(fr, np.full(7, 0.05))).max())")
+    env = dict(os.environ, FRANKA_VS_GYM_PURE_PYTHON="1")
+    r = subprocess.run([sys.executable, "-W", "ignore", "-c", code], env=env, capture_output=True, text=True,
+                       cwd=Path(__file__).resolve().parents[1])
+    assert r.returncode == 0, r.stderr[-2000:]
+    native_flag, err, size = r.stdout.split()
+    assert native_flag == "False" and float(err) <= 1e-12 and float(size) > 0.1

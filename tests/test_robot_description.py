@@ -1,6 +1,7 @@
 """The robot as a value: one friction law, one inertia helper, model files that name their robot, no reach-ins."""
 
 import json
+import math
 import re
 from pathlib import Path
 
@@ -15,6 +16,7 @@ from franka_vs_gym.model.friction import (
     joint_friction,
     make_plant_friction,
     sigmoid_tanh_coefficients,
+    stribeck_friction,
 )
 from franka_vs_gym.model.geometry import combine_inertials, parallel_axis
 
@@ -37,6 +39,10 @@ def test_friction_forms_agree_to_1e12(rng):
     fast_all = compile_friction(p1, p2, p3, visc, coul, cv)
     qvel, qfrc = np.zeros(7), np.zeros(7)
     hook = make_plant_friction(qvel, qfrc, p1, p2, p3, visc, coul, cv, scale=0.7)
+    st, vs = rng.uniform(0.1, 1.0, 7), rng.uniform(0.02, 0.3, 7)
+    fast_st = compile_friction(p1, p2, p3, visc, coul, cv, st, vs)
+    qfrc_st = np.zeros(7)
+    hook_st = make_plant_friction(qvel, qfrc_st, p1, p2, p3, visc, coul, cv, scale=0.7, stribeck=st, stribeck_vel=vs)
     a, b, c, e = sigmoid_tanh_coefficients(p1, p2, p3)
     for dq in rng.uniform(-2.5, 2.5, (200, 7)):
         ref = _published_sigmoid(dq, p1, p2, p3)
@@ -49,6 +55,18 @@ def test_friction_forms_agree_to_1e12(rng):
         qvel[:] = dq
         hook()
         np.testing.assert_allclose(qfrc, -0.7 * full, rtol=0, atol=1e-12)
+        # the Stribeck term (Armstrong-Helouvry et al. 1994's exponential curve, its sign smoothed like Coulomb's),
+        # element by element with math functions, also near the Stribeck velocities
+        for x in (dq, dq * 0.05):
+            hump = np.array([st[j] * math.exp(-(x[j] / vs[j]) ** 2) * math.tanh(x[j] / cv) for j in range(7)])
+            np.testing.assert_allclose(stribeck_friction(x, st, vs, cv), hump, rtol=0, atol=1e-12)
+            full_st = _published_sigmoid(x, p1, p2, p3) + visc * x + coul * np.tanh(x / cv) + hump
+            np.testing.assert_allclose(joint_friction(x, p1, p2, p3, visc, coul, cv, st, vs), full_st, rtol=0,
+                                       atol=1e-12)
+            np.testing.assert_allclose(fast_st(x), full_st, rtol=0, atol=1e-12)
+            qvel[:] = x
+            hook_st()
+            np.testing.assert_allclose(qfrc_st, -0.7 * full_st, rtol=0, atol=1e-12)
     # vectorised over samples, and zero at rest
     dq = rng.uniform(-1, 1, (50, 7))
     np.testing.assert_allclose(Friction()(dq), np.array([_published_sigmoid(x, p1, p2, p3) for x in dq]), atol=1e-12)

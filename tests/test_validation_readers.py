@@ -107,7 +107,7 @@ def test_ros2_bag_topic_choice_and_errors(source_log, tmp_path):
     with pytest.raises(ValueError, match="several JointState topics"):
         load_log(bag)
     assert load_log(bag, topic="/other_states").n == len(t)
-    with pytest.raises(ValueError, match="no sensor_msgs/JointState topic '/nope'"):
+    with pytest.raises(ValueError, match=r"no topic '/nope' in the bag; topics: \[/franka/joint_states"):
         load_log(bag, topic="/nope")
     # the CLI: --topic, and a clear one-line error for a gap longer than --max-gap
     cmd = [sys.executable, "-m", "franka_vs_gym.cli", "diagnose", str(bag), "--topic", "/franka/joint_states",

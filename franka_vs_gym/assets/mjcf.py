@@ -235,10 +235,12 @@ def scene_xml(scene: SceneSpec) -> str:
                  f'{ENV_COLLISION}/>')
     # user numbers: franka_vs_gym.sim.plant's NUSER per joint (friction law and reflex limits) and RSLOT per robot
     # (its reflex record), read by the compiled plant
+    from franka_vs_gym.sim import plant  # (imported here: franka_vs_gym.sim imports this module)
+
     return f"""<mujoco model="franka_vs_gym">
 <compiler angle="radian" meshdir="{mesh_dir()}" inertiafromgeom="false" autolimits="true"/>
 <option timestep="{scene.timestep:.9g}" integrator="implicitfast" gravity="{_fmt(g)}"/>
-<size nuser_jnt="15" nuserdata="{13 * len(scene.robots)}"/>
+<size nuser_jnt="{plant.NUSER}" nuserdata="{plant.RSLOT * len(scene.robots)}"/>
 <visual><global offwidth="{scene.offwidth}" offheight="{scene.offheight}"/>
 <quality shadowsize="0"/><map znear="0.01" zfar="20"/></visual>
 <default>

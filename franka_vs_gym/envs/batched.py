@@ -29,13 +29,19 @@ import mujoco
 import numpy as np
 
 from franka_vs_gym.envs.kernels import (
+    TAG_LOST,
     camera_tag_poses,
     clip_observation,
+    feature_error,
+    feature_reward,
     pbvs_errors,
+    pose_reward,
     pose_vectors,
     row_norm,
-    row_sumsq,
+    success_bonus,
+    torque_penalty,
     tracking_desired,
+    tracking_reward,
 )
 from franka_vs_gym.sim import FORCE_TORQUE, VELOCITY
 from franka_vs_gym.sim.reflexes import ARMED
@@ -43,7 +49,6 @@ from franka_vs_gym.sim.robot import VELOCITY_COMMAND_SCALE
 from franka_vs_gym.vision.tags import project_tag
 
 _STATE = mujoco.mjtState.mjSTATE_INTEGRATION
-TAG_LOST = "tag lost: a corner left the image"
 
 
 class BatchedTask:
@@ -258,7 +263,7 @@ class TorqueTrackingBatch(BatchedTask):
         steps = self.steps[ids]
         rms = np.sqrt(sq / np.maximum(steps, 1))
         success = (steps >= self.max_steps) & (rms < self.success_threshold)
-        reward = -np.minimum(err / self.error_scale, 1.0)
+        reward = tracking_reward(err, self.error_scale)
         failure = np.full(len(ids), None, dtype=object)
         reward, term, trunc, info = self.finish(ids, reward, success, failure)
         info["error"], info["rms_error"] = err, rms
@@ -409,16 +414,16 @@ class VisualBatch(BatchedTask):
         if self.kind == "FrankaPBVSEnv":
             et, er = pbvs_errors(self.cdMo, cMo)
             success = (failure == None) & (et < self.translation_threshold) & (er < self.rotation_threshold)  # noqa: E711
-            reward = -np.minimum(et / self.translation_scale + er / self.rotation_scale, 1.0)
+            reward = pose_reward(et, er, self.translation_scale, self.rotation_scale)
             extra = {"error": et, "rotation_error": er}
         else:
-            err = np.where(vis, row_norm(feats - self.features_desired), row_norm(self.features_desired) + 1.0)
+            err = feature_error(feats, vis, self.features_desired)
             success = (failure == None) & (err < self.success_threshold)  # noqa: E711
-            reward = -np.minimum(np.sqrt(err / self.error_scale), 1.0)
+            reward = feature_reward(err, self.error_scale)
             extra = {"error": err}
-        reward = reward + np.where(success, self.success_bonus, 0.0)
+        reward = success_bonus(reward, success, self.success_bonus)
         if self.kind == "FrankaVisualTorqueEnv" and self.torque_cost:
-            reward = reward - self.torque_cost * row_sumsq(self.action[ids] / self.tau_max) / 7.0
+            reward = reward - torque_penalty(self.action[ids], self.tau_max, self.torque_cost)
         reward, term, trunc, info = self.finish(ids, reward, success, failure)
         info.update(extra)
         return reward, term, trunc, info

@@ -3,13 +3,12 @@
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
 
 from franka_vs_gym.envs.base import _positive
-from franka_vs_gym.envs.kernels import row_norm
+from franka_vs_gym.envs.kernels import TAG_LOST, feature_error, feature_reward, success_bonus
 from franka_vs_gym.envs.visual import VisualServoEnv
 
 
@@ -99,16 +98,13 @@ class FrankaIBVSEnv(VisualServoEnv):
 
     def _task_error(self) -> float:
         t = self._truth
-        if not t["visible"][0]:
-            return float(row_norm(self.features_desired)) + 1.0
-        return float(row_norm(t["features"] - self.features_desired))
+        return feature_error(t["features"], bool(t["visible"][0]), self.features_desired)
 
     def _evaluate(self, action: np.ndarray) -> tuple[float, bool, str | None, dict[str, Any]]:
         err = self._task_error()
         failure = None
         if self.terminate_on_tag_lost and not self._seen():
-            failure = "tag lost: a corner left the image"
+            failure = TAG_LOST
         success = failure is None and err < self.success_threshold
-        reward = -min(math.sqrt(err / self.error_scale), 1.0)
-        reward += self.success_bonus if success else 0.0
+        reward = success_bonus(feature_reward(err, self.error_scale), success, self.success_bonus)
         return reward, success, failure, {"error": err}

@@ -8,6 +8,8 @@ Nm, m, s); poses are 4x4 homogeneous matrices ``aMb`` (frame b expressed in fram
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from pinocchio import log3
 
@@ -80,12 +82,65 @@ def pbvs_errors(cdMo: np.ndarray, cMo: np.ndarray) -> tuple[np.ndarray, np.ndarr
     (N, 4, 4); theta u is the rotation's logarithm (pinocchio's, as in
     :func:`franka_vs_gym.model.geometry.pose_vector`)."""
     R = np.matmul(cdMo[:3, :3], cMo[:, :3, :3].swapaxes(1, 2))
-    t = cdMo[:3, 3] - np.matmul(R, cMo[:, :3, 3:4])[:, :, 0]
-    w = np.empty((len(R), 3))
+    tw = np.empty((len(R), 2, 3))  # t and theta u of each robot, both norms in one call
+    np.subtract(cdMo[:3, 3], np.matmul(R, cMo[:, :3, 3:4])[:, :, 0], out=tw[:, 0])
     for j, r in enumerate(R):
-        w[j] = log3(r)
-    return row_norm(t), row_norm(w)
+        tw[j, 1] = log3(r)
+    e = row_norm(tw)
+    return e[:, 0], e[:, 1]
 
 
-__all__ = ["camera_tag_poses", "clip_observation", "inverse_poses", "pbvs_errors", "pose_vectors", "row_norm",
-           "row_sumsq", "tracking_desired"]
+# ---------------------------------------------------------------------------------------------------- rewards
+TAG_LOST = "tag lost: a corner left the image"  # the failure reason of the visual tasks when the tag leaves the view
+
+# Each takes a single robot's Python floats (the single environments: plain float arithmetic, the cheapest on the
+# per-step path) or (N,) arrays (the batched env) and computes the same IEEE operations either way (min and sqrt
+# are exact in both), so a reward has one home and both paths give the same bits.
+
+def feature_error(features: np.ndarray, visible: np.ndarray | bool, features_desired: np.ndarray):
+    """FrankaIBVS-v0's task error ||s - s*|| of the true corners (float, or (N,) from features (N, 8) and visible
+    (N,) bool), ||s*|| + 1 where the tag is not seen."""
+    if not isinstance(visible, np.ndarray):
+        return float(row_norm(features - features_desired)) if visible else float(row_norm(features_desired)) + 1.0
+    return np.where(visible, row_norm(features - features_desired), row_norm(features_desired) + 1.0)
+
+
+def feature_reward(err, error_scale: float):
+    """FrankaIBVS-v0's per-step reward -min(sqrt(err / error_scale), 1) of the feature error err (float or (N,))."""
+    if isinstance(err, float):
+        return -min(math.sqrt(err / error_scale), 1.0)
+    return -np.minimum(np.sqrt(err / error_scale), 1.0)
+
+
+def pose_reward(et, er, translation_scale: float, rotation_scale: float):
+    """FrankaPBVS-v0's per-step reward -min(et / translation_scale + er / rotation_scale, 1) of the camera's
+    translation error et (m) and rotation error er (rad) (floats or (N,))."""
+    if isinstance(et, float):
+        return -min(et / translation_scale + er / rotation_scale, 1.0)
+    return -np.minimum(et / translation_scale + er / rotation_scale, 1.0)
+
+
+def tracking_reward(err, error_scale: float):
+    """FrankaTorqueTracking-v0's per-step reward -min(err / error_scale, 1) of the tracking error err (rad, float
+    or (N,))."""
+    if isinstance(err, float):
+        return -min(err / error_scale, 1.0)
+    return -np.minimum(err / error_scale, 1.0)
+
+
+def success_bonus(reward, success, bonus: float):
+    """reward + bonus where success (floats and bool, or (N,) arrays)."""
+    if isinstance(reward, float):
+        return reward + (bonus if success else 0.0)
+    return reward + np.where(success, bonus, 0.0)
+
+
+def torque_penalty(tau: np.ndarray, tau_max: np.ndarray, cost: float):
+    """FrankaVisualTorque-v0's torque cost: cost * mean((tau / tau_max)^2) of the commanded torques tau (7,) or
+    (N, 7), Nm (a float, or (N,))."""
+    return cost * row_sumsq(tau / tau_max) / 7.0
+
+
+__all__ = ["TAG_LOST", "camera_tag_poses", "clip_observation", "feature_error", "feature_reward", "inverse_poses",
+           "pbvs_errors", "pose_reward", "pose_vectors", "row_norm", "row_sumsq", "success_bonus", "torque_penalty",
+           "tracking_desired", "tracking_reward"]

@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 
 from franka_vs_gym.envs.base import _positive
-from franka_vs_gym.envs.kernels import pbvs_errors
+from franka_vs_gym.envs.kernels import TAG_LOST, pbvs_errors, pose_reward, success_bonus
 from franka_vs_gym.envs.visual import VisualServoEnv
 
 
@@ -63,8 +63,8 @@ class FrankaPBVSEnv(VisualServoEnv):
         et, er = self._pose_error()
         failure = None
         if self.terminate_on_tag_lost and not self._seen():
-            failure = "tag lost: a corner left the image"
+            failure = TAG_LOST
         success = failure is None and et < self.translation_threshold and er < self.rotation_threshold
-        reward = -min(et / self.translation_scale + er / self.rotation_scale, 1.0)
-        reward += self.success_bonus if success else 0.0
+        reward = success_bonus(pose_reward(et, er, self.translation_scale, self.rotation_scale), success,
+                               self.success_bonus)
         return reward, success, failure, {"error": et, "rotation_error": er}

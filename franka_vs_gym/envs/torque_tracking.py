@@ -9,7 +9,7 @@ import numpy as np
 from gymnasium import spaces
 
 from franka_vs_gym.envs.base import FrankaEnv, ObservationPacker, _positive
-from franka_vs_gym.envs.kernels import row_norm, tracking_desired
+from franka_vs_gym.envs.kernels import row_norm, tracking_desired, tracking_reward
 
 
 class FrankaTorqueTrackingEnv(FrankaEnv):
@@ -136,5 +136,5 @@ class FrankaTorqueTrackingEnv(FrankaEnv):
         self._sq_err += err * err
         rms = float(np.sqrt(self._sq_err / max(self._steps, 1)))
         success = self._steps >= self.max_steps and rms < self.success_threshold
-        reward = -min(err / self.error_scale, 1.0)
+        reward = tracking_reward(err, self.error_scale)
         return reward, success, None, {"error": err, "rms_error": rms}

@@ -6,7 +6,7 @@ from __future__ import annotations
 from typing import Any
 
 from franka_vs_gym.envs.ibvs import FrankaIBVSEnv
-from franka_vs_gym.envs.kernels import row_sumsq
+from franka_vs_gym.envs.kernels import torque_penalty
 
 
 class FrankaVisualTorqueEnv(FrankaIBVSEnv):
@@ -45,5 +45,5 @@ class FrankaVisualTorqueEnv(FrankaIBVSEnv):
     def _evaluate(self, action):
         reward, success, failure, info = super()._evaluate(action)
         if self.action_type == "torque" and self.torque_cost:
-            reward -= self.torque_cost * float(row_sumsq(action / self.tau_max)) / 7.0
+            reward -= float(torque_penalty(action, self.tau_max, self.torque_cost))
         return reward, success, failure, info

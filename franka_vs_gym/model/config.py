@@ -154,10 +154,13 @@ class Friction:
     """Joint friction law, per joint (7,):
 
     ``tau_f(dq) = phi1 / (1 + exp(-phi2 (dq + phi3))) - phi1 / (1 + exp(-phi2 phi3))``  (Gaz sigmoid)
-    ``          + viscous * dq + coulomb * tanh(dq / coulomb_vel)``.
+    ``          + viscous * dq + coulomb * tanh(dq / coulomb_vel)``
+    ``          + stribeck * exp(-(dq / stribeck_vel)^2) * tanh(dq / coulomb_vel)``  (Stribeck, Armstrong-Helouvry).
 
-    Units: phi1, coulomb in Nm; phi2 in s/rad; phi3 in rad/s; viscous in Nm s/rad; coulomb_vel in rad/s (a smoothing
-    velocity for the Coulomb term, small compared with the motion).
+    Units: phi1, coulomb, stribeck in Nm; phi2 in s/rad; phi3 in rad/s; viscous in Nm s/rad; coulomb_vel in rad/s (a
+    smoothing velocity for the Coulomb and Stribeck terms, small compared with the motion); stribeck_vel (7,) in rad/s
+    (the Stribeck velocity: the excess friction ``stribeck`` at rest has fallen to 1/e at this speed). A model file
+    stores ``stribeck`` and ``stribeck_vel`` only when the Stribeck term is non-zero (older files load unchanged).
     """
 
     phi1: np.ndarray = field(default_factory=lambda: np.array(FER.friction.phi1))  # type: ignore[union-attr]
@@ -166,13 +169,19 @@ class Friction:
     viscous: np.ndarray = field(default_factory=lambda: np.zeros(7))
     coulomb: np.ndarray = field(default_factory=lambda: np.zeros(7))
     coulomb_vel: float = 0.01
+    stribeck: np.ndarray = field(default_factory=lambda: np.zeros(7))
+    stribeck_vel: np.ndarray = field(default_factory=lambda: np.full(7, 0.1))
 
     def __post_init__(self) -> None:
-        for name in ("phi1", "phi2", "phi3", "viscous", "coulomb"):
+        for name in ("phi1", "phi2", "phi3", "viscous", "coulomb", "stribeck", "stribeck_vel"):
             setattr(self, name, as_vector(getattr(self, name), 7, f"friction.{name}"))
         self.coulomb_vel = checks.as_scalar(self.coulomb_vel, "friction.coulomb_vel", unit="rad/s")
         if self.coulomb_vel <= 0:
             raise ValueError(f"friction.coulomb_vel must be > 0 rad/s, got {self.coulomb_vel}")
+        if not (self.stribeck_vel > 0).all():
+            j = int(np.argmin(self.stribeck_vel))
+            raise ValueError(f"friction.stribeck_vel[{j}] = {self.stribeck_vel[j]:g} rad/s: the Stribeck velocity "
+                             "must be > 0")
         if (self.phi2 < 0).any():
             j = int(np.argmin(self.phi2))
             raise ValueError(f"friction.phi2[{j}] = {self.phi2[j]:g} s/rad: the sigmoid's slope must be >= 0 "
@@ -193,25 +202,34 @@ class Friction:
         return cls(np.array(fr.phi1), np.array(fr.phi2), np.array(fr.phi3))
 
     def is_zero(self) -> bool:
-        return not (self.phi1.any() or self.viscous.any() or self.coulomb.any())
+        return not (self.phi1.any() or self.viscous.any() or self.coulomb.any() or self.stribeck.any())
 
     def compile(self):
         """A fast closure dq -> tau_f (7,), Nm (:func:`franka_vs_gym.model.friction.compile_friction`)."""
-        return compile_friction(self.phi1, self.phi2, self.phi3, self.viscous, self.coulomb, self.coulomb_vel)
+        return compile_friction(self.phi1, self.phi2, self.phi3, self.viscous, self.coulomb, self.coulomb_vel,
+                                self.stribeck, self.stribeck_vel)
 
     def __call__(self, dq: np.ndarray) -> np.ndarray:
         """tau_f(dq), Nm, for dq (7,) or (N, 7) rad/s (the law of :mod:`franka_vs_gym.model.friction`)."""
-        return joint_friction(dq, self.phi1, self.phi2, self.phi3, self.viscous, self.coulomb, self.coulomb_vel)
+        return joint_friction(dq, self.phi1, self.phi2, self.phi3, self.viscous, self.coulomb, self.coulomb_vel,
+                              self.stribeck, self.stribeck_vel)
 
     def to_dict(self) -> dict[str, Any]:
-        return {k: getattr(self, k).tolist() for k in ("phi1", "phi2", "phi3", "viscous", "coulomb")} | {
+        d = {k: getattr(self, k).tolist() for k in ("phi1", "phi2", "phi3", "viscous", "coulomb")} | {
             "coulomb_vel": self.coulomb_vel}
+        if self.stribeck.any():  # written only when present: files without it stay as they were
+            d |= {"stribeck": self.stribeck.tolist(), "stribeck_vel": self.stribeck_vel.tolist()}
+        return d
 
     def check_dissipative(self, dq_max: Any = None) -> None:
         """Raise ValueError unless the law opposes motion at every velocity up to ``dq_max`` (7,) rad/s (default
         the FER's limits)."""
         dq_max = np.array(FER.limits.dq_max if dq_max is None else dq_max, dtype=np.float64)
         checks.check_dissipative(self.compile(), dq_max)
+        if self.stribeck.any():  # the hump lives at low speed: check there too (1e-3 dq_max and up)
+            tau_f = self.compile()
+            for s in np.geomspace(1e-3, 0.05, 12):
+                checks.check_dissipative(tau_f, s * dq_max)
 
     @classmethod
     def from_dict(cls, d: dict[str, Any] | None, robot: RobotDescription | str | None = None) -> Friction:
@@ -219,12 +237,17 @@ class Friction:
         if d is None:
             return cls.none()
         if not isinstance(d, dict):
-            raise ValueError(f"friction must be an object (phi1, phi2, phi3, viscous, coulomb) or null, got "
+            raise ValueError(f"friction must be an object (phi1, phi2, phi3, viscous, coulomb, coulomb_vel, stribeck, "
+                             f"stribeck_vel) or null, got "
                              f"{type(d).__name__}")
+        unknown = set(d) - {"phi1", "phi2", "phi3", "viscous", "coulomb", "coulomb_vel", "stribeck", "stribeck_vel"}
+        if unknown:
+            raise ValueError(f"unknown keys in friction: {sorted(unknown)} (known: phi1, phi2, phi3, viscous, coulomb, "
+                             "coulomb_vel, stribeck, stribeck_vel)")
         base = cls.of(robot)
         kw = {k: d.get(k, getattr(base, k)) for k in ("phi1", "phi2", "phi3")}
-        kw.update({k: d.get(k, np.zeros(7)) for k in ("viscous", "coulomb")})
-        return cls(**kw, coulomb_vel=d.get("coulomb_vel", 0.01))
+        kw.update({k: d.get(k, np.zeros(7)) for k in ("viscous", "coulomb", "stribeck")})
+        return cls(**kw, coulomb_vel=d.get("coulomb_vel", 0.01), stribeck_vel=d.get("stribeck_vel", np.full(7, 0.1)))
 
 
 @dataclass

@@ -3,19 +3,20 @@
  * MuJoCo's physics callbacks are global to a process, so the parameters live in each model: a joint whose first
  * user number (jnt_user[j][0]) is FVS_TAG carries the friction law of franka_vs_gym.model (per joint, SI units):
  *
- *   jnt_user[j] = [FVS_TAG, phi1 (Nm), phi2 (s/rad), phi3 (rad/s), viscous (Nm s/rad), coulomb (Nm),
- *                  coulomb_vel (rad/s)]
+ *   jnt_user[j][0..8] = [FVS_TAG, phi1 (Nm), phi2 (s/rad), phi3 (rad/s), viscous (Nm s/rad), coulomb (Nm),
+ *                        coulomb_vel (rad/s), stribeck (Nm), stribeck_vel (rad/s)]
  *   tau_f(dq) = phi1 / (1 + exp(-(phi2 dq + phi2 phi3))) - phi1 / (1 + exp(-phi2 phi3))
  *             + viscous dq + coulomb tanh(dq / coulomb_vel)
+ *             + stribeck exp(-(dq / stribeck_vel)^2) tanh(dq / coulomb_vel)
  *
  * and the callback adds -tau_f(qvel) to qfrc_passive of that joint's dof. Joints without the tag (other models,
  * robots with the plant's friction switched off) are left alone, so any number of robots in one scene, and any
  * number of models stepped by mujoco.batch on its threads, each get their own law.
  *
  * The same callback runs the robot's measured-state reflexes (franka_vs_gym.sim.reflexes) at every physics step.
- * A robot whose seven joints carry FVS_RTAG in jnt_user[j][7] is watched:
+ * A robot whose seven joints carry FVS_RTAG in jnt_user[j][FVS_RCOL] (column 9) is watched:
  *
- *   jnt_user[j][7..14] = [FVS_RTAG, slot (offset of the robot's record in userdata), k (joint index 0..6),
+ *   jnt_user[j][9..16] = [FVS_RTAG, slot (offset of the robot's record in userdata), k (joint index 0..6),
  *                         q_min (rad), q_max (rad), dq_max (rad/s), tau_max (Nm), tau_J offset (Nm)]
  *
  * and its record in mjData.userdata (FVS_RSLOT numbers from the slot) is
@@ -44,7 +45,8 @@
 
 #define FVS_TAG 1179013959.0 /* "FVSG" as an integer, exactly representable */
 #define FVS_RTAG 1179013960.0 /* a robot whose reflexes the plant watches */
-#define FVS_NUSER 15
+#define FVS_RCOL 9 /* first reflex column (after the friction law's) */
+#define FVS_NUSER 17
 #define FVS_RSLOT 13
 #define FVS_ARMED -1.0 /* record status of a robot whose reflexes the plant checks */
 
@@ -71,16 +73,16 @@ static mjtNum* fvs_record(const mjModel* m, mjData* d, int j0) {
     return NULL;
   }
   const mjtNum* u = m->jnt_user + j0 * nu;
-  if (u[7] != FVS_RTAG || u[9] != 0.0) {
+  if (u[FVS_RCOL] != FVS_RTAG || u[FVS_RCOL + 2] != 0.0) {
     return NULL;
   }
   for (int k = 1; k < 7; k++) {
     const mjtNum* uk = m->jnt_user + (j0 + k) * nu;
-    if (uk[7] != FVS_RTAG || uk[8] != u[8] || uk[9] != (mjtNum)k) {
+    if (uk[FVS_RCOL] != FVS_RTAG || uk[FVS_RCOL + 1] != u[FVS_RCOL + 1] || uk[FVS_RCOL + 2] != (mjtNum)k) {
       return NULL;
     }
   }
-  const int off = (int)u[8];
+  const int off = (int)u[FVS_RCOL + 1];
   if (off < 0 || off + FVS_RSLOT > m->nuserdata) {
     return NULL;
   }
@@ -96,7 +98,7 @@ static int fvs_check(const mjModel* m, mjData* d, int j0, mjtNum* s) {
   for (int k = 0; k < 7; k++) {
     const mjtNum* uk = m->jnt_user + (j0 + k) * nu;
     const mjtNum q = d->qpos[m->jnt_qposadr[j0 + k]];
-    if (q < uk[10] || q > uk[11]) {
+    if (q < uk[FVS_RCOL + 3] || q > uk[FVS_RCOL + 4]) {
       code = 1, jk = k, value = q;
       break;
     }
@@ -107,8 +109,8 @@ static int fvs_check(const mjModel* m, mjData* d, int j0, mjtNum* s) {
     for (int k = 0; k < 7; k++) {
       const mjtNum* uk = m->jnt_user + (j0 + k) * nu;
       const mjtNum v = d->qvel[m->jnt_dofadr[j0 + k]];
-      const mjtNum r = fabs(v) / uk[12];
-      over |= fabs(v) > uk[12];
+      const mjtNum r = fabs(v) / uk[FVS_RCOL + 5];
+      over |= fabs(v) > uk[FVS_RCOL + 5];
       if (r > rmax) {
         rmax = r, jk = k, value = v;
       }
@@ -121,8 +123,8 @@ static int fvs_check(const mjModel* m, mjData* d, int j0, mjtNum* s) {
     mjtNum rmax = -1.0;
     for (int k = 0; k < 7; k++) {
       const mjtNum* uk = m->jnt_user + (j0 + k) * nu;
-      const mjtNum tau = d->qfrc_actuator[m->jnt_dofadr[j0 + k]] + uk[14];
-      const mjtNum r = fabs(tau) / uk[13];
+      const mjtNum tau = d->qfrc_actuator[m->jnt_dofadr[j0 + k]] + uk[FVS_RCOL + 7];
+      const mjtNum r = fabs(tau) / uk[FVS_RCOL + 6];
       if (r > rmax) {
         rmax = r, jk = k, value = tau;
       }
@@ -180,6 +182,10 @@ static void fvs_passive(const mjModel* m, mjData* d) {
     }
     if (u[5] != 0.0) {
       tau += u[5] * tanh(v / u[6]);
+    }
+    if (u[7] != 0.0) { /* Stribeck: stribeck exp(-(v / stribeck_vel)^2) tanh(v / coulomb_vel) */
+      const mjtNum r = v / u[8];
+      tau += u[7] * exp(-(r * r)) * tanh(v / u[6]);
     }
     d->qfrc_passive[dof] -= tau;
   }
@@ -249,6 +255,7 @@ PyMODINIT_FUNC PyInit__plant(void) {
   if (PyModule_AddIntConstant(mod, "MJ_VERSION_HEADER", mjVERSION_HEADER) < 0 ||
       PyModule_AddObject(mod, "TAG", PyFloat_FromDouble(FVS_TAG)) < 0 ||
       PyModule_AddIntConstant(mod, "NUSER", FVS_NUSER) < 0 ||
+      PyModule_AddIntConstant(mod, "RCOL", FVS_RCOL) < 0 ||
       PyModule_AddObject(mod, "RTAG", PyFloat_FromDouble(FVS_RTAG)) < 0 ||
       PyModule_AddIntConstant(mod, "RSLOT", FVS_RSLOT) < 0) {
     Py_DECREF(mod);

@@ -6,7 +6,8 @@ environment step's substeps are one call into MuJoCo and ``mujoco.batch`` can st
 
 MuJoCo's callbacks are global to a process, so the parameters live in each model: every joint of a robot carries
 its friction parameters in its user numbers (``jnt_user``, :data:`NUSER` per joint, the scene declares
-``<size nuser_jnt="15"/>``; columns 0-6 :data:`FRICTION_COLS` below, 7-14 the reflexes'):
+``<size nuser_jnt="17"/>``; columns 0-8 (:data:`FRICTION_COLS` of them) the friction law, 9-16 (from
+:data:`RCOL`) the reflexes'):
 
 ====  =====================  =========
  col   meaning                 unit
@@ -18,22 +19,25 @@ its friction parameters in its user numbers (``jnt_user``, :data:`NUSER` per joi
  4     viscous                 Nm s/rad
  5     coulomb                 Nm
  6     coulomb_vel             rad/s
+ 7     stribeck                Nm
+ 8     stribeck_vel            rad/s
 ====  =====================  =========
 
-The same callback runs the measured-state reflexes (:mod:`franka_vs_gym.sim.reflexes`: joint position, velocity
-and tau_J range) at every physics step; a watched robot's joints carry its limits:
+(the law of :mod:`franka_vs_gym.model.friction`; the Stribeck term, columns 7-8, is skipped at no cost when
+``stribeck`` is 0). The same callback runs the measured-state reflexes (:mod:`franka_vs_gym.sim.reflexes`: joint
+position, velocity and tau_J range) at every physics step; a watched robot's joints carry its limits:
 
 ====  =====================  =========
  col   meaning                 unit
 ====  =====================  =========
- 7     :data:`RTAG` when the plant checks this robot's reflexes, else 0
- 8     offset of the robot's record in ``mjData.userdata``
- 9     joint index in the robot (0..6)
- 10    q_min                   rad
- 11    q_max                   rad
- 12    dq_max                  rad/s
- 13    tau_max                 Nm
- 14    tau_J offset            Nm
+ 9     :data:`RTAG` when the plant checks this robot's reflexes, else 0
+ 10    offset of the robot's record in ``mjData.userdata``
+ 11    joint index in the robot (0..6)
+ 12    q_min                   rad
+ 13    q_max                   rad
+ 14    dq_max                  rad/s
+ 15    tau_max                 Nm
+ 16    tau_J offset            Nm
 ====  =====================  =========
 
 and each robot has a record of :data:`RSLOT` numbers in ``mjData.userdata`` (the scene declares
@@ -62,10 +66,11 @@ from typing import Any
 import mujoco
 import numpy as np
 
-NUSER = 15  # user numbers per joint
-FRICTION_COLS = 7  # columns 0-6: the friction law
+NUSER = 17  # user numbers per joint
+FRICTION_COLS = 9  # columns 0-8: the friction law
+RCOL = FRICTION_COLS  # columns RCOL..RCOL+7 (9-16): the reflexes
 TAG = 1179013959.0  # jnt_user[:, 0] of a joint whose friction the plant applies
-RTAG = 1179013960.0  # jnt_user[:, 7] of a joint whose robot's reflexes the plant checks
+RTAG = 1179013960.0  # jnt_user[:, RCOL] of a joint whose robot's reflexes the plant checks
 RSLOT = 13  # userdata numbers per robot (its reflex record)
 
 _native: Any = None
@@ -89,7 +94,7 @@ else:
                        f"{mujoco.mj_version()} is installed; reinstall franka_vs_gym (pip install -e .)")
             _native = None
         elif _native.TAG != TAG or _native.NUSER != NUSER or getattr(_native, "RTAG", None) != RTAG \
-                or getattr(_native, "RSLOT", None) != RSLOT:
+                or getattr(_native, "RSLOT", None) != RSLOT or getattr(_native, "RCOL", None) != RCOL:
             _reason = ("the compiled plant is older than its sources (franka_vs_gym/sim/_plant.c); rebuild it "
                        "(pip install -e . or python setup.py build_ext --inplace)")
             _native = None
@@ -134,9 +139,10 @@ def install() -> bool:
 
 
 def friction_rows(friction: Any, scale: float = 1.0, enabled: bool = True) -> np.ndarray:
-    """The (7, FRICTION_COLS) ``jnt_user`` columns 0-6 of a robot's seven joints for a friction law (``Friction``:
-    phi1, phi2, phi3, viscous, coulomb (7,) each, coulomb_vel) multiplied by ``scale`` (phi1, viscous and Coulomb
-    scaled, which scales the whole torque). ``enabled=False`` (or a zero law) clears the tag."""
+    """The (7, FRICTION_COLS) ``jnt_user`` columns 0-8 of a robot's seven joints for a friction law (``Friction``:
+    phi1, phi2, phi3, viscous, coulomb (7,) each, coulomb_vel, stribeck, stribeck_vel (7,) each) multiplied by
+    ``scale`` (phi1, viscous, Coulomb and Stribeck heights scaled, which scales the whole torque). ``enabled=False``
+    (or a zero law) clears the tag."""
     rows = np.zeros((7, FRICTION_COLS))
     on = enabled and not friction.is_zero()
     rows[:, 0] = TAG if on else 0.0
@@ -146,6 +152,8 @@ def friction_rows(friction: Any, scale: float = 1.0, enabled: bool = True) -> np
     rows[:, 4] = friction.viscous * scale
     rows[:, 5] = friction.coulomb * scale
     rows[:, 6] = friction.coulomb_vel
+    rows[:, 7] = friction.stribeck * scale
+    rows[:, 8] = friction.stribeck_vel
     return rows
 
 
@@ -165,5 +173,5 @@ def plant_friction_torque(model: mujoco.MjModel, data: mujoco.MjData, dofs: Any)
     return -(with_cb - d.qfrc_passive)[np.asarray(dofs)]
 
 
-__all__ = ["FRICTION_COLS", "check", "NATIVE", "NUSER", "RSLOT", "RTAG", "TAG", "friction_rows",
+__all__ = ["FRICTION_COLS", "check", "NATIVE", "NUSER", "RCOL", "RSLOT", "RTAG", "TAG", "friction_rows",
            "install", "plant_friction_torque", "unavailable_reason"]

@@ -262,11 +262,12 @@ class Reflexes:
             off = prefixes.index(sim.prefix) * plant.RSLOT
             if off + plant.RSLOT <= m.nuserdata:
                 u = m.jnt_user
-                u[jids, 7] = plant.RTAG
-                u[jids, 8] = off
-                u[jids, 9] = np.arange(7)
-                u[jids, 10], u[jids, 11], u[jids, 12] = self.q_min, self.q_max, self.dq_max
-                u[jids, 13], u[jids, 14] = self.tau_max, sim._offset
+                c = plant.RCOL  # the reflex columns (franka_vs_gym.sim.plant)
+                u[jids, c] = plant.RTAG
+                u[jids, c + 1] = off
+                u[jids, c + 2] = np.arange(7)
+                u[jids, c + 3], u[jids, c + 4], u[jids, c + 5] = self.q_min, self.q_max, self.dq_max
+                u[jids, c + 6], u[jids, c + 7] = self.tau_max, sim._offset
                 self._ud = world.data.userdata[off:off + plant.RSLOT]
                 self._native = True
                 self._clear_record()

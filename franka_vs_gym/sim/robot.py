@@ -345,7 +345,7 @@ class FrankaSim:
     def _make_friction_step(self):
         fr = self.spec.config.friction
         return make_plant_friction(self._qvel, self._qfrc_applied, fr.phi1, fr.phi2, fr.phi3, fr.viscous,
-                                   fr.coulomb, fr.coulomb_vel, self._friction_scale)
+                                   fr.coulomb, fr.coulomb_vel, self._friction_scale, fr.stribeck, fr.stribeck_vel)
 
     def _make_pre_step(self):
         """The per-physics-step hook (runs at 1 kHz before every mj_step): none with the compiled plant and no
@@ -857,7 +857,7 @@ class FrankaSim:
         """Where this robot lives in its MuJoCo data, for code that steps many robots' data at once (the batched
         vector env writes commands into, and reads joint states from, ``mujoco.batch`` views of the same fields)."""
         r = self._reflexes
-        off = int(self._m.jnt_user[self._jids[0], 8]) if r._native else -1
+        off = int(self._m.jnt_user[self._jids[0], plant.RCOL + 1]) if r._native else -1
         return BatchLayout(self._qs, self._vs, self._motor, self._vel, off, r.q_min.copy(), r.q_max.copy(),
                            r.dq_max.copy())
 

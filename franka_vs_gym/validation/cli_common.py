@@ -9,8 +9,9 @@ from franka_vs_gym.validation.signals import GAP_FACTOR, CleanSettings
 
 
 def add_common(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("log", help="measurement log: CSV or NPZ (with optional <log>.json sidecar), a ROS 2 bag "
-                                    "folder (sqlite3 or MCAP) or .mcap file of sensor_msgs/JointState, a libfranka "
+    parser.add_argument("log", help="measurement log: CSV or NPZ (with optional <log>.json sidecar), a ROS 1 bag or a "
+                                    "ROS 2 bag folder (sqlite3 or MCAP) or .mcap file of Franka robot states or "
+                                    "sensor_msgs/JointState, a libfranka "
                                     "logToCSV file, a Gaz et al. 2019 text folder, or a dump of pylibfranka/franky "
                                     "robot states (JSON, JSON lines, CSV, NPZ/NPY, franky pickle; detected from the "
                                     "content)")
@@ -24,8 +25,9 @@ def add_common(parser: argparse.ArgumentParser) -> None:
                         help="the tool on the flange (default: what the log declares, else the Franka Hand); "
                              "'unknown' fits the tool's mass, centre of mass and inertia")
     parser.add_argument("--topic", default=None,
-                        help="ROS bag: the sensor_msgs/JointState topic to read (default: the only one, or "
-                             "/joint_states)")
+                        help="ROS bag: the topic to read, a Franka robot state (franka_msgs FrankaState/"
+                             "FrankaRobotState) or sensor_msgs/JointState (default: the Franka state topic, else the "
+                             "JointState topic with the seven arm joints and efforts; the choice is stated)")
     parser.add_argument("--cutoff", type=float, default=None,
                         help="zero-phase low-pass cutoff for q and dq, Hz (default 10, or a quarter of the rate for "
                              "logs slower than 40 Hz)")

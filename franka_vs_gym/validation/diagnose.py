@@ -717,8 +717,7 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
     for n in names:
         e = get_effect(n)
         if type(e).apply is Effect.apply:
-            raise ValueError(f"effect {n!r} can be diagnosed but not applied: the model and the plant have no term "
-                             "for it")
+            raise ValueError(f"effect {n!r} can be diagnosed but not applied: {e.not_applicable}")
     y = ctx.residual
     noise = data.noise
     fl = _folds(ctx.n, FOLDS)

@@ -34,7 +34,13 @@ import pinocchio as pin
 
 from franka_vs_gym.model.config import Friction, ModelConfig, RigidBody, Tool
 from franka_vs_gym.model.description import FER
-from franka_vs_gym.model.friction import coulomb_friction, gaz_sigmoid, viscous_friction
+from franka_vs_gym.model.friction import (
+    coulomb_friction,
+    gaz_sigmoid,
+    sigmoid_levels,
+    stribeck_friction,
+    viscous_friction,
+)
 from franka_vs_gym.model.geometry import combine_inertials, parallel_axis
 from franka_vs_gym.validation.evaluate import FLANGE_OFFSET, ModelEvaluation, evaluate, shift, sigmoid_friction
 from franka_vs_gym.validation.signals import ProcessedLog
@@ -188,6 +194,8 @@ class Effect:
     lof_constant_height = False
     #: the processed log's signals the law depends on (e.g. ``("dq",)``), the default :meth:`lof_drivers`
     lof_signals: tuple[str, ...] = ()
+    #: why the effect cannot be written into a model configuration (effects without :meth:`apply`; one line)
+    not_applicable = "the model and the plant have no term for it"
 
     def lof_drivers(self, ctx: Context) -> dict[str, np.ndarray]:
         """The variables the law says the effect depends on, name -> (N, 7) per joint (the lack-of-fit test compares
@@ -253,7 +261,7 @@ class Effect:
 
     def apply(self, config: ModelConfig, fit: Fit) -> ModelConfig:
         """The configuration with this effect added (model and plant); raises NotApplicable if it cannot be."""
-        raise NotApplicable(f"effect {self.name!r} cannot be written into a model configuration")
+        raise NotApplicable(f"effect {self.name!r} cannot be written into a model configuration: {self.not_applicable}")
 
     def inject(self, plant: PlantChange, rng: np.random.Generator, magnitude: float) -> dict[str, Any]:
         """Put this effect, of a size drawn from ``rng`` and scaled by ``magnitude``, into a simulated plant (in
@@ -608,8 +616,9 @@ class AsymmetricFriction(Effect):
     Signature: a step at dq = 0 whose two levels differ in magnitude. Away from rest it is indistinguishable from a
     symmetric Coulomb step plus a torque offset; only the samples near zero velocity tell them apart, so on logs
     that rarely stop it forms a collinear group with ``coulomb_friction`` + ``torque_offset``.
-    Plausible: both levels >= 0 and < 0.25 tau_max Nm; the model applies it as the sigmoid with the same two
-    levels, so it is only applicable on joints whose model has no sigmoid.
+    Plausible: both levels >= 0 and < 0.25 tau_max Nm. The model applies it through its sigmoid (the law's
+    direction-dependent term): a joint without one gets a sigmoid with the two levels; a joint with one gets the
+    sum of its levels and the fitted ones, keeping its width (see :meth:`apply`).
     """
 
     name, aliases = "asymmetric_friction", ("asymmetric",)
@@ -662,21 +671,28 @@ class AsymmetricFriction(Effect):
         return out
 
     def apply(self, config, fit):
-        # F_plus (1 + s)/2-like levels through the model's sigmoid: phi1 = F_plus + F_minus, centred so that the
-        # level is F_plus for large positive and -F_minus for large negative velocity
+        # the two levels go into the model's sigmoid, the law's direction-dependent term. A joint without a sigmoid
+        # gets one with the fitted levels (F_plus for large positive, -F_minus for large negative velocity) and the
+        # fit's width (phi2 = 2 / v_c: the same slope at rest as tanh(dq / v_c)); a joint with one keeps its width
+        # phi2 and gets the sum of its levels and the fitted ones (phi1 = L_plus + L_minus, centre phi3 =
+        # logit(L_minus / phi1) / phi2), which is exact away from rest (|dq| >> 1 / phi2, v_c).
         c = _joint_coef(fit, 2)
         fr = Friction.from_dict(config.friction.to_dict())
         for j in fit.joints:
-            if fr.phi1[j] != 0:
-                raise NotApplicable(f"asymmetric_friction on joint {j}: the model already has a sigmoid there; "
-                                    "fit sigmoid_friction instead (its centre phi3 makes it asymmetric)")
-            fp, fm = c[j, 0] + fr.coulomb[j], c[j, 1] + fr.coulomb[j]
+            merge = fr.phi1[j] != 0
+            if merge:
+                p2 = float(fr.phi2[j])
+                lp, lm = sigmoid_levels(fr.phi1[j], p2, fr.phi3[j])
+                fp, fm = float(lp) + c[j, 0], float(lm) + c[j, 1]
+            else:  # the model's Coulomb step (if any) moves into the new sigmoid
+                fp, fm = c[j, 0] + fr.coulomb[j], c[j, 1] + fr.coulomb[j]
+                p2 = 2.0 / float(fit.theta["coulomb_vel"])
             if fp <= 0 or fm <= 0:
-                continue
-            phi2 = 2.0 / float(fit.theta["coulomb_vel"])
+                continue  # a negative level: problems() reports it, nothing is written for this joint
             s0 = fm / (fp + fm)
-            fr.phi1[j], fr.phi2[j], fr.phi3[j] = fp + fm, phi2, math.log(s0 / (1 - s0)) / phi2
-            fr.coulomb[j] = 0.0
+            fr.phi1[j], fr.phi2[j], fr.phi3[j] = fp + fm, p2, math.log(s0 / (1 - s0)) / p2
+            if not merge:
+                fr.coulomb[j] = 0.0
         return config.copy(friction=fr)
 
     injectable = False
@@ -694,8 +710,10 @@ class LoadDependentFriction(Effect):
     (Tjahjowidodo; Taghirad & Belanger 1998).
 
     Signature: a friction step whose height follows the joint's load (large where gravity loads the joint).
-    Plausible: 0 <= total mu < 0.3 (a gear efficiency above about 70%). Diagnose-only: the model's friction law
-    has no load term, so ``apply`` raises NotApplicable and ``fit`` says so.
+    Plausible: 0 <= total mu < 0.3 (a gear efficiency above about 70%). Diagnose-only: with a load term the
+    friction would depend on the inertial torque, i.e. on the acceleration it helps produce, so forward dynamics
+    would have to solve an implicit equation at every step; the model's friction law is explicit in dq, so
+    ``apply`` raises NotApplicable and ``fit`` says why (:attr:`not_applicable`).
     """
 
     name, aliases = "load_dependent_friction", ("load_friction",)
@@ -703,6 +721,8 @@ class LoadDependentFriction(Effect):
     signature = "a step at zero velocity whose height grows with abs(load torque)"
     plausible = "0 <= mu < 0.3 (gear efficiency > 70%)"
     injectable = False
+    not_applicable = ("its friction grows with the load torque, which depends on the acceleration it produces, so "
+                      "the law would be implicit in forward dynamics; the model's friction law depends on dq only")
 
     def shape(self, ctx, target):
         load = np.abs(ctx.ev.rigid)
@@ -725,44 +745,110 @@ class LoadDependentFriction(Effect):
 
 class StribeckFriction(Effect):
     """The Stribeck effect: friction higher at breakaway than in sliding, decaying with speed,
-    ``tau_f = F_s exp(-(dq / v_s)^2) sign(dq)`` on top of the model's friction (the classical Stribeck curve of
-    Armstrong-Helouvry; reported for harmonic drives by Tjahjowidodo et al. and for Franka joints by Gaz et al.
-    2019, who found it small). ``v_s`` (common to all joints) is chosen on the residual from STRIBECK_VS.
+    ``tau_f = F_s exp(-(dq / v_s)^2) tanh(dq / v_c)`` on top of the model's friction (the exponential Stribeck curve
+    of Armstrong-Helouvry, Dupont & Canudas de Wit, Automatica 30(7) 1994, its sign smoothed through zero as the
+    Coulomb term is; reported for harmonic drives by Tjahjowidodo et al. and for Franka joints by Gaz et al. 2019,
+    who found it small). The law is the model's Stribeck term (:func:`franka_vs_gym.model.friction.stribeck_friction`,
+    ``stribeck`` = F_s, ``stribeck_vel`` = v_s, smoothing ``coulomb_vel`` = v_c). ``v_s`` (common to all joints) is
+    chosen on the residual from STRIBECK_VS with the model's v_c; the final fit (:meth:`refine`) also chooses v_c
+    from COULOMB_VC when the model has neither a Stribeck nor a Coulomb term. A model that has a Stribeck term keeps
+    its ``stribeck_vel`` (per joint) and ``coulomb_vel``, so that the fitted height adds to the model's.
 
     Signature: a hump in residual vs dq right after each velocity reversal, vanishing above a few v_s.
-    Plausible: 0 <= F_s < 0.25 tau_max Nm (static friction exceeds sliding friction). Diagnose-only: the model's
-    friction law has no Stribeck term, so ``apply`` raises NotApplicable and ``fit`` says so.
+    Plausible: 0 <= total F_s < 0.25 tau_max Nm (static friction exceeds sliding friction). ``apply`` writes F_s,
+    v_s (and v_c when the model has no Coulomb term) into the model's friction law, so model and plant both get it.
+    Not in the hidden-effect generator's random draw (``injectable`` False: the seeds of the existing studies keep
+    drawing the same effects); ``make_hidden_effect_log("stribeck_friction")`` injects it.
     """
 
     name, aliases = "stribeck_friction", ("stribeck_hump",)
     n_params = 1
     description = "Stribeck hump: extra friction near zero velocity, decaying with speed"
     signature = "a hump of friction right after velocity reversals, gone above a few v_s"
-    plausible = "0 <= F_s < 0.25 tau_max (Nm)"
+    plausible = "0 <= total F_s < 0.25 tau_max (Nm)"
     injectable = False
+    SIZES = np.array([0.8, 0.8, 0.6, 0.6, 0.25, 0.25, 0.15])  # Nm, injected heights at magnitude 1
+    VS, VC = 0.1, 0.05  # rad/s, injected Stribeck and smoothing velocities (a sharper step chatters at 1 ms)
 
     lof_constant_height = True
     lof_signals = ("dq",)
 
     def shape(self, ctx, target):
-        def law(dq, vs):
-            return coulomb_friction(dq, 1.0, 0.01) * np.exp(-(dq / vs) ** 2)
-        return {"v_s": _vc_choice(ctx, target, law, STRIBECK_VS)}
+        fr = ctx.config.friction
+        vc = fr.coulomb_vel
+        if fr.stribeck.any():
+            return {"v_s": fr.stribeck_vel.tolist(), "coulomb_vel": vc}
+        return {"v_s": _vc_choice(ctx, target, lambda dq, v: stribeck_friction(dq, 1.0, v, vc), STRIBECK_VS),
+                "coulomb_vel": vc}
+
+    def refine(self, ctx, y, fit):
+        """With neither a Stribeck nor a Coulomb term in the model, the final fit also chooses the smoothing
+        velocity v_c (COULOMB_VC, with v_s > v_c) that the model will get; otherwise the fit is kept."""
+        fr = ctx.config.friction
+        if fr.stribeck.any() or fr.coulomb.any():
+            return fit
+        dq, yc = ctx.data.dq[ctx.coarse], y[ctx.coarse]
+        best, best_sse = (fit.theta["v_s"], fit.theta["coulomb_vel"]), np.inf
+        for vc in COULOMB_VC:
+            for vs in STRIBECK_VS:
+                if vs <= vc:  # a hump needs v_s above the smoothing of its sign
+                    continue
+                X = stribeck_friction(dq, 1.0, vs, vc)
+                sse = float(np.sum((yc - X * _lstsq_joints(X, yc)) ** 2))
+                if sse < best_sse:
+                    best, best_sse = (vs, vc), sse
+        shape = {"v_s": best[0], "coulomb_vel": best[1]}
+        X = self.design(ctx, shape)
+        out = self.make_fit(ctx, _lstsq_joints(X[:, :, 0], y)[:, None], shape, fit.joints)
+        return out
 
     def design(self, ctx, shape):
-        vs = float(shape["v_s"])
-        return ctx.cached(("stribeck", vs), lambda: (coulomb_friction(ctx.data.dq, 1.0, 0.01)
-                                                     * np.exp(-(ctx.data.dq / vs) ** 2))[:, :, None])
+        vs, vc = shape["v_s"], float(shape["coulomb_vel"])
+        key = ("stribeck", tuple(np.atleast_1d(np.asarray(vs, dtype=float)).tolist()), vc)
+        return ctx.cached(key, lambda: stribeck_friction(ctx.data.dq, 1.0, np.asarray(vs, dtype=float),
+                                                         vc)[:, :, None])
+
+    def _total(self, config: ModelConfig, fit: Fit) -> np.ndarray:
+        return config.friction.stribeck + _joint_coef(fit)[:, 0]
 
     def problems(self, ctx, fit):
-        c = _joint_coef(fit)[:, 0]
+        c = self._total(ctx.config, fit)
         tm = _tau_max(ctx)
         return {j: f"negative Stribeck height {c[j]:.3g} Nm (friction lower at breakaway)" for j in fit.joints
                 if c[j] < 0} | {j: f"Stribeck height {c[j]:.3g} Nm is implausibly large" for j in fit.joints
                                 if c[j] >= 0.25 * tm[j]}
 
+    def apply(self, config, fit):
+        fr = Friction.from_dict(config.friction.to_dict())
+        vs = np.broadcast_to(np.asarray(fit.theta["v_s"], dtype=float), (7,))
+        c = _joint_coef(fit)[:, 0]
+        for j in fit.joints:
+            if c[j] == 0.0:
+                continue
+            if fr.stribeck[j] != 0.0 and fr.stribeck_vel[j] != vs[j]:
+                raise NotApplicable(f"stribeck_friction on joint {j}: the model's Stribeck velocity is "
+                                    f"{fr.stribeck_vel[j]:g} rad/s, the fit's {vs[j]:g} rad/s")
+            fr.stribeck[j] += c[j]
+            fr.stribeck_vel[j] = vs[j]
+        if not fr.coulomb.any():  # the hump's sign smoothing is the Coulomb term's (kept when the model has one)
+            fr.coulomb_vel = float(fit.theta["coulomb_vel"])
+        return config.copy(friction=fr)
+
+    def inject(self, plant, rng, magnitude):
+        h = self.SIZES * magnitude * rng.uniform(0.7, 1.3, 7)
+        fr = Friction.from_dict(plant.config.friction.to_dict())
+        if fr.coulomb.any() and fr.coulomb_vel != self.VC:
+            raise ValueError("stribeck_friction is injected with the plant's Coulomb smoothing velocity "
+                             f"{self.VC} rad/s; the plant's Coulomb term has {fr.coulomb_vel} rad/s")
+        fr.stribeck, fr.stribeck_vel, fr.coulomb_vel = fr.stribeck + h, np.full(7, self.VS), self.VC
+        plant.config = plant.config.copy(friction=fr)
+        return {"F_s_Nm": h.tolist(), "v_s_rad_per_s": self.VS, "coulomb_vel_rad_per_s": self.VC}
+
     def public(self, fit):
-        return {"F_s_Nm": np.round(_joint_coef(fit)[:, 0], 6).tolist(), "v_s_rad_per_s": float(fit.theta["v_s"])}
+        vs = fit.theta["v_s"]
+        return {"F_s_Nm": np.round(_joint_coef(fit)[:, 0], 6).tolist(),
+                "v_s_rad_per_s": float(vs) if np.ndim(vs) == 0 else np.round(np.asarray(vs, float), 6).tolist(),
+                "coulomb_vel_rad_per_s": float(fit.theta["coulomb_vel"])}
 
 
 class TorqueOffset(Effect):

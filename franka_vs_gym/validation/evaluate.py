@@ -29,8 +29,9 @@ def sigmoid_friction(fr: Friction, dq: np.ndarray) -> np.ndarray:
 
 
 def friction_torque(fr: Friction, dq: np.ndarray) -> np.ndarray:
-    """Full friction law of ``Friction`` (sigmoid + viscous + Coulomb), vectorised: (N, 7) Nm."""
-    return joint_friction(dq, fr.phi1, fr.phi2, fr.phi3, fr.viscous, fr.coulomb, fr.coulomb_vel)
+    """Full friction law of ``Friction`` (sigmoid + viscous + Coulomb + Stribeck), vectorised: (N, 7) Nm."""
+    return joint_friction(dq, fr.phi1, fr.phi2, fr.phi3, fr.viscous, fr.coulomb, fr.coulomb_vel, fr.stribeck,
+                          fr.stribeck_vel)
 
 
 def delay_channel(config: ModelConfig) -> str:

@@ -16,6 +16,8 @@ Effects and their size at ``magnitude = 1`` (each value scaled per joint by a se
 ``payload``            undeclared 0.8 m kg body, centre of mass 3-10 cm beyond the flange
 ``gravity_tilt``       base tilted by 4 m degrees about a random horizontal axis
 ``delay``              measured torque lagging the motion by 10 m ms
+``stribeck_friction``  Stribeck hump [0.8, 0.8, 0.6, 0.6, 0.25, 0.25, 0.15] Nm, v_s 0.1 rad/s, v_c 0.05 rad/s
+                       (not in the random draw; ``link_inertials`` neither)
 ``none``               nothing hidden
 =====================  ================================================================================
 
@@ -50,6 +52,14 @@ def _effects() -> tuple[str, ...]:
 
 
 EFFECTS = _effects()  # every registered effect that can inject itself into a plant (read from the registry)
+
+
+def injecting_effects() -> tuple[str, ...]:
+    """Every registered effect that can inject itself: EFFECTS (the random draw) plus those kept out of the draw
+    so that existing seeds keep drawing the same effects (``injectable`` False, e.g. ``stribeck_friction``)."""
+    from franka_vs_gym.validation.effects import REGISTRY, Effect
+
+    return tuple(n for n in REGISTRY if type(REGISTRY.get(n)).inject is not Effect.inject)
 
 
 def fourier_trajectory(rng: np.random.Generator, duration: float, f0: float = 0.1, harmonics: int = 5,
@@ -92,7 +102,7 @@ def _draw(effect: str, magnitude: float, rng: np.random.Generator):
         return plant, ans
     for name in effect.split("+"):
         if name not in REGISTRY or type(REGISTRY.get(name)).inject is Effect.inject:
-            raise ValueError(f"unknown effect {name!r}: choose from {', '.join(_effects())}, none or random")
+            raise ValueError(f"unknown effect {name!r}: choose from {', '.join(injecting_effects())}, none or random")
         e = REGISTRY.get(name)
         ans[e.name] = e.inject(plant, rng, magnitude)
     return plant, ans
@@ -163,4 +173,4 @@ def make_hidden_effect_log(effect: str, seed: int = 0, *, duration: float = 20.0
     return log, answer
 
 
-__all__ = ["EFFECTS", "fourier_trajectory", "make_hidden_effect_log"]
+__all__ = ["EFFECTS", "fourier_trajectory", "injecting_effects", "make_hidden_effect_log"]

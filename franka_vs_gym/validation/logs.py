@@ -481,7 +481,7 @@ def _load_file(p: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         raise ValueError(f"{p}: not a valid .npz archive (empty, truncated or another format)")
     if kind == "text" and suffix not in _TEXT_SUFFIXES:
         raise ValueError(f"{p}: unknown log format {p.suffix!r} (readable: CSV or other text tables, NPZ, NPY, JSON, "
-                         "JSON lines, franky state pickles, ROS 2 bags, Gaz et al. 2019 folders)")
+                         "JSON lines, franky state pickles, ROS 1/ROS 2 bags, Gaz et al. 2019 folders)")
     if kind == "npz":
         z = io.load_npz(p, what="log")
         keys = set(z)
@@ -511,9 +511,20 @@ def _load_file(p: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     return rs.read_csv_dump(p, first)
 
 
+def _with_sidecar(meta: dict[str, Any], side: dict[str, Any]) -> dict[str, Any]:
+    """The reader's metadata overridden by the sidecar's; a tool the sidecar declares replaces the one the file
+    declared, and so does its stated source."""
+    out = dict(meta)
+    if "tool" in side:
+        out.pop("tool_source", None)
+    out.update(side)
+    return out
+
+
 def load_log(path: str | os.PathLike, topic: str | None = None) -> MeasurementLog:
-    """Read a log: a CSV file (ours or libfranka's logToCSV), an NPZ file, a ROS 2 bag of JointState messages
-    (``topic`` chooses the topic; see :mod:`franka_vs_gym.validation.readers`), a Gaz et al. 2019 text folder (see
+    """Read a log: a CSV file (ours or libfranka's logToCSV), an NPZ file, a ROS 1 or ROS 2 bag of Franka robot
+    states or JointState messages (``topic`` chooses the topic, else it is chosen and the choice stated; see
+    :mod:`franka_vs_gym.validation.readers`), a Gaz et al. 2019 text folder (see
     the module docstring), or a dump of pylibfranka/franky robot states (JSON, JSON lines, CSV with flattened or
     whole-list fields, NPZ/NPY, a pickle of franky states; see :mod:`franka_vs_gym.validation.robot_states`). The
     format of a file is detected from its content.
@@ -530,14 +541,14 @@ def load_log(path: str | os.PathLike, topic: str | None = None) -> MeasurementLo
         if not p.is_dir():  # a bare .mcap/.db3: a regular file (a FIFO or device would hang the reader)
             io.check_input_file(p, what="ROS bag")
         arrays, meta = read_rosbag(p, topic)
-        meta.update(_read_sidecar(p))
+        meta = _with_sidecar(meta, _read_sidecar(p))
     elif p.is_dir():
         arrays = _load_gaz(p)
         meta: dict[str, Any] = {"tool": None, "source_format": "gaz2019"}
         meta.update(_read_sidecar(p / "log"))
     else:
         arrays, meta = _load_file(p)
-        meta = {**meta, **_read_sidecar(p)}
+        meta = _with_sidecar(meta, _read_sidecar(p))
     kw = _meta_kwargs(meta)
     t = arrays.pop("time")
     return MeasurementLog(t, **arrays, **kw, source=str(p))
