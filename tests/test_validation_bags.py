@@ -254,7 +254,8 @@ def test_ros1_franka_ros_bag(source, tmp_path):
     merged = load_log(bag, topic="/joint_states")
     assert merged.n == len(range(0, len(idx), 2)) and merged.extra["messages_skipped"] == 0
     np.testing.assert_array_equal(merged.q, src.q[idx[::2]])
-    with pytest.raises(ValueError, match="franka_gripper/joint_states.*lacks the seven arm joints|no usable"):
+    with pytest.raises(ValueError, match=r"no usable JointState message on /franka_gripper/joint_states: \d+ "
+                                         r"messages without the seven arm joints; topics: \[/franka_gripper"):
         load_log(bag, topic="/franka_gripper/joint_states")
     # the verdict of franka-vs diagnose on the bag equals the one on the source log
     out = subprocess.run([sys.executable, "-m", "franka_vs_gym.cli", "diagnose", str(bag), "--json", "--quiet"],
@@ -337,7 +338,7 @@ def test_bag_errors_name_the_problem_and_the_topics(tmp_path):
     with pytest.raises(ValueError) as e:
         load_log(bag)
     msg = str(e.value)
-    assert "no usable topic" in msg and "/joint_states: its first 20 messages: has no effort" in msg
+    assert "no usable topic" in msg and "/joint_states: its first 20 messages without efforts (torques)" in msg
     assert "/rosout_text (std_msgs/msg/String)" in msg and "\n" not in msg
     with pytest.raises(ValueError, match="topic /joint_states carries no efforts"):
         load_log(bag, topic="/joint_states")
@@ -352,6 +353,16 @@ def test_bag_errors_name_the_problem_and_the_topics(tmp_path):
     broken.write_bytes(bag.read_bytes()[:200])
     with pytest.raises(ValueError, match="not a readable ROS 1 bag"):
         load_log(broken)
+    cut = tmp_path / "cut.bag"  # a message whose bytes were cut short
+    with Writer(cut) as w:
+        c = w.add_connection("/joint_states", JOINTSTATE1, typestore=ts)
+        for k in range(10):
+            raw = ts.serialize_ros1(JS(H(k, _time(ts, 100 + k * 0.01), ""), ARM, np.zeros(7), np.zeros(7),
+                                       np.zeros(7)), JOINTSTATE1)
+            w.write(c, _ns(100 + k * 0.01), raw[:-20] if k == 5 else raw)
+    with pytest.raises(ValueError, match=r"cut.bag: a message on /joint_states cannot be decoded as "
+                                         r"sensor_msgs/msg/JointState with the definition in the bag: \w"):
+        load_log(cut)
     out = subprocess.run([sys.executable, "-m", "franka_vs_gym.cli", "compare", str(bag), "--quiet"],
                          capture_output=True, text=True, timeout=300)
     assert out.returncode == 2 and "no usable topic" in out.stderr and "Traceback" not in out.stderr
