@@ -24,7 +24,9 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
-LOG_SUFFIXES = (".csv", ".npz")
+# files the workbench reads as logs (load_log detects the format from the content); folders: rosbag2 bags and Gaz et
+# al. 2019 text folders
+LOG_SUFFIXES = (".csv", ".npz", ".npy", ".json", ".jsonl", ".ndjson", ".pkl", ".pickle", ".bag", ".mcap", ".db3")
 
 
 def _ray():
@@ -120,25 +122,41 @@ def evaluate_distributed(policy_factory: Callable[[], Any], env_id: str, n_episo
 
 
 def find_logs(folder: str | os.PathLike) -> list[Path]:
-    """The measurement logs (``*.csv``, ``*.npz``) directly in ``folder``, sorted by name."""
+    """The measurement logs directly in ``folder``, sorted by name: files with a suffix of :data:`LOG_SUFFIXES`
+    (without the JSON metadata of another log: its sidecar ``<log>.json`` / ``<stem>.json`` or a generator's
+    ``<log>.answer.json``), rosbag2 folders and Gaz et al. 2019 text folders."""
+    from franka_vs_gym.validation.logs import GAZ_FILES
+    from franka_vs_gym.validation.readers import is_rosbag
+
     p = Path(folder)
     if not p.is_dir():
         raise FileNotFoundError(f"not a folder: {p}")
-    logs = sorted(f for f in p.iterdir() if f.is_file() and f.suffix in LOG_SUFFIXES)
+    entries = sorted(p.iterdir())
+    files = [f for f in entries if f.is_file() and f.suffix.lower() in LOG_SUFFIXES]
+    data = [f for f in files if f.suffix.lower() != ".json"]
+    meta = {f.name + ".json" for f in data} | {f.stem + ".json" for f in data}
+    logs = [f for f in files if f.suffix.lower() != ".json"
+            or not (f.name in meta or any(f.name.startswith(d.name + ".") for d in data))]
+    logs += [d for d in entries if d.is_dir() and (is_rosbag(d) or (d / GAZ_FILES["time"]).is_file())]
     if not logs:
-        raise FileNotFoundError(f"no measurement logs ({', '.join(LOG_SUFFIXES)}) in {p}")
-    return logs
+        raise FileNotFoundError(f"no measurement logs ({', '.join(LOG_SUFFIXES)}, ROS 2 bag or Gaz et al. folders) "
+                                f"in {p}")
+    return sorted(logs)
 
 
 def _diagnose_one(path: str, model: Any, fit: bool, rigid_body: bool) -> dict[str, Any]:
     """The workbench's diagnose (and fit) of one log, as JSON-ready values (runs in a Ray task)."""
+    from franka_vs_gym.errors import UserError
     from franka_vs_gym.validation import diagnose, fit_effects
 
-    d = diagnose(path, model, rigid_body=rigid_body)
-    out: dict[str, Any] = {"log": path, "diagnosis": d.to_dict()}
-    if fit:
-        f = fit_effects(path, ["auto"], model, rigid_body=rigid_body)
-        out["fit"] = f.to_dict() | {"config": f.after.to_dict()}
+    try:
+        d = diagnose(path, model, rigid_body=rigid_body)
+        out: dict[str, Any] = {"log": path, "diagnosis": d.to_dict()}
+        if fit:
+            f = fit_effects(path, ["auto"], model, rigid_body=rigid_body)
+            out["fit"] = f.to_dict() | {"config": f.after.to_dict()}
+    except (ValueError, FileNotFoundError, UserError) as e:  # a log the workbench refuses: said, the folder goes on
+        return {"log": path, "error": str(e)}
     return out
 
 
@@ -147,7 +165,8 @@ def diagnose_folder(folder: str | os.PathLike, model: Any = None, *, fit: bool =
                     progress: bool = False) -> list[dict[str, Any]]:
     """Diagnose (and with ``fit`` also fit) every log of ``folder`` in parallel on Ray (``use_ray=False``: one after
     the other in this process, the same results); one result per log, in file-name order:
-    ``{"log", "diagnosis": Diagnosis.to_dict(), "fit": FitResult.to_dict() + {"config"}}``."""
+    ``{"log", "diagnosis": Diagnosis.to_dict(), "fit": FitResult.to_dict() + {"config"}}``, or ``{"log", "error"}``
+    (the one-line reason) for a log the workbench refuses, so one bad file does not stop the folder."""
     logs = [str(p) for p in find_logs(folder)]
     if not use_ray:
         out = []
@@ -173,7 +192,8 @@ __all__ = ["diagnose_folder", "evaluate_distributed", "find_logs", "ray_session"
 
 # ---------------------------------------------------------------------- franka-vs diagnose-folder
 def add_arguments(parser: Any) -> None:
-    parser.add_argument("folder", help="folder of measurement logs (*.csv, *.npz)")
+    parser.add_argument("folder", help="folder of measurement logs (CSV, NPZ, robot-state dumps, ROS bags, Gaz et al. "
+                        "folders)")
     parser.add_argument("--model", default=None, help="calibrated model file to start from (default: each log's "
                         "baseline)")
     parser.add_argument("--fit", action="store_true", help="also fit the diagnosed effects (fit --add auto)")
@@ -201,6 +221,9 @@ def main(args: Any) -> int:
                           address=args.ray or None, num_cpus=args.ray_cpus, use_ray=use_ray,
                           progress=not args.quiet)
     for r in res:
+        if "error" in r:
+            print(f"{Path(r['log']).name}: not diagnosed: {r['error']}")
+            continue
         d = r["diagnosis"]
         line = f"{Path(r['log']).name}: verdict {d['verdict']}, RMSE {d['rmse_tau_total']:.3f} Nm"
         if "fit" in r:
@@ -210,4 +233,4 @@ def main(args: Any) -> int:
     if args.json:
         atomic_write(args.json, json.dumps(res, indent=2), force=args.force)
         print(f"wrote {args.json}")
-    return 0
+    return 1 if any("error" in r for r in res) else 0

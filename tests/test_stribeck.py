@@ -76,6 +76,10 @@ def test_model_files_without_stribeck_load_unchanged_and_with_it_round_trip(tmp_
     np.testing.assert_array_equal(back(dq), fr(dq))
     with pytest.raises(ValueError, match="stribeck_vel"):
         Friction(stribeck=[0.1] * 7, stribeck_vel=[0.1] * 6 + [0.0])
+    typo = ModelConfig().to_dict()
+    typo["friction"]["stribek"] = [0.1] * 7  # a misspelt key is not silently dropped
+    with pytest.raises(ValueError, match="unknown keys in friction: \\['stribek'\\]"):
+        ModelConfig.from_dict(typo)
     # a Stribeck height that makes the friction push the joint is refused when a file is read
     bad = ModelConfig(friction=Friction.none()).to_dict()
     bad["friction"] |= {"coulomb": [0.1] * 7, "stribeck": [-0.5] * 7, "stribeck_vel": [0.1] * 7}

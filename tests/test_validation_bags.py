@@ -254,7 +254,8 @@ def test_ros1_franka_ros_bag(source, tmp_path):
     merged = load_log(bag, topic="/joint_states")
     assert merged.n == len(range(0, len(idx), 2)) and merged.extra["messages_skipped"] == 0
     np.testing.assert_array_equal(merged.q, src.q[idx[::2]])
-    with pytest.raises(ValueError, match="franka_gripper/joint_states.*lacks the seven arm joints|no usable"):
+    with pytest.raises(ValueError, match=r"no usable JointState message on /franka_gripper/joint_states: \d+ "
+                                         r"messages without the seven arm joints; topics: \[/franka_gripper"):
         load_log(bag, topic="/franka_gripper/joint_states")
     # the verdict of franka-vs diagnose on the bag equals the one on the source log
     out = subprocess.run([sys.executable, "-m", "franka_vs_gym.cli", "diagnose", str(bag), "--json", "--quiet"],
@@ -337,7 +338,7 @@ def test_bag_errors_name_the_problem_and_the_topics(tmp_path):
     with pytest.raises(ValueError) as e:
         load_log(bag)
     msg = str(e.value)
-    assert "no usable topic" in msg and "/joint_states: its first 20 messages: has no effort" in msg
+    assert "no usable topic" in msg and "/joint_states: its first 20 messages without efforts (torques)" in msg
     assert "/rosout_text (std_msgs/msg/String)" in msg and "\n" not in msg
     with pytest.raises(ValueError, match="topic /joint_states carries no efforts"):
         load_log(bag, topic="/joint_states")
@@ -352,6 +353,84 @@ def test_bag_errors_name_the_problem_and_the_topics(tmp_path):
     broken.write_bytes(bag.read_bytes()[:200])
     with pytest.raises(ValueError, match="not a readable ROS 1 bag"):
         load_log(broken)
+    cut = tmp_path / "cut.bag"  # a message whose bytes were cut short
+    with Writer(cut) as w:
+        c = w.add_connection("/joint_states", JOINTSTATE1, typestore=ts)
+        for k in range(10):
+            raw = ts.serialize_ros1(JS(H(k, _time(ts, 100 + k * 0.01), ""), ARM, np.zeros(7), np.zeros(7),
+                                       np.zeros(7)), JOINTSTATE1)
+            w.write(c, _ns(100 + k * 0.01), raw[:-20] if k == 5 else raw)
+    with pytest.raises(ValueError, match=r"cut.bag: a message on /joint_states cannot be decoded as "
+                                         r"sensor_msgs/msg/JointState with the definition in the bag: \w"):
+        load_log(cut)
     out = subprocess.run([sys.executable, "-m", "franka_vs_gym.cli", "compare", str(bag), "--quiet"],
                          capture_output=True, text=True, timeout=300)
     assert out.returncode == 2 and "no usable topic" in out.stderr and "Traceback" not in out.stderr
+
+
+def _ros2_franka_state() -> str:
+    """franka_ros2's older franka_msgs/msg/FrankaState: franka_ros's fields in lower case, plus ddq_d and the
+    commanded elbow, twists and pose (field list as published)."""
+    arrays = [("6", "cartesian_collision"), ("6", "cartesian_contact"), ("7", "q"), ("7", "q_d"), ("7", "dq"),
+              ("7", "dq_d"), ("7", "ddq_d"), ("7", "theta"), ("7", "dtheta"), ("7", "tau_j"), ("7", "dtau_j"),
+              ("7", "tau_j_d"), ("6", "k_f_ext_hat_k"), ("2", "elbow"), ("2", "elbow_d"), ("2", "elbow_c"),
+              ("2", "delbow_c"), ("2", "ddelbow_c"), ("7", "joint_collision"), ("7", "joint_contact"),
+              ("6", "o_f_ext_hat_k"), ("6", "o_dp_ee_d"), ("6", "o_dp_ee_c"), ("6", "o_ddp_ee_c"),
+              ("7", "tau_ext_hat_filtered")]
+    body = ["std_msgs/Header header"] + [f"float64[{n}] {f}" for n, f in arrays]
+    body += ["float64 m_ee", "float64[3] f_x_cee", "float64[9] i_ee", "float64 m_load", "float64[3] f_x_cload",
+             "float64[9] i_load", "float64 m_total", "float64[3] f_x_ctotal", "float64[9] i_total"]
+    body += [f"float64[16] {f}" for f in ("o_t_ee", "o_t_ee_d", "o_t_ee_c", "f_t_ee", "ee_t_k")]
+    body += ["float64 time", "float64 control_command_success_rate", _MODES, "uint8 robot_mode",
+             "Errors current_errors", "Errors last_motion_errors"]
+    return "\n".join(body) + "\n"
+
+
+def test_franka_ros2_frankastate_declared_load_two_robots_and_sidecar(source, tmp_path):
+    """franka_ros2's older FrankaState (lower-case fields) with a load declared on top of the Hand, changed half
+    way; two arms in one bag need --topic; a sidecar's tool overrides the bag's, and says so."""
+    from rosbags.rosbag2 import Writer
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    src, _, _ = source
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    typs = get_types_from_msg("\n".join(f"bool {e}" for e in _ERRORS_ROS2), "franka_msgs/msg/Errors")
+    typs.update(get_types_from_msg(_ros2_franka_state(), "franka_msgs/msg/FrankaState"))
+    ts.register(typs)
+    FS, H, Err = (ts.types[k] for k in ("franka_msgs/msg/FrankaState", "std_msgs/msg/Header",
+                                         "franka_msgs/msg/Errors"))
+    no_err = Err(*([False] * len(_ERRORS_ROS2)))
+    z = np.zeros
+    # the Hand plus a 0.4 kg load 0.1 m along the flange z axis (libfranka: end effector + load in m_total)
+    load_com = np.array([0.0, 0.0, 0.1])
+    m_tot = HAND.mass + 0.4
+    c_tot = (HAND.mass * HAND.com + 0.4 * load_com) / m_tot
+    i_tot = np.diag([0.003, 0.004, 0.002]) + np.array([[0, 1e-4, 0], [1e-4, 0, 0], [0, 0, 0]])
+    idx = np.arange(0, 600, 2)
+    bag = tmp_path / "two_arms"
+    with Writer(bag, version=9) as w:
+        conns = [w.add_connection(f"/{arm}/franka_robot_state_broadcaster/robot_state", FS.__msgtype__,
+                                  typestore=ts) for arm in ("left", "right")]
+        for k, i in enumerate(idx):
+            m = m_tot if k < len(idx) // 2 else HAND.mass  # the load is put down half way
+            msg = FS(H(_time(ts, T0 + src.time[i]), ""), z(6), z(6), src.q[i], src.q_d[i], src.dq[i], src.dq_d[i],
+                     src.ddq_d[i], src.q[i], src.dq[i], src.tau_J[i], z(7), src.tau_J_d[i], z(6), z(2), z(2), z(2),
+                     z(2), z(2), z(7), z(7), z(6), z(6), z(6), z(6), z(7), HAND.mass, HAND.com,
+                     HAND.inertia.ravel(order="F"), m - HAND.mass, load_com, z(9), m, c_tot,
+                     i_tot.ravel(order="F"), *(np.eye(4).ravel() for _ in range(5)), ROBOT_T0 + src.time[i], 1.0, 2,
+                     no_err, no_err)
+            for c in conns:
+                w.write(c, _ns(T0 + src.time[i] + 1e-3), ts.serialize_cdr(msg, FS.__msgtype__))
+    with pytest.raises(ValueError, match=r"several Franka state topics \['/left/.*'/right/.*--topic"):
+        load_log(bag)
+    log = load_log(bag, topic="/right/franka_robot_state_broadcaster/robot_state")
+    assert log.extra["topic_reason"] == "chosen with --topic"
+    _check_read_back(log, src, idx, ("q", "dq", "tau_J", "tau_J_d", "q_d", "dq_d", "ddq_d"))
+    assert log.tool["mass"] == pytest.approx(m_tot, abs=1e-12)
+    np.testing.assert_allclose(log.tool["com"], c_tot, atol=1e-12)
+    np.testing.assert_allclose(log.tool["inertia"], i_tot, atol=1e-12)
+    assert "declared load changed during the bag (m_total 1.13 -> 0.73 kg at message 150)" in log.extra["read_as"]
+    side = bag.with_name(bag.name + ".json")
+    side.write_text(json.dumps({"tool": None}))
+    log = load_log(bag, topic="/left/franka_robot_state_broadcaster/robot_state")
+    assert log.tool is None and log.tool_declared and "tool_source" not in log.extra

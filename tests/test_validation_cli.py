@@ -128,3 +128,35 @@ def test_gaz_real_data_friction_missing_and_fit_reaches_published():
     assert np.all(f.rmse_after <= gaz_model + 1e-3), (f.rmse_after, gaz_model)
     assert np.all(f.rmse_after[:6] <= GAZ_PUBLISHED_FULL[:6]), f.rmse_after
     assert np.all(f.rmse_after >= 0.9 * f.noise_floor)  # never below the measurement noise
+
+
+def test_folder_of_logs_finds_every_format_and_keeps_going_past_a_bad_log(tmp_path):
+    """diagnose-folder's discovery and failure handling (serial path, no Ray needed): logs in any format the
+    workbench reads are found, sidecars and generator answers are not taken for logs, and a refused log is reported
+    with its one-line reason while the others are diagnosed as alone."""
+    from conftest import SHARED_DATA
+
+    from franka_vs_gym import scale
+    from franka_vs_gym.validation import diagnose
+
+    log, _ = make_hidden_effect_log("gravity_tilt", 41, duration=6.0, magnitude=1.5)
+    save_log(log, tmp_path / "a_tilt.csv")  # + a_tilt.csv.json sidecar
+    (tmp_path / "a_tilt.csv.answer.json").write_text('{"effect": "gravity_tilt"}')
+    (tmp_path / "b_broken.npz").write_bytes(b"not an archive")
+    (tmp_path / "notes.md").write_text("not a log")
+    (tmp_path / "bag").mkdir()
+    (tmp_path / "bag" / "metadata.yaml").write_text("rosbag2_bagfile_information: {}\n")
+    gaz = SHARED_DATA / "gaz2019_traj1"
+    if gaz.is_dir():
+        (tmp_path / "gaz").symlink_to(gaz, target_is_directory=True)
+    found = [p.name for p in scale.find_logs(tmp_path)]
+    assert found == ["a_tilt.csv", "b_broken.npz", "bag"] + (["gaz"] if gaz.is_dir() else [])
+    (tmp_path / "bag" / "metadata.yaml").unlink()
+    (tmp_path / "bag").rmdir()
+    if gaz.is_dir():
+        (tmp_path / "gaz").unlink()
+    res = scale.diagnose_folder(tmp_path, use_ray=False)
+    assert [Path(r["log"]).name for r in res] == ["a_tilt.csv", "b_broken.npz"]
+    assert res[0]["diagnosis"]["verdict"] == "gravity_tilt"
+    assert res[0]["diagnosis"] == json.loads(json.dumps(diagnose(tmp_path / "a_tilt.csv").to_dict()))
+    assert "not a valid .npz" in res[1]["error"] and "\n" not in res[1]["error"]

@@ -237,8 +237,13 @@ class Friction:
         if d is None:
             return cls.none()
         if not isinstance(d, dict):
-            raise ValueError(f"friction must be an object (phi1, phi2, phi3, viscous, coulomb) or null, got "
+            raise ValueError(f"friction must be an object (phi1, phi2, phi3, viscous, coulomb, coulomb_vel, stribeck, "
+                             f"stribeck_vel) or null, got "
                              f"{type(d).__name__}")
+        unknown = set(d) - {"phi1", "phi2", "phi3", "viscous", "coulomb", "coulomb_vel", "stribeck", "stribeck_vel"}
+        if unknown:
+            raise ValueError(f"unknown keys in friction: {sorted(unknown)} (known: phi1, phi2, phi3, viscous, coulomb, "
+                             "coulomb_vel, stribeck, stribeck_vel)")
         base = cls.of(robot)
         kw = {k: d.get(k, getattr(base, k)) for k in ("phi1", "phi2", "phi3")}
         kw.update({k: d.get(k, np.zeros(7)) for k in ("viscous", "coulomb", "stribeck")})

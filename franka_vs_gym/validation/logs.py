@@ -521,7 +521,7 @@ def _with_sidecar(meta: dict[str, Any], side: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def load_log(path: str | os.PathLike, topic: str | None = None) -> MeasurementLog:
+def load_log(path: str | os.PathLike, topic: str | None = None, progress: bool = False) -> MeasurementLog:
     """Read a log: a CSV file (ours or libfranka's logToCSV), an NPZ file, a ROS 1 or ROS 2 bag of Franka robot
     states or JointState messages (``topic`` chooses the topic, else it is chosen and the choice stated; see
     :mod:`franka_vs_gym.validation.readers`), a Gaz et al. 2019 text folder (see
@@ -529,7 +529,8 @@ def load_log(path: str | os.PathLike, topic: str | None = None) -> MeasurementLo
     whole-list fields, NPZ/NPY, a pickle of franky states; see :mod:`franka_vs_gym.validation.robot_states`). The
     format of a file is detected from its content.
 
-    The sidecar ``<log>.json`` supplies tool, gravity and controller. Raises FileNotFoundError when the path does
+    The sidecar ``<log>.json`` supplies tool, gravity and controller. ``progress`` shows a progress bar on stderr
+    while a ROS bag is decoded. Raises FileNotFoundError when the path does
     not exist and ValueError when the content is malformed. The file is only read.
     """
     from franka_vs_gym.validation.readers import is_rosbag, read_rosbag
@@ -540,7 +541,7 @@ def load_log(path: str | os.PathLike, topic: str | None = None) -> MeasurementLo
     if is_rosbag(p):
         if not p.is_dir():  # a bare .mcap/.db3: a regular file (a FIFO or device would hang the reader)
             io.check_input_file(p, what="ROS bag")
-        arrays, meta = read_rosbag(p, topic)
+        arrays, meta = read_rosbag(p, topic, progress=progress)
         meta = _with_sidecar(meta, _read_sidecar(p))
     elif p.is_dir():
         arrays = _load_gaz(p)

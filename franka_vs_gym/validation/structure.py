@@ -8,7 +8,9 @@ group             features
 ================  ==========================================================================================
 ``constant``      an intercept (an offset left over)
 ``position``      piecewise-constant in 16 quantile bins of q_j (any smooth or stepped function of the pose)
-``periodic_q``    sin/cos(k q_j), the best k of 1..60 cycles per rad (cogging, gear ripple, encoder errors)
+``periodic_q``    sin/cos(k q_j), the best k of 1..``K_MAX`` cycles per turn (cogging, encoder errors, and the
+                  torque ripple of a strain-wave gear at twice the wave generator's turns: 2 x the gear ratio,
+                  up to about 320 per link turn for ratios up to 160)
 ``velocity``      16 quantile bins of dq_j (friction-like laws of any shape: dead zones, Stribeck, asymmetry)
 ``acceleration``  16 quantile bins of ddq_j (inertia-like)
 ``load``          16 quantile bins of the model's torque on the joint (load-dependent effects, saturation)
@@ -60,7 +62,7 @@ SCORE_MIN = 10.0
 PRACTICAL = 0.2
 N_BINS = 16
 T_DEGREE = 4
-K_MAX = 60
+K_MAX = 320  # cycles per turn scanned by periodic_q (strain-wave ripple at 2 x gear ratio)
 BLOCK_S = 1.0  # s, length of the interleaved cross-validation blocks
 SLOW_Z = 4.0  # standard deviations of the slow-power test (about 1e-4 per joint under white noise)
 SLOW_PRACTICAL = 0.5  # slow residual RMS, in noise floors, below which nothing is reported
@@ -182,7 +184,7 @@ def test_structure(ctx: Context, residual: np.ndarray, noise: np.ndarray, folds:
     # time, which the time-dependent groups need
     fold = (np.floor((t - t[0]) / BLOCK_S).astype(int)) % F
     rate = data.settings.rate / step
-    ks_q = np.arange(1, K_MAX + 1) / (2 * math.pi)  # cycles per rad: k cycles per turn ... up to 60 per turn
+    ks_q = np.arange(1, K_MAX + 1) / (2 * math.pi)  # cycles per rad: k cycles per turn ... up to K_MAX per turn
     n_tests = 7 * (len(GROUPS) + len(ks_q) + 3)
     threshold = SCORE_MIN + math.log(n_tests)
     rm = np.sqrt(np.mean(residual ** 2, axis=0))
