@@ -488,3 +488,18 @@ def test_declared_payload_is_compensated_like_set_load():
     assert u.world.model.body_mass[hand] == pytest.approx(u.config.flange_body().mass + 1.5)
     env.close()
     bare.close()
+
+
+def test_final_info_shares_nothing_with_the_reset_info():
+    """A reflex ends the episode on its first step (full torque): the final info repeats the episode's drawn
+    dynamics, as fresh objects (Gymnasium's own sharing check), so a user who keeps or edits one info does not
+    change the other."""
+    from gymnasium.utils.passive_env_checker import data_shares_objects
+
+    env = gym.make("FrankaTorqueTracking-v0", link_mass_range=(0.9, 1.1)).unwrapped
+    _, info0 = env.reset(seed=3)
+    _, _, term, _, info1 = env.step(env.action_space.high.copy())
+    assert term and info1["failure"] == "joint_velocity_violation"
+    np.testing.assert_array_equal(info0["link_mass_scale"], info1["link_mass_scale"])
+    assert not data_shares_objects(info0, info1)
+    assert not data_shares_objects(env.reset(seed=3)[1], env.reset(seed=3)[1])

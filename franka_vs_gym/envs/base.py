@@ -398,7 +398,7 @@ class FrankaEnv(gym.Env):
         self._after_reset()
         obs = self._get_obs()
         self._last_obs = obs
-        info = {"time": 0.0, "is_success": False, "failure": None, **self._episode_params, **self._reset_info()}
+        info = {"time": 0.0, "is_success": False, "failure": None, **self._episode_info(), **self._reset_info()}
         return obs, info
 
     def _reset_info(self) -> dict[str, Any]:
@@ -429,18 +429,23 @@ class FrankaEnv(gym.Env):
             self._reflex = e
         self._action = a
 
+    def _episode_info(self) -> dict[str, Any]:
+        """This episode's drawn dynamics for an info dict: fresh arrays each time, so the reset info and a final
+        step's info never share an object a user might keep or modify."""
+        return {k: v.copy() if isinstance(v, np.ndarray) else v for k, v in self._episode_params.items()}
+
     def _step_reflex(self, e: ControlException):
         """A reflex stopped the robot (held by its brakes): the episode ends with the reason in info."""
         self._steps += 1
         obs = self._get_obs()
         self._last_obs = obs
         info = {"time": self.episode_time, "is_success": False, "failure": ",".join(e.reasons), "reflex": e.detail,
-                **self._episode_params}
+                **self._episode_info()}
         return obs, -self._failure_cost(), True, False, info
 
     def _step_diverged(self, e: SimulationDiverged):
         self._diverged = str(e)
-        info = {"time": self.episode_time, "is_success": False, "failure": f"diverged: {e}", **self._episode_params}
+        info = {"time": self.episode_time, "is_success": False, "failure": f"diverged: {e}", **self._episode_info()}
         obs = {k: v.copy() for k, v in self._last_obs.items()}  # the last valid state, never NaN
         return obs, -self._failure_cost(), True, False, info
 
