@@ -49,6 +49,7 @@ from franka_vs_gym.sim.robot import VELOCITY_COMMAND_SCALE
 from franka_vs_gym.vision.tags import project_tag
 
 _STATE = mujoco.mjtState.mjSTATE_INTEGRATION
+_all, _any = np.logical_and.reduce, np.logical_or.reduce  # (the reductions called directly: every step)
 
 
 class BatchedTask:
@@ -75,10 +76,13 @@ class BatchedTask:
         self.ud = lay.reflex_record  # the robot's reflex record in userdata
         self.q_min, self.q_max, self.dq_max_reflex = lay.q_min, lay.q_max, lay.dq_max
         self.q_lo_fail, self.q_hi_fail = e0._q_lo_fail, e0._q_hi_fail
+        # both position checks of ``anomalies`` in one: q < q_min or q < q_lo_fail is q < max(q_min, q_lo_fail)
+        self.q_lo_any, self.q_hi_any = np.maximum(self.q_min, self.q_lo_fail), np.minimum(self.q_max, self.q_hi_fail)
         self.act_lo, self.act_hi = e0._act_lo_tol, e0._act_hi_tol
         self.act_shape = e0._act_shape
         self.torque = e0.action_type == "torque"
         self.tau_max = sim.tau_max
+        self.neg_tau_max = -self.tau_max
         self.dq_lim = sim.dq_max * VELOCITY_COMMAND_SCALE
         self.friction = sim.model.friction  # the robot's model's law (the same configuration for every robot)
         self.friction_on = np.zeros(n, dtype=np.bool_)
@@ -92,6 +96,7 @@ class BatchedTask:
         self.pack_items, self.pack_low, self.pack_high = pack.items, pack.low, pack.high
         self.pack_size = pack.low.size
         self.last_obs = np.zeros((n, self.pack_size), dtype=np.float32)  # the last packed observation of each
+        self._v = np.empty((n, self.pack_size))  # the packing work matrix when all robots step here
         # observation noise: drawn robot by robot from each environment's own generator, in a single env's order
         self.joint_noise, self.velocity_noise = e0.joint_noise, e0.velocity_noise
         self.rng: list[Any] = [None] * n
@@ -132,14 +137,20 @@ class BatchedTask:
         env.sim.commands_from_controls()
 
     # ------------------------------------------------------------------ the step
+    def rows(self, ids: np.ndarray) -> slice | np.ndarray:
+        """The index of the rows ids (sorted, unique) into the (N, ...) arrays: a slice (views, no copies) when
+        they are all N robots (the common case), else ids."""
+        return slice(None) if len(ids) == self.n else ids
+
     def check_actions(self, ids: np.ndarray, actions: np.ndarray) -> np.ndarray:
         """The actions (len(ids), k) as float64, checked as ``FrankaEnv._check_action`` checks them: inside the
         space (within its tolerance) in one comparison; other rows go through the robot's own check (which clips
         or raises its error)."""
-        a = np.asarray(actions[ids], dtype=np.float64) if actions.shape[1:] == self.act_shape else None
-        if a is not None:
-            ok = ((a >= self.act_lo) & (a <= self.act_hi)).all(axis=1)
-            if ok.all():
+        if actions.shape[1:] == self.act_shape:
+            a = np.array(actions[self.rows(ids)], dtype=np.float64)  # (a copy: the caller's array stays theirs)
+            inside = a >= self.act_lo
+            inside &= a <= self.act_hi
+            if _all(inside, axis=None):
                 return a
         rows = [self.envs[i]._check_action(actions[i]) for i in ids]
         return np.array(rows, dtype=np.float64).reshape(len(ids), *self.act_shape)
@@ -148,10 +159,15 @@ class BatchedTask:
         """``FrankaEnv._apply_action`` for the rows ids: the torque (saturated at tau_max) or the joint velocity
         (scaled down uniformly within the servo's limit, with the model's friction as feed-forward) into the
         batch's controls."""
-        self.action[ids] = a
+        r = self.rows(ids)
+        self.action[r] = a
         if self.torque:
+            if isinstance(r, slice):  # straight into the batch's controls
+                tau = np.minimum(a, self.tau_max, out=self.ctrl[:, self.motor])
+                np.maximum(tau, self.neg_tau_max, out=tau)
+                return
             tau = np.minimum(a, self.tau_max)
-            np.maximum(tau, -self.tau_max, out=tau)
+            np.maximum(tau, self.neg_tau_max, out=tau)
             self.ctrl[ids, self.motor] = tau
             return
         ratio = (np.abs(a) / self.dq_lim).max(axis=1)
@@ -168,18 +184,24 @@ class BatchedTask:
         """After the physics: rows whose robot must re-run the step alone (a reflex recorded or crossed, a joint at
         its hard stop, a contact); for the others, what the reflexes' after-call check records (the state checked
         at this time)."""
-        q, dq = self.qpos[ids, self.qs], self.qvel[ids, self.vs]
+        r = self.rows(ids)
+        q, dq = self.qpos[r, self.qs], self.qvel[r, self.vs]
         ud = self.userdata
-        bad = ud[ids, self.ud] != ARMED
-        bad |= ((q < self.q_min) | (q > self.q_max) | (np.abs(dq) > self.dq_max_reflex)).any(axis=1)
-        bad |= ((q < self.q_lo_fail) | (q > self.q_hi_fail)).any(axis=1)
+        out = (q < self.q_lo_any) | (q > self.q_hi_any) | (np.abs(dq) > self.dq_max_reflex)
+        bad = _any(out, axis=1)
+        bad |= ud[r, self.ud] != ARMED
+        if isinstance(r, slice) and not _any(bad):
+            ud[:, self.ud + 1] = self.time
+            return bad
         ok = ids[~bad]
         ud[ok, self.ud + 1] = self.time[ok]
         return bad
 
     def joint_state(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The joint positions and velocities (len(ids), 7) of the rows ids."""
-        return self.qpos[ids, self.qs], self.qvel[ids, self.vs]
+        """The joint positions and velocities (len(ids), 7) of the rows ids (views of the batch's state when they
+        are all robots: read them before the next physics step)."""
+        r = self.rows(ids)
+        return self.qpos[r, self.qs], self.qvel[r, self.vs]
 
     def observed_joint_state(self, ids: np.ndarray, q: np.ndarray, dq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``FrankaEnv._noisy_joint_state``: q and dq with the observation noise of each robot's generator."""
@@ -196,9 +218,14 @@ class BatchedTask:
 
     def pack(self, ids: np.ndarray, raw: dict[str, np.ndarray], out: np.ndarray) -> None:
         """``ObservationPacker`` for the rows ids: raw[key] (len(ids), ...) into out (N, size) float32."""
-        v = np.empty((len(ids), self.pack_size))
+        m = len(ids)
+        v = self._v if m == self.n else np.empty((m, self.pack_size))
         for k, sl, _ in self.pack_items:
-            v[:, sl] = raw[k].reshape(len(ids), sl.stop - sl.start)
+            v[:, sl] = raw[k].reshape(m, sl.stop - sl.start)
+        if m == self.n:
+            clip_observation(v, self.pack_low, self.pack_high, out=out)
+            np.copyto(self.last_obs, out)
+            return
         packed = clip_observation(v, self.pack_low, self.pack_high)
         out[ids] = packed
         self.last_obs[ids] = packed
@@ -206,15 +233,21 @@ class BatchedTask:
     def finish(self, ids: np.ndarray, reward: np.ndarray, success: np.ndarray, failure: np.ndarray
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, np.ndarray]]:
         """``FrankaEnv._step_end`` after the task's evaluation: (reward, terminated, truncated, info columns) of the
-        rows ids; ``failure`` (len(ids),) object (None or the reason), ``success`` bool."""
-        steps = self.steps[ids]
-        failed = failure != None  # noqa: E711  (elementwise on an object array)
-        terminated = (success & self.terminate_on_success) | failed
-        success = success & ~failed
-        if failed.any():
-            reward = reward - np.where(failed, self.failure_penalty * (self.max_steps - steps + 1), 0.0)
+        rows ids; ``failure`` (len(ids),) object (None or the reason), ``success`` bool, or ``failure=None``: no
+        row failed (its info column is then all None)."""
+        r = self.rows(ids)
+        steps = self.steps[r]
+        if failure is None:
+            failure = np.full(len(ids), None, dtype=object)
+            terminated = success & self.terminate_on_success
+        else:
+            failed = failure != None  # noqa: E711  (elementwise on an object array)
+            terminated = (success & self.terminate_on_success) | failed
+            success = success & ~failed
+            if failed.any():
+                reward = reward - np.where(failed, self.failure_penalty * (self.max_steps - steps + 1), 0.0)
         truncated = ~terminated & (steps >= self.max_steps)
-        info = {"time": self.time[ids] - self.t0[ids], "is_success": success, "failure": failure}
+        info = {"time": self.time[r] - self.t0[r], "is_success": success, "failure": failure}
         return reward, terminated, truncated, info
 
 
@@ -251,21 +284,21 @@ class TorqueTrackingBatch(BatchedTask):
         env._desired_now = env.desired(t)
 
     def step_end(self, ids: np.ndarray, out: np.ndarray):
-        self.steps[ids] += 1
+        r = self.rows(ids)
+        self.steps[r] += 1
         q, dq = self.joint_state(ids)
         qo, dqo = self.observed_joint_state(ids, q, dq)
-        t = (self.time[ids] - self.t0[ids])[:, None]
-        qd, dqd, ddqd = tracking_desired(self.q0[ids], self.A[ids], self.w[ids], t)
+        t = (self.time[r] - self.t0[r])[:, None]
+        qd, dqd, ddqd = tracking_desired(self.q0[r], self.A[r], self.w[r], t)
         self.pack(ids, {"q": qo, "dq": dqo, "q_desired": qd, "dq_desired": dqd, "ddq_desired": ddqd, "time": t}, out)
         err = row_norm(q - qd)
-        sq = self.sq_err[ids] + err * err
-        self.sq_err[ids] = sq
-        steps = self.steps[ids]
+        sq = self.sq_err[r] + err * err
+        self.sq_err[r] = sq
+        steps = self.steps[r]
         rms = np.sqrt(sq / np.maximum(steps, 1))
         success = (steps >= self.max_steps) & (rms < self.success_threshold)
         reward = tracking_reward(err, self.error_scale)
-        failure = np.full(len(ids), None, dtype=object)
-        reward, term, trunc, info = self.finish(ids, reward, success, failure)
+        reward, term, trunc, info = self.finish(ids, reward, success, None)  # (no failure: those re-run alone)
         info["error"], info["rms_error"] = err, rms
         return reward, term, trunc, info
 

@@ -26,15 +26,20 @@ def row_sumsq(x: np.ndarray) -> np.ndarray:
     return _sum(x * x, axis=-1)
 
 
-def clip_observation(v: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
+def clip_observation(v: np.ndarray, low: np.ndarray, high: np.ndarray, out: np.ndarray | None = None
+                     ) -> np.ndarray:
     """The packed observation (..., size) float64, clipped in place to [low, high] (size,), NaN replaced by 0 (a
-    NaN never reaches an agent), as float32 (a new array)."""
+    NaN never reaches an agent), as float32: a new array, or written into ``out`` (float32, v's shape) and
+    returned (the same rounding either way)."""
     np.maximum(v, low, out=v)
     np.minimum(v, high, out=v)
     total = v.sum()
     if total != total:
         v[np.isnan(v)] = 0.0
-    return v.astype(np.float32)
+    if out is None:
+        return v.astype(np.float32)
+    np.copyto(out, v, casting="same_kind")
+    return out
 
 
 def tracking_desired(q0: np.ndarray, A: np.ndarray, w: np.ndarray, t: np.ndarray | float

@@ -41,8 +41,11 @@ from franka_vs_gym.sim.reflexes import ControlException
 from franka_vs_gym.sim.rendering import SharedRenderers
 
 _STATE = mujoco.mjtState.mjSTATE_INTEGRATION
+_sum, _all, _any = np.add.reduce, np.logical_and.reduce, np.logical_or.reduce  # (called directly: every step)
 _BAD = [int(mujoco.mjtWarning.mjWARN_BADQPOS), int(mujoco.mjtWarning.mjWARN_BADQVEL),
         int(mujoco.mjtWarning.mjWARN_BADQACC)]
+# the same warnings as a slice (a view instead of a fancy-index copy) where MuJoCo numbers them consecutively
+_BAD_ROWS = slice(_BAD[0], _BAD[-1] + 1) if _BAD == list(range(_BAD[0], _BAD[-1] + 1)) else _BAD
 
 
 def make_vector_env(env_id: str, num_envs: int = 1, **kwargs: Any) -> FrankaVectorEnv:
@@ -152,6 +155,10 @@ class FrankaVectorEnv(VectorEnv):
         self._task = batched_task(self._envs, self.batch) if task_logic and not self._needs_scene and \
             self._flat is not None else None
         self._in_batch = np.zeros(self.num_envs, dtype=np.bool_)  # robot i's state lives in the batch (self._task)
+        self._all = np.arange(self.num_envs)  # the robots stepping when none resets (the common case)
+        self._all.setflags(write=False)
+        self._ones = np.ones(self.num_envs, dtype=np.bool_)  # (an info mask template)
+        self._before = np.empty_like(self._state)  # the batch's state before a step of all robots
 
     @property
     def envs(self) -> list[Any]:
@@ -202,16 +209,16 @@ class FrankaVectorEnv(VectorEnv):
         if actions.shape[:1] != (n,):
             raise ValueError(f"actions must have shape ({n}, ...), got {actions.shape}")
         results: list[Any] = [None] * n
-        reset_any = False
-        for i in np.flatnonzero(self._autoreset):  # NEXT_STEP: this step resets the environment, ignoring its action
-            i = int(i)
-            self._to_env(i)
-            o, info = self._envs[i].reset()
-            results[i] = (o, 0.0, False, False, info)
-            reset_any = True
+        reset_any = bool(_any(self._autoreset))
         if reset_any:
+            # NEXT_STEP: this step resets these environments, ignoring their actions
+            for i in np.flatnonzero(self._autoreset):
+                i = int(i)
+                self._to_env(i)
+                o, info = self._envs[i].reset()
+                results[i] = (o, 0.0, False, False, info)
             self.batch.set_models(self._models)
-        stepping = np.flatnonzero(~self._autoreset)
+        stepping = np.flatnonzero(~self._autoreset) if reset_any else self._all
         fast = self._fast_rows(stepping) if self._task is not None and len(stepping) else stepping[:0]
         if len(fast) < len(stepping):
             alone = np.setdiff1d(stepping, fast, assume_unique=True)
@@ -220,7 +227,7 @@ class FrankaVectorEnv(VectorEnv):
         if cols is not None:
             ids, reward, term, trunc, cinfo = cols
             self._rewards[ids], self._terminated[ids], self._truncated[ids] = reward, term, trunc
-        per_robot = [i for i in range(n) if results[i] is not None]
+        per_robot = [] if results.count(None) == n else [i for i in range(n) if results[i] is not None]
         obs_list, items = [], []
         if self.autoreset_mode == AutoresetMode.SAME_STEP and cols is not None:
             ended = ids[term | trunc]
@@ -257,12 +264,16 @@ class FrankaVectorEnv(VectorEnv):
         """The robots of ``ids`` that step in the batch this step: those already there, and those eligible again
         (loaded into it); a robot whose next period is not one physics segment goes back to its environment."""
         task, inb = self._task, self._in_batch
-        for i in ids[~inb[ids]]:
+        if len(ids) == self.num_envs and _all(inb):  # all robots, all in the batch already
+            ids_out = ids[:0]
+        else:
+            ids_out = ids[~inb[ids]]
+        for i in ids_out:
             i = int(i)
             if task.eligible(self._envs[i]):
                 task.load(i)
                 inb[i] = True
-        fast = ids[inb[ids]]
+        fast = ids if not len(ids_out) or _all(inb[ids]) else ids[inb[ids]]
         if hasattr(task, "single_segment") and len(fast):
             single, capture = task.single_segment(fast)
             if not single.all():
@@ -279,14 +290,23 @@ class FrankaVectorEnv(VectorEnv):
         task = self._task
         a = task.check_actions(ids, actions)
         capture = task.single_segment(ids)[1] if hasattr(task, "single_segment") else None
-        before = task.state[ids]  # (a copy: fancy indexing)
+        every = len(ids) == self.num_envs  # (ids sorted and unique: all robots, row j is robot j)
+        if every:
+            before = self._before
+            np.copyto(before, task.state)
+            rows = slice(None)
+        else:
+            before = task.state[ids]  # (a copy: fancy indexing)
+            rows = ids
         task.command(ids, a)
-        warn0 = self._warning[ids][:, _BAD, 1].sum(axis=1)
-        self.batch.step(None if len(ids) == self.num_envs else ids.astype(np.int32), nstep=task.n_substeps)
-        bad = self._warning[ids][:, _BAD, 1].sum(axis=1) > warn0
-        bad |= self._ncon[ids] > 0
+        warn = self._warning[rows]
+        warn0 = _sum(warn[:, _BAD_ROWS, 1], axis=1)
+        self.batch.step(None if every else ids.astype(np.int32), nstep=task.n_substeps)
+        bad = _sum(warn[:, _BAD_ROWS, 1], axis=1) > warn0 if every else \
+            _sum(self._warning[rows][:, _BAD_ROWS, 1], axis=1) > warn0
+        bad |= self._ncon[rows] > 0
         bad |= task.anomalies(ids)
-        if bad.any():
+        if _any(bad):
             for j in np.flatnonzero(bad):
                 i = int(ids[j])
                 task.state[i] = before[j]
@@ -327,12 +347,20 @@ class FrankaVectorEnv(VectorEnv):
         ``info["_" + key]``. ``items`` are (robot, info) of robots stepped alone, in robot order; ``columns`` the
         info of the robots ``col_ids`` stepped in the batch, one array per key."""
         n = self.num_envs
+        if not items and columns is not None and len(col_ids) == n:
+            # every robot stepped in the batch (col_ids is 0..N-1): the columns (fresh arrays of the step) are the
+            # info arrays VectorEnv would build, all masks set
+            out: dict[str, Any] = {}
+            for k, col in columns.items():
+                out[k] = col
+                out["_" + k] = self._ones.copy()
+            return out
         by_key: dict[str, list[tuple[int, Any]]] = {}
         for i, info in items:
             for k, v in info.items():
                 by_key.setdefault(k, []).append((i, v))
         columns = columns if columns is not None and len(col_ids) else {}
-        out: dict[str, Any] = {}
+        out = {}
         for k in dict.fromkeys([*columns, *by_key]):
             pairs = by_key.get(k, [])
             col = columns.get(k)
