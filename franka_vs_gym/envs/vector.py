@@ -495,9 +495,11 @@ class FrankaVectorEnv(VectorEnv):
             setattr(env, name, v)
 
     def close_extras(self, **kwargs: Any) -> None:
-        for env in self._envs:
+        # also called from VectorEnv.__del__ on an instance whose __init__ refused its arguments
+        for env in getattr(self, "_envs", ()):
             env.close()
-        self._renderers.close()
+        if hasattr(self, "_renderers"):
+            self._renderers.close()
 
 
 __all__ = ["FrankaVectorEnv", "make_vector_env"]
