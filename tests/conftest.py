@@ -7,6 +7,30 @@ import pytest
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+CLIENTS = Path(__file__).parent / "fci_clients"  # scripts of the real FCI clients (pylibfranka, franky)
+
+
+def loopback_host(net: int) -> str:
+    """A loopback address of its own for this test process (the FCI ports are fixed): 127.<net>.x.y from the pid,
+    so parallel workers and parallel test runs on one machine do not collide (each test file uses its own nets)."""
+    pid = os.getpid()
+    return f"127.{net}.{(pid // 250) % 250 + 1}.{pid % 250 + 1}"
+
+
+def record_with_client(script: str, out: Path, net: int) -> dict:
+    """Run the client ``CLIENTS/script HOST OUT`` in its own process against a lock-step FCI server on
+    :func:`loopback_host` ``(net)``; returns the JSON summary the script prints last."""
+    import json
+    import subprocess
+    import sys
+
+    from franka_vs_gym.fci import FCIServer
+
+    with FCIServer(loopback_host(net), lockstep=True, camera=False, verbose=False) as srv:
+        r = subprocess.run([sys.executable, str(CLIENTS / script), srv.host, str(out)], capture_output=True,
+                           text=True, timeout=180)
+    assert r.returncode == 0, r.stderr[-3000:]
+    return json.loads(r.stdout.strip().splitlines()[-1])
 
 
 @pytest.fixture

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import importlib.util
 import json
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -17,18 +16,14 @@ import pytest
 if importlib.util.find_spec("franky") is None:
     pytest.skip("franky is not installed (pip install -e '.[fci]')", allow_module_level=True)
 
+from conftest import CLIENTS, loopback_host  # noqa: E402
+
 from franka_vs_gym.fci import FCIServer  # noqa: E402
 
-CLIENTS = Path(__file__).parent / "fci_clients"
 # a 3 cm block between the open fingers of the FER in its neutral pose
 BLOCK = '<body name="block" pos="0.3069 0 0.49"><geom type="box" size="0.01 0.015 0.01" rgba="0.8 0.2 0.2 1"/></body>'
 
 
-def _host(net: int = 23) -> str:
-    """A loopback address of its own for this test process (the FCI ports are fixed): 127.<net>.x.y from the pid,
-    so parallel workers and parallel test runs on one machine do not collide."""
-    pid = os.getpid()
-    return f"127.{net}.{(pid // 250) % 250 + 1}.{pid % 250 + 1}"
 
 
 def run_client(script: str, *args: str) -> dict:
@@ -45,7 +40,7 @@ def _rot(quat_xyzw) -> np.ndarray:
 
 
 def test_franky_joint_and_cartesian_motions():
-    with FCIServer(_host(), lockstep=True, camera=False, verbose=False) as srv:
+    with FCIServer(loopback_host(23), lockstep=True, camera=False, verbose=False) as srv:
         out = run_client("franky_motions.py", srv.host)
         q_sim = srv.sim.get_position()
     # the joint motion ends on its target (the internal controller tracks within ~1e-5 rad)
@@ -61,7 +56,7 @@ def test_franky_joint_and_cartesian_motions():
 
 @pytest.mark.parametrize("block", [True, False])
 def test_franky_gripper_move_and_grasp(block):
-    with FCIServer(_host(), lockstep=True, camera=False, verbose=False,
+    with FCIServer(loopback_host(23), lockstep=True, camera=False, verbose=False,
                    extra_worldbody=BLOCK if block else "") as srv:
         out = run_client("franky_gripper.py", srv.host, "0.03")
     assert out["homing"] and out["move"] and out["open"]
@@ -82,7 +77,7 @@ def test_franky_ibvs_example_with_the_in_process_camera():
     about 1.7 s of robot time and 5 s of rendering)."""
     script = Path(__file__).resolve().parents[1] / "examples" / "fci_franky_ibvs.py"
     r = subprocess.run([sys.executable, str(script), "--lockstep", "--json", "--max-time", "1.2",
-                        "--host", _host(24)], capture_output=True, text=True, timeout=120)
+                        "--host", loopback_host(24)], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr[-3000:]
     out = json.loads(r.stdout.strip().splitlines()[-1])
     errors = [e for _, _, e in out["history"]]
@@ -91,7 +86,7 @@ def test_franky_ibvs_example_with_the_in_process_camera():
 
 
 def test_franky_gripper_stop():
-    with FCIServer(_host(), lockstep=True, camera=False, verbose=False) as srv:
+    with FCIServer(loopback_host(23), lockstep=True, camera=False, verbose=False) as srv:
         out = run_client("gripper_stop.py", srv.host)
     assert out["width_start"] == pytest.approx(0.08, abs=1e-6) and out["stop"]
     assert "aborted" in str(out["move_result"])  # the interrupted move is answered "aborted"

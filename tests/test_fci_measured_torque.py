@@ -10,15 +10,11 @@ on logs of pylibfranka joint-position control and franky joint motions (no resid
 from __future__ import annotations
 
 import importlib.util
-import json
 import math
-import os
-import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import record_with_client
 
 from franka_vs_gym.fci.codec import MoveControllerMode as C
 from franka_vs_gym.fci.codec import MoveMotionGeneratorMode as G
@@ -27,7 +23,6 @@ from franka_vs_gym.fci.robot import FCIRobot
 from franka_vs_gym.model import FrankaModel, ModelConfig
 from franka_vs_gym.sim import JOINT_STATE, STOP, VELOCITY, FrankaSim
 
-CLIENTS = Path(__file__).parent / "fci_clients"
 DT = 0.001
 # below the smallest noise floor of a real FER's torque sensors (Gaz et al. 2019 log: 0.027 Nm on joint 6)
 FLOOR = 0.02
@@ -169,19 +164,8 @@ def test_saturated_servo_reading_is_the_clamped_torque():
 
 
 # ---------------------------------------------------------------------------------------------- real clients
-def _host(net: int) -> str:
-    pid = os.getpid()
-    return f"127.{net}.{(pid // 250) % 250 + 1}.{pid % 250 + 1}"
 
 
-def _record(script: str, out: Path, net: int) -> dict:
-    from franka_vs_gym.fci import FCIServer
-
-    with FCIServer(_host(net), lockstep=True, camera=False, verbose=False) as srv:
-        r = subprocess.run([sys.executable, str(CLIENTS / script), srv.host, str(out)], capture_output=True,
-                           text=True, timeout=180)
-    assert r.returncode == 0, r.stderr[-3000:]
-    return json.loads(r.stdout.strip().splitlines()[-1])
 
 
 def _armature_and_lag(res) -> tuple[np.ndarray, np.ndarray]:
@@ -214,7 +198,7 @@ def _check_compare(log) -> None:
 def test_pylibfranka_joint_position_control_log_matches_libfranka_model_and_compare(tmp_path):
     from franka_vs_gym.validation import load_log
 
-    out = _record("record_joint_position.py", tmp_path, 41)
+    out = record_with_client("record_joint_position.py", tmp_path, 41)
     assert out["n"] == 4002 and out["dropped"] == 0
     z = np.load(tmp_path / "libfranka_model.npz")
     np.testing.assert_allclose(np.diff(z["time"]), DT, atol=1e-9)  # one state per 1 ms physics step
@@ -232,6 +216,6 @@ def test_pylibfranka_joint_position_control_log_matches_libfranka_model_and_comp
 def test_franky_joint_motion_log_has_no_ddq_proportional_residual(tmp_path):
     from franka_vs_gym.validation import load_log
 
-    out = _record("record_franky_joint_motion.py", tmp_path, 42)
+    out = record_with_client("record_franky_joint_motion.py", tmp_path, 42)
     assert out["n"] > 2000 and out["dropped"] == 0
     _check_compare(load_log(tmp_path / "recorded.npz"))

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import importlib.util
 import json
-import os
 import socket
 import subprocess
 import sys
@@ -23,18 +22,14 @@ import pytest
 if importlib.util.find_spec("pylibfranka") is None:
     pytest.skip("pylibfranka is not installed (pip install -e '.[fci]')", allow_module_level=True)
 
+from conftest import CLIENTS, loopback_host  # noqa: E402
+
 from franka_vs_gym.fci import FCIServer, codec  # noqa: E402
 from franka_vs_gym.model import FrankaModel  # noqa: E402
 
-CLIENTS = Path(__file__).parent / "fci_clients"
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _host(net: int = 21) -> str:
-    """A loopback address of its own for this test process (the FCI ports are fixed): 127.<net>.x.y from the pid,
-    so parallel workers and parallel test runs on one machine do not collide."""
-    pid = os.getpid()
-    return f"127.{net}.{(pid // 250) % 250 + 1}.{pid % 250 + 1}"
 
 
 def run_client(script: str | Path, *args: str, timeout: float = 60) -> dict:
@@ -45,7 +40,7 @@ def run_client(script: str | Path, *args: str, timeout: float = 60) -> dict:
 
 @pytest.fixture
 def server():
-    with FCIServer(_host(), lockstep=True, camera=False, verbose=False) as srv:
+    with FCIServer(loopback_host(21), lockstep=True, camera=False, verbose=False) as srv:
         yield srv
 
 
@@ -108,7 +103,7 @@ def test_internal_joint_impedance_tracks_joint_position_motion(server):
 def test_joint_impedance_example_reaches_target_bit_identically(server):
     a = run_client(ROOT / "examples" / "fci_joint_impedance.py", server.host, "--json")
     assert a["error"] < 1e-3
-    with FCIServer(_host(22), lockstep=True, camera=False, verbose=False) as other:
+    with FCIServer(loopback_host(22), lockstep=True, camera=False, verbose=False) as other:
         b = run_client(ROOT / "examples" / "fci_joint_impedance.py", other.host, "--json")
     assert a["log"] == b["log"]  # lock-step: two identical runs, identical trajectories bit for bit
 
@@ -164,7 +159,7 @@ def test_cartesian_and_velocity_motions(server):
 
 
 def test_fr3_model_from_its_description():
-    with FCIServer(_host(25), lockstep=True, camera=False, verbose=False, robot="fr3") as srv:
+    with FCIServer(loopback_host(25), lockstep=True, camera=False, verbose=False, robot="fr3") as srv:
         out = run_client(CLIENTS / "read_state.py", srv.host)
     q = np.array(out["q"])
     model = FrankaModel(robot="fr3")
@@ -177,7 +172,7 @@ def test_record_writes_a_workbench_log(tmp_path):
     from franka_vs_gym.validation.logs import load_log
 
     log_path = tmp_path / "session.csv"
-    with FCIServer(_host(26), lockstep=True, camera=False, verbose=False,
+    with FCIServer(loopback_host(26), lockstep=True, camera=False, verbose=False,
                    record=log_path) as srv:
         out = run_client(CLIENTS / "torque_hold.py", srv.host, "300")
     log = load_log(log_path)
@@ -187,7 +182,7 @@ def test_record_writes_a_workbench_log(tmp_path):
     assert np.abs(log.tau_J - np.array(out["tau_J"])).max() < 1e-4
     assert log.tool == "franka_hand" and np.allclose(log.gravity, [0, 0, -9.81])
     with pytest.raises(FileExistsError):  # never overwritten
-        FCIServer(_host(), lockstep=True, camera=False, verbose=False, record=log_path)
+        FCIServer(loopback_host(21), lockstep=True, camera=False, verbose=False, record=log_path)
 
 
 @pytest.mark.parametrize("stall, reflex", [(0.005, False), (0.06, True)])
@@ -195,7 +190,7 @@ def test_real_time_missed_deadlines(stall, reflex):
     """Real-time mode: a client that stalls lowers control_command_success_rate; beyond the tolerance the
     communication-constraints reflex stops the motion."""
     # without the reflex, a tolerance of 50 cycles keeps a loaded test machine from stalling the client for real
-    with FCIServer(_host(27), camera=False, verbose=False, max_missed_commands=20 if reflex else 50) as srv:
+    with FCIServer(loopback_host(27), camera=False, verbose=False, max_missed_commands=20 if reflex else 50) as srv:
         out = run_client(CLIENTS / "stall.py", srv.host, str(stall))
     if reflex:
         assert out["raised"] is not None and '"communication_constraints_violation"' in out["raised"]
@@ -208,7 +203,7 @@ def test_serve_command_line():
     """`franka-vs serve` prints one ready line, serves a client, stops on SIGINT; bad input is one line, exit 2."""
     import signal
 
-    host = _host(28)
+    host = loopback_host(28)
     p = subprocess.Popen([sys.executable, "-m", "franka_vs_gym.cli", "serve", "--host", host, "--lockstep",
                           "--scene", "tag", "--no-camera"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
@@ -254,7 +249,7 @@ PLATE = '<body name="plate" pos="0.3069 0 0.45"><geom type="box" size="0.05 0.05
 def test_contact_wrench_and_cartesian_reflex(f_max):
     """Pressing the hand onto a plate with the internal Cartesian impedance: the estimated wrench is the spring's
     force K (z_d - z) (what the robot applies to the environment); above the collision threshold: cartesian_reflex."""
-    with FCIServer(_host(29), lockstep=True, camera=False, verbose=False,
+    with FCIServer(loopback_host(29), lockstep=True, camera=False, verbose=False,
                    extra_worldbody=PLATE) as srv:
         out = run_client(CLIENTS / "contact.py", srv.host, str(f_max))
     if f_max > 50:
@@ -274,7 +269,7 @@ def test_wall_mounting_from_a_model_file(tmp_path):
 
     path = tmp_path / "wall.json"
     ModelConfig().copy(gravity=np.array([0.0, -9.81, 0.0])).save(path)
-    with FCIServer(_host(30), lockstep=True, camera=False, verbose=False, model=path) as srv:
+    with FCIServer(loopback_host(30), lockstep=True, camera=False, verbose=False, model=path) as srv:
         out = run_client(CLIENTS / "read_state.py", srv.host)
     q = np.array(out["q"])
     g = FrankaModel(str(path)).gravity(q)

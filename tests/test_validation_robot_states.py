@@ -16,11 +16,11 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from conftest import record_with_client
 
 from franka_vs_gym.validation import compare, load_log
 from franka_vs_gym.validation.robot_states import StateRecorder
 
-CLIENTS = Path(__file__).parent / "fci_clients"
 # below the smallest noise floor of a real FER's torque sensors (Gaz et al. 2019 log: 0.027 Nm on joint 6); the
 # simulated robot behind the FCI server has no sensor noise, so the residual is the model-plant mismatch alone
 FLOOR = 0.02
@@ -32,19 +32,8 @@ def _at_floor(res) -> bool:
     return bool((res.rmse_tau <= np.hypot(res.noise_floor, FLOOR)).all())
 
 
-def _host(net: int) -> str:
-    pid = os.getpid()
-    return f"127.{net}.{(pid // 250) % 250 + 1}.{pid % 250 + 1}"
 
 
-def _record(script: str, out: Path, net: int) -> dict:
-    from franka_vs_gym.fci import FCIServer
-
-    with FCIServer(_host(net), lockstep=True, camera=False, verbose=False) as srv:
-        r = subprocess.run([sys.executable, str(CLIENTS / script), srv.host, str(out)], capture_output=True,
-                           text=True, timeout=180)
-    assert r.returncode == 0, r.stderr[-3000:]
-    return json.loads(r.stdout.strip().splitlines()[-1])
 
 
 def _check_same(logs: dict[str, object], ref: str) -> None:
@@ -58,7 +47,7 @@ def _check_same(logs: dict[str, object], ref: str) -> None:
 
 @pytest.mark.skipif(importlib.util.find_spec("pylibfranka") is None, reason="pylibfranka is not installed")
 def test_pylibfranka_states_recorded_and_dumped_are_read_and_at_the_floor(tmp_path):
-    out = _record("record_pylibfranka.py", tmp_path, 31)
+    out = record_with_client("record_pylibfranka.py", tmp_path, 31)
     assert out["n"] == out["ticks"] == 4002 and out["dropped"] == 0
     side = json.loads((tmp_path / "recorded.csv.json").read_text())
     assert side["tool"] == "franka_hand" and "m_total" in side["tool_source"]  # the robot's own declaration
@@ -85,7 +74,7 @@ def test_pylibfranka_states_recorded_and_dumped_are_read_and_at_the_floor(tmp_pa
 
 @pytest.mark.skipif(importlib.util.find_spec("franky") is None, reason="franky is not installed")
 def test_franky_states_recorded_and_dumped_are_read_and_at_the_floor(tmp_path):
-    out = _record("record_franky.py", tmp_path, 32)
+    out = record_with_client("record_franky.py", tmp_path, 32)
     assert out["n"] == out["ticks"] == 4200 and out["dropped"] == 0
     logs = {f: load_log(tmp_path / f) for f in ("recorded.npz", "states.json", "stacked.npz", "states.pkl")}
     _check_same(logs, "recorded.npz")
