@@ -10,6 +10,20 @@ SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 CLIENTS = Path(__file__).parent / "fci_clients"  # scripts of the real FCI clients (pylibfranka, franky)
 
 
+def run_in_both_plants(code: str) -> dict[str, str]:
+    """stdout of ``python -c code`` with the compiled plant (key "0") and with the pure-Python fallback forced
+    (key "1", ``FRANKA_VS_GYM_PURE_PYTHON=1``), each in its own process."""
+    import subprocess
+    import sys
+
+    out = {}
+    for flag in ("0", "1"):
+        env = dict(os.environ, FRANKA_VS_GYM_PURE_PYTHON=flag)
+        out[flag] = subprocess.run([sys.executable, "-W", "ignore", "-c", code], env=env, capture_output=True,
+                                   text=True, check=True).stdout
+    return out
+
+
 def loopback_host(net: int) -> str:
     """A loopback address of its own for this test process (the FCI ports are fixed): 127.<net>.x.y from the pid,
     so parallel workers and parallel test runs on one machine do not collide (each test file uses its own nets)."""

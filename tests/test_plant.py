@@ -12,6 +12,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 import pytest
+from conftest import run_in_both_plants
 
 from franka_vs_gym.assets.mjcf import RobotSpec, SceneSpec
 from franka_vs_gym.model.config import Friction, ModelConfig
@@ -148,11 +149,8 @@ def test_pure_python_fallback_gives_the_same_motion(stribeck):
             "s.set_force_torque(JOINT_STATE, [3, -2, 1, 2, 0.5, -0.5, 0.3]); s.wait(0.5);"
             "print(plant.NATIVE, *s.get_position().tolist())")
     out = {}
-    for flag in ("0", "1"):
-        env = dict(os.environ, FRANKA_VS_GYM_PURE_PYTHON=flag)
-        r = subprocess.run([sys.executable, "-W", "ignore", "-c", code], env=env, capture_output=True, text=True,
-                           check=True)
-        words = r.stdout.split()
+    for flag, stdout in run_in_both_plants(code).items():
+        words = stdout.split()
         out[flag] = (words[0], np.array([float(w) for w in words[1:]]))
     assert out["0"][0] == "True" and out["1"][0] == "False"
     np.testing.assert_allclose(out["0"][1], out["1"][1], rtol=0, atol=1e-9)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import run_in_both_plants
 
 from franka_vs_gym.model.config import ModelConfig
 from franka_vs_gym.model.description import FER
@@ -375,9 +376,6 @@ def test_pure_python_fallback_reports_the_same_reflex():
     the same reason, time and joint (the value agrees to the fallback's friction rounding)."""
     if not plant.NATIVE:
         pytest.skip(plant.unavailable_reason())
-    import os
-    import subprocess
-    import sys
 
     code = ("import numpy as np; from franka_vs_gym.sim import FrankaSim, FORCE_TORQUE, JOINT_STATE, plant\n"
             "from franka_vs_gym.sim.reflexes import ControlException\n"
@@ -385,12 +383,7 @@ def test_pure_python_fallback_reports_the_same_reflex():
             "s.set_force_torque(JOINT_STATE, [0, 0, 87.0, 0, 0, 0, 0])\n"
             "try:\n    [s.world.step(50) for _ in range(10)]\n"
             "except ControlException as e:\n    print(plant.NATIVE, e.reasons[0], e.detail)")
-    out = {}
-    for flag in ("0", "1"):
-        env = dict(os.environ, FRANKA_VS_GYM_PURE_PYTHON=flag)
-        r = subprocess.run([sys.executable, "-W", "ignore", "-c", code], env=env, capture_output=True, text=True,
-                           check=True)
-        out[flag] = r.stdout.split()
+    out = {flag: stdout.split() for flag, stdout in run_in_both_plants(code).items()}
     assert out["1"][0] == "False" and out["0"][1] == out["1"][1] == "joint_velocity_violation"
     assert out["0"][2:6] == out["1"][2:6]  # "t=0.0140 s: joint 2"
     assert float(out["0"][7]) == pytest.approx(float(out["1"][7]), abs=1e-3)

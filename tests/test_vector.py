@@ -35,6 +35,15 @@ def _same_info(a: dict, b: dict, where: str) -> None:
             assert _same(a[k], b[k]), f"{where}/{k}"
 
 
+def _same_step(r1: tuple, r2: tuple, t: int) -> None:
+    """Two vector steps' (obs, reward, terminated, truncated, info) equal bit for bit."""
+    for k in r1[0]:
+        assert np.array_equal(r1[0][k], r2[0][k]), (t, k)
+    for j in (1, 2, 3):
+        assert np.array_equal(r1[j], r2[j]), (t, j)
+    _same_info(r1[4], r2[4], f"step {t}")
+
+
 def _compare_with_single_envs(env_id, kwargs, n_steps, *, n=3, seed=7, torque_scale=5.0, autoreset_mode=None):
     """Step the batched env and Gymnasium's SyncVectorEnv of single envs with the same seeds and actions; every
     observation, reward, flag and info must be equal, bit for bit. Returns (episode ends, failures, robot-steps
@@ -52,11 +61,7 @@ def _compare_with_single_envs(env_id, kwargs, n_steps, *, n=3, seed=7, torque_sc
     for t in range(n_steps):
         a = (rng.uniform(-1, 1, vec.action_space.shape) * scale).astype(np.float32)
         r1, r2 = vec.step(a), ref.step(a)
-        for k in r1[0]:
-            assert np.array_equal(r1[0][k], r2[0][k]), (t, k)
-        for j in (1, 2, 3):
-            assert np.array_equal(r1[j], r2[j]), (t, j)
-        _same_info(r1[4], r2[4], f"step {t}")
+        _same_step(r1, r2, t)
         ends += int((r1[2] | r1[3]).sum())
         failures |= {f for f, m in zip(r1[4].get("failure", []), r1[4].get("_failure", []), strict=False) if m and f}
         in_batch += int(vec._in_batch.sum())
@@ -251,11 +256,7 @@ def test_a_robot_diverging_in_the_batch_reports_it_as_a_single_env():
     diverged = others_in_batch = 0
     for t in range(40):
         r1, r2 = vec.step(a), ref.step(a)
-        for k in r1[0]:
-            assert np.array_equal(r1[0][k], r2[0][k]), (t, k)
-        for j in (1, 2, 3):
-            assert np.array_equal(r1[j], r2[j]), (t, j)
-        _same_info(r1[4], r2[4], f"step {t}")
+        _same_step(r1, r2, t)
         f = r1[4].get("failure", [None] * n)
         diverged += sum(1 for x, m in zip(f, r1[4].get("_failure", []), strict=False) if m and x and
                         x.startswith("diverged"))
