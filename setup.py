@@ -18,5 +18,8 @@ def _mujoco_include() -> list[str]:
     return [os.path.join(os.path.dirname(mujoco.__file__), "include")]
 
 
-setup(ext_modules=[Extension("franka_vs_gym.sim._plant", ["franka_vs_gym/sim/_plant.c"],
-                             include_dirs=_mujoco_include(), extra_compile_args=["-O2"], optional=True)])
+# -ffp-contract=off: no fused multiply-adds, so the kernels' results are the same bits on every x86-64/arm64 build
+setup(ext_modules=[Extension("franka_vs_gym.sim._plant",
+                             ["franka_vs_gym/sim/_plant.c", "franka_vs_gym/sim/_task.c"],
+                             depends=["franka_vs_gym/sim/_task.h"], include_dirs=_mujoco_include(),
+                             extra_compile_args=["-O2", "-ffp-contract=off"], optional=True)])

@@ -457,12 +457,15 @@ class FrankaEnv(gym.Env):
                 self._reflex = e
         if self._reflex is not None:
             return self._step_reflex(self._reflex)
-        a = self._action
         self._steps += 1
-        obs = self._get_obs()
+        return self._finish_step(self._get_obs())
+
+    def _finish_step(self, obs: dict[str, np.ndarray], check_robot: bool = True):
+        """The end of a step once its observation is made: the task's evaluation, the robot's failures (joint
+        limits, contacts; ``check_robot=False`` when the caller knows there are none), the episode's end, info."""
         self._last_obs = obs
-        reward, success, failure, extra = self._evaluate(a)
-        if failure is None:
+        reward, success, failure, extra = self._evaluate(self._action)
+        if failure is None and check_robot:
             failure = self._robot_failure()
         terminated = bool((success and self.terminate_on_success) or failure is not None)
         if failure is not None:

@@ -29,19 +29,25 @@ import mujoco
 import numpy as np
 
 from franka_vs_gym.envs.kernels import (
+    GEO,
+    R_CMO,
+    R_DEPTH,
+    R_ERROR,
+    R_FEATURES,
+    R_POSE,
+    R_VISIBLE,
+    REC,
     TAG_LOST,
-    camera_tag_poses,
     clip_observation,
-    feature_error,
     feature_reward,
     pbvs_errors,
     pose_reward,
-    pose_vectors,
     row_norm,
     success_bonus,
     torque_penalty,
     tracking_desired,
     tracking_reward,
+    truth_records,
 )
 from franka_vs_gym.sim import FORCE_TORQUE, VELOCITY
 from franka_vs_gym.sim.reflexes import ARMED
@@ -305,9 +311,10 @@ class TorqueTrackingBatch(BatchedTask):
 
 class VisualBatch(BatchedTask):
     """FrankaIBVS-v0, FrankaPBVS-v0 and FrankaVisualTorque-v0 over N robots, with the ideal projection of the tag
-    corners (no feature noise) and feature or state observations. The camera geometry of all robots is computed
-    at once: the end-effector poses from each robot's kinematic model, then cMo, the projection and visibility for
-    all rows (:func:`~franka_vs_gym.envs.kernels.camera_tag_poses`, :func:`~franka_vs_gym.vision.tags.project_tag`)."""
+    corners and feature or state observations. The camera's ground truth of all robots (forward kinematics, cMo, the
+    projection, visibility, the pose vector, the feature error) is one call of the compiled kernel the single
+    environments use (:func:`~franka_vs_gym.envs.kernels.truth_records`), into (N, REC) truth records; the held
+    frames are records too (``VisualServoEnv._truth_rec`` / ``_frame_rec``)."""
 
     def __init__(self, envs: list[Any], batch: Any) -> None:
         super().__init__(envs, batch)
@@ -315,8 +322,6 @@ class VisualBatch(BatchedTask):
         self.kind = type(e0).__name__
         self.terminate_on_success = e0.terminate_on_success
         self.state_obs = e0.observation_type == "state"
-        self.fk = [e.sim.model.fMe for e in envs]
-        self.eMc = e0.sim.get_eMc()
         self.tag_size, self.intrinsics = e0.tag_size, e0.intrinsics
         self.features_desired, self.depth_desired = e0.features_desired, e0.depth_desired
         self.tag_pose_desired, self.cdMo = e0.tag_pose_desired, e0.cdMo
@@ -324,14 +329,10 @@ class VisualBatch(BatchedTask):
         self.feature_noise = e0.feature_noise
         self.terminate_on_tag_lost, self.success_bonus = e0.terminate_on_tag_lost, e0.success_bonus
         self.k = np.zeros(n, dtype=np.int64)
-        self.fMo = np.tile(np.eye(4), (n, 1, 1))
-        # the held camera frame, the truth now, the truth at the last frame (FrankaEnv._frame/_truth/_truth_cache)
-        self.frame = {"features": np.zeros((n, 8)), "feature_depth": np.zeros((n, 4)), "visible": np.zeros((n, 1)),
-                      "cMo": np.tile(np.eye(4), (n, 1, 1)), "tag_pose": np.zeros((n, 6))}
-        self.truth = {"features": np.zeros((n, 8)), "feature_depth": np.zeros((n, 4)), "visible": np.zeros((n, 1)),
-                      "cMo": np.tile(np.eye(4), (n, 1, 1))}
-        self.cache = {k: v.copy() for k, v in self.truth.items()}
-        self.cache_k = np.full(n, -1, dtype=np.int64)
+        self.fMo = np.tile(np.eye(4).ravel(), (n, 1))
+        self.geo = np.zeros(GEO)  # the geometry block every robot in the batch shares (see eligible)
+        self.truth, self.frame = np.zeros((n, REC)), np.zeros((n, REC))  # the truth now, the held frame
+        self.truth_k = np.full(n, -1, dtype=np.int64)
         if self.kind == "FrankaIBVSEnv" or self.kind == "FrankaVisualTorqueEnv":
             self.success_threshold, self.error_scale = e0.success_threshold, e0.error_scale
             self.torque_cost = getattr(e0, "torque_cost", 0.0) if self.torque else 0.0
@@ -345,8 +346,15 @@ class VisualBatch(BatchedTask):
                 and env.feature_source == "ideal")
 
     def eligible(self, env: Any) -> bool:
-        return (super().eligible(env) and len(env._segments()) == 1
-                and np.array_equal(env.sim.get_eMc(), self.eMc))
+        if not (super().eligible(env) and len(env._segments()) == 1):
+            return False
+        plan = env._plan
+        plan.refresh(env)
+        if plan.geo_or_none is None:
+            return False
+        if not self.geo.any():
+            self.geo[:] = plan.geo
+        return np.array_equal(plan.geo, self.geo)
 
     def single_segment(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(rows whose next period is one physics segment, whether it ends with a camera frame) (len(ids),) each."""
@@ -359,82 +367,56 @@ class VisualBatch(BatchedTask):
         super().load(i)
         env = self.envs[i]
         self.k[i] = env._k
-        self.fMo[i] = env._fMo
-        for key, arr in self.frame.items():
-            if key in env._frame:  # (a frame measured with pixel noise has no cMo)
-                arr[i] = env._frame[key]
-        for key, arr in self.truth.items():
-            arr[i] = env._truth[key]
-        ck, cache = env._truth_cache
-        self.cache_k[i] = ck
-        if ck >= 0:
-            for key, arr in self.cache.items():
-                arr[i] = cache[key]
-
-    def _row(self, src: dict[str, np.ndarray], i: int) -> dict[str, np.ndarray]:
-        return {k: (v[i].reshape(1) if k == "visible" else v[i].copy()) for k, v in src.items()}
+        self.fMo[i] = env._fMo.ravel()
+        self.truth[i], self.frame[i], self.truth_k[i] = env._truth_rec, env._frame_rec, env._truth_k
 
     def store(self, i: int) -> None:
         super().store(i)
         env = self.envs[i]
         env._k = int(self.k[i])
-        env._frame = self._row(self.frame, i)
-        if self.feature_noise:
-            del env._frame["cMo"]
-        truth = self._row(self.truth, i)
-        if self.cache_k[i] == self.k[i]:  # a frame at this step: the truth is the frame's (one dict, as in the env)
-            env._truth_cache = (int(self.k[i]), truth)
-        elif self.cache_k[i] >= 0:
-            env._truth_cache = (int(self.cache_k[i]), self._row(self.cache, i))
-        else:
-            env._truth_cache = (-1, {})
-        env._truth = truth
+        env._truth_rec[:], env._frame_rec[:], env._truth_k = self.truth[i], self.frame[i], int(self.truth_k[i])
+        env._frame_no += 1  # the held frame may have changed in the batch: the packer rewrites its keys
+        env._packed_frame_no = -1
 
     def step_end(self, ids: np.ndarray, out: np.ndarray, capture: np.ndarray):
         self.steps[ids] += 1
         self.k[ids] += self.n_substeps
-        q, dq = self.joint_state(ids)
-        # the truth now (VisualServoEnv._measure_true for all rows)
-        fMe = np.array([self.fk[i](q[j]) for j, i in enumerate(ids)])
-        cMo = camera_tag_poses(fMe, self.eMc, self.fMo[ids])
-        uv, xy, Z, vis = project_tag(cMo, self.tag_size, self.intrinsics)
-        feats = xy.reshape(len(ids), 8)
-        visible = vis.astype(np.float64)[:, None]
-        t = self.truth
-        t["features"][ids], t["feature_depth"][ids], t["visible"][ids], t["cMo"][ids] = feats, Z, visible, cMo
-        cap = ids[capture]
-        if len(cap):  # VisualServoEnv._capture: the frame is the truth with its pose, zeros where not seen
-            sel = capture
-            fe = feats[sel]
-            if self.feature_noise:  # ideal_measurement with pixel noise: drawn where the tag is in front and facing
-                fe = fe.copy()
-                front = (Z[sel] > 1e-6).all(axis=1) & (cMo[sel, 2, 2] < 0)
-                for j in np.flatnonzero(front):
-                    i = ids[sel][j]
-                    noisy = uv[sel][j] + self.rng[i].normal(0.0, self.feature_noise, (4, 2))
-                    fe[j] = self.intrinsics.to_normalized(noisy).ravel()
-            else:  # the frame is the truth: cached as the env caches it
-                c = self.cache
-                c["features"][cap], c["feature_depth"][cap], c["visible"][cap], c["cMo"][cap] = \
-                    feats[sel], Z[sel], visible[sel], cMo[sel]
-                self.cache_k[cap] = self.k[cap]
-            f = self.frame
-            pose = pose_vectors(cMo[sel])
-            seen = vis[sel]
-            f["features"][cap] = np.where(seen[:, None], fe, 0.0)
-            f["feature_depth"][cap] = np.where(seen[:, None], Z[sel], self.depth_desired)
-            f["tag_pose"][cap] = np.where(seen[:, None], pose, 0.0)
-            f["visible"][cap] = visible[sel]
-            f["cMo"][cap] = cMo[sel]
         m = len(ids)
+        q, dq = self.joint_state(ids)
+        # the truth now (VisualServoEnv._truth_now for all rows)
+        allrows = m == self.n
+        rec = self.truth if allrows else np.empty((m, REC))
+        truth_records(self.geo, np.ascontiguousarray(q), self.fMo if allrows else self.fMo[ids], rec)
+        if not allrows:
+            self.truth[ids] = rec
+        self.truth_k[ids] = self.k[ids]
+        vis = rec[:, R_VISIBLE] != 0.0
+        cap = ids[capture]
+        if len(cap):  # VisualServoEnv._capture: the frame is the truth, zeros where not seen
+            sel = capture
+            fr = rec[sel].copy()
+            if self.feature_noise:  # ideal_measurement with pixel noise: drawn where the tag is in front and facing
+                cMo = fr[:, R_CMO].reshape(-1, 4, 4)
+                uv, _, Z, _ = project_tag(cMo, self.tag_size, self.intrinsics)
+                front = (Z > 1e-6).all(axis=1) & (cMo[:, 2, 2] < 0)
+                for j in np.flatnonzero(front):
+                    i = cap[j]
+                    noisy = uv[j] + self.rng[i].normal(0.0, self.feature_noise, (4, 2))
+                    fr[j, R_FEATURES] = self.intrinsics.to_normalized(noisy).ravel()
+            unseen = ~vis[sel]
+            fr[unseen, R_FEATURES] = 0.0
+            fr[unseen, R_DEPTH] = self.depth_desired
+            fr[unseen, R_POSE] = 0.0
+            self.frame[cap] = fr
+        src = rec if self.state_obs else self.frame[ids]
         if self.state_obs:
-            pose = pose_vectors(cMo)
-            raw = {"features": np.where(vis[:, None], feats, 0.0),
-                   "feature_depth": np.where(vis[:, None], Z, self.depth_desired),
-                   "tag_pose": np.where(vis[:, None], pose, 0.0), "visible": visible}
+            seen = vis[:, None]
+            raw = {"features": np.where(seen, rec[:, R_FEATURES], 0.0),
+                   "feature_depth": np.where(seen, rec[:, R_DEPTH], self.depth_desired),
+                   "tag_pose": np.where(seen, rec[:, R_POSE], 0.0)}
         else:
-            f = self.frame
-            raw = {k: f[k][ids] for k in ("features", "feature_depth", "tag_pose", "visible")}
+            raw = {"features": src[:, R_FEATURES], "feature_depth": src[:, R_DEPTH], "tag_pose": src[:, R_POSE]}
+        raw["visible"] = src[:, R_VISIBLE]
         raw["q"], raw["dq"] = self.observed_joint_state(ids, q, dq)
         raw["features_desired"] = np.broadcast_to(self.features_desired, (m, 8))
         raw["tag_pose_desired"] = np.broadcast_to(self.tag_pose_desired, (m, 6))
@@ -445,12 +427,12 @@ class VisualBatch(BatchedTask):
             failure[~vis] = TAG_LOST
         extra: dict[str, np.ndarray] = {}
         if self.kind == "FrankaPBVSEnv":
-            et, er = pbvs_errors(self.cdMo, cMo)
+            et, er = pbvs_errors(self.cdMo, rec[:, R_CMO].reshape(m, 4, 4))
             success = (failure == None) & (et < self.translation_threshold) & (er < self.rotation_threshold)  # noqa: E711
             reward = pose_reward(et, er, self.translation_scale, self.rotation_scale)
             extra = {"error": et, "rotation_error": er}
         else:
-            err = feature_error(feats, vis, self.features_desired)
+            err = rec[:, R_ERROR].copy()
             success = (failure == None) & (err < self.success_threshold)  # noqa: E711
             reward = feature_reward(err, self.error_scale)
             extra = {"error": err}

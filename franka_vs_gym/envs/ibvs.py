@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 
 from franka_vs_gym.envs.base import _positive
-from franka_vs_gym.envs.kernels import TAG_LOST, feature_error, feature_reward, success_bonus
+from franka_vs_gym.envs.kernels import R_ERROR, TAG_LOST, feature_reward, success_bonus
 from franka_vs_gym.envs.visual import VisualServoEnv
 
 
@@ -97,8 +97,7 @@ class FrankaIBVSEnv(VisualServoEnv):
         super().__init__(action_type=action_type, control_period=control_period, time_limit=time_limit, **kwargs)
 
     def _task_error(self) -> float:
-        t = self._truth
-        return feature_error(t["features"], bool(t["visible"][0]), self.features_desired)
+        return float(self._truth_now()[R_ERROR])
 
     def _evaluate(self, action: np.ndarray) -> tuple[float, bool, str | None, dict[str, Any]]:
         err = self._task_error()

@@ -13,6 +13,8 @@ import math
 import numpy as np
 from pinocchio import log3
 
+from franka_vs_gym.sim import plant
+
 _sum = np.add.reduce  # (the ufunc's reduction called directly: these run at every step, also with N = 1)
 
 
@@ -142,10 +144,82 @@ def success_bonus(reward, success, bonus: float):
 
 def torque_penalty(tau: np.ndarray, tau_max: np.ndarray, cost: float):
     """FrankaVisualTorque-v0's torque cost: cost * mean((tau / tau_max)^2) of the commanded torques tau (7,) or
-    (N, 7), Nm (a float, or (N,))."""
-    return cost * row_sumsq(tau / tau_max) / 7.0
+    (N, 7), Nm (a float, or (N,)). The squares are summed joint after joint (the compiled kernel's order, which the
+    single environment's fast step uses too)."""
+    tau = np.ascontiguousarray(tau, dtype=np.float64)
+    if plant.torque_cost is not None:
+        out = np.empty(tau.shape[:-1] or (1,))
+        plant.torque_cost(tau, np.ascontiguousarray(tau_max, dtype=np.float64), float(cost), out)
+        return float(out[0]) if tau.ndim == 1 else out
+    x = tau / tau_max
+    ss = x[..., 0] * x[..., 0]
+    for k in range(1, 7):
+        ss = ss + x[..., k] * x[..., k]
+    out = cost * ss / 7.0
+    return float(out) if tau.ndim == 1 else out
 
 
-__all__ = ["TAG_LOST", "camera_tag_poses", "clip_observation", "feature_error", "feature_reward", "inverse_poses",
-           "pbvs_errors", "pose_reward", "pose_vectors", "row_norm", "row_sumsq", "success_bonus", "torque_penalty",
-           "tracking_desired", "tracking_reward"]
+# ---------------------------------------------------------------------------------------------------- truth records
+# The visual tasks' ground truth of the tag at a robot state, one record of REC numbers (the layout of the compiled
+# kernel, franka_vs_gym/sim/_task.c): features (x, y of the 4 corners, normalized; zeros when the tag is behind the
+# camera or not facing it), corner depths Z (m), visible (1/0), cMo (4 x 4, row-major), the pose vector of cMo
+# (t, theta u) and the feature error ||s - s*|| (||s*|| + 1 when not visible).
+REC = 36
+R_FEATURES, R_DEPTH, R_VISIBLE, R_CMO, R_POSE, R_ERROR = slice(0, 8), slice(8, 12), 12, slice(13, 29), slice(29, 35), 35
+GEO = 122  # numbers of a geometry block (the chain, the tag's corners, the camera, the desired features)
+
+
+def camera_geometry(model, eMc: np.ndarray, corners: np.ndarray, intrinsics, features_desired: np.ndarray
+                    ) -> np.ndarray | None:
+    """The geometry block (GEO,) of the compiled truth kernel for a robot's kinematic model (a FrankaModel: its
+    seven joint placements and the end effector e, then the camera mount eMc), the tag's corners (4, 3) in the tag
+    frame, the camera's intrinsics and the desired features (8,); None when the chain is not seven revolute joints
+    about their z axes with e on the last (the truth is then computed with the model itself)."""
+    pm = model.model
+    if pm.nq != 7 or pm.njoints != 8 or any(pm.joints[j].shortname() != "JointModelRZ" for j in range(1, 8)):
+        return None
+    frame = pm.frames[model._e_id]
+    if frame.parentJoint != 7:
+        return None
+    geo = np.zeros(GEO)
+    for k in range(7):
+        P = pm.jointPlacements[k + 1]
+        geo[12 * k:12 * k + 9] = P.rotation.ravel()
+        geo[12 * k + 9:12 * k + 12] = P.translation
+    tail = frame.placement.homogeneous @ eMc
+    geo[84:93] = tail[:3, :3].ravel()
+    geo[93:96] = tail[:3, 3]
+    geo[96:108] = np.asarray(corners, dtype=np.float64).ravel()
+    f, c, hi = intrinsics.pixel_arrays
+    geo[108:114] = (f[0], f[1], c[0], c[1], hi[0], hi[1])
+    geo[114:122] = features_desired
+    return geo
+
+
+def truth_records(geo: np.ndarray | None, q: np.ndarray, fMo: np.ndarray, out: np.ndarray, *, fMe=None, eMc=None,
+                  tag_size: float = 0.0, intrinsics=None, features_desired=None) -> np.ndarray:
+    """The truth records (N, REC) written into ``out`` for joint positions q (N, 7) and tag poses fMo (N, 4, 4)
+    in the robot base frame: the compiled kernel with the geometry block ``geo`` when it exists, else (no compiled
+    extension, or a chain it does not cover) the same quantities from the end-effector poses ``fMe`` (N, 4, 4) and
+    the camera mount, tag size, intrinsics and desired features given (numpy and pinocchio, the same formulas)."""
+    if geo is not None and plant.tag_truth is not None:
+        plant.tag_truth(geo, q, fMo, out)
+        return out
+    from franka_vs_gym.vision.tags import project_tag
+
+    cMo = camera_tag_poses(np.asarray(fMe), eMc, np.asarray(fMo).reshape(-1, 4, 4))
+    _, xy, Z, vis = project_tag(cMo, tag_size, intrinsics)
+    n = len(cMo)
+    out[:, R_FEATURES] = xy.reshape(n, 8)
+    out[:, R_DEPTH] = Z
+    out[:, R_VISIBLE] = vis
+    out[:, R_CMO] = cMo.reshape(n, 16)
+    out[:, R_POSE] = pose_vectors(cMo)
+    out[:, R_ERROR] = feature_error(xy.reshape(n, 8), vis, features_desired)
+    return out
+
+
+__all__ = ["GEO", "REC", "R_CMO", "R_DEPTH", "R_ERROR", "R_FEATURES", "R_POSE", "R_VISIBLE", "TAG_LOST",
+           "camera_geometry", "camera_tag_poses", "clip_observation", "feature_error", "feature_reward",
+           "inverse_poses", "pbvs_errors", "pose_reward", "pose_vectors", "row_norm", "row_sumsq", "success_bonus",
+           "torque_penalty", "tracking_desired", "tracking_reward", "truth_records"]

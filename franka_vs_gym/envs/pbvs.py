@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 
 from franka_vs_gym.envs.base import _positive
-from franka_vs_gym.envs.kernels import TAG_LOST, pbvs_errors, pose_reward, success_bonus
+from franka_vs_gym.envs.kernels import R_CMO, TAG_LOST, pbvs_errors, pose_reward, success_bonus
 from franka_vs_gym.envs.visual import VisualServoEnv
 
 
@@ -53,7 +53,7 @@ class FrankaPBVSEnv(VisualServoEnv):
         super().__init__(action_type=action_type, control_period=control_period, time_limit=time_limit, **kwargs)
 
     def _pose_error(self) -> tuple[float, float]:
-        et, er = pbvs_errors(self.cdMo, self._truth["cMo"][None])
+        et, er = pbvs_errors(self.cdMo, self._truth_now()[R_CMO].reshape(1, 4, 4))
         return float(et[0]), float(er[0])
 
     def _task_error(self) -> float:

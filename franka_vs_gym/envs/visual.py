@@ -15,10 +15,22 @@ from gymnasium import spaces
 
 from franka_vs_gym.assets.mjcf import TagSpec, mat2quat
 from franka_vs_gym.envs.base import FrankaEnv, ObservationPacker, _nonneg, _positive, _range, substeps
-from franka_vs_gym.envs.kernels import camera_tag_poses
+from franka_vs_gym.envs.kernels import (
+    GEO,
+    R_CMO,
+    R_DEPTH,
+    R_FEATURES,
+    R_POSE,
+    R_VISIBLE,
+    REC,
+    camera_geometry,
+    truth_records,
+)
 from franka_vs_gym.model.description import TAG_SIZE
 from franka_vs_gym.model.geometry import desired_tag_pose, homogeneous, inverse_pose, pose_vector, rot_x, rot_y, rot_z
-from franka_vs_gym.vision.tags import project_tag
+from franka_vs_gym.sim import FORCE_TORQUE, SimulationDiverged, plant
+from franka_vs_gym.sim.reflexes import ControlException
+from franka_vs_gym.vision.tags import tag_corners
 
 FEATURE_SOURCES = ("ideal", "detection")
 
@@ -75,11 +87,15 @@ class VisualServoEnv(FrankaEnv):
         self.tag_pose_desired = pose_vector(self.cdMo)
         self._q_goal_guess = self.config.robot.neutral()
         self._k = 0  # physics steps since the episode start
-        self._frame: dict[str, np.ndarray] = {}
-        self._packed_frame: dict[str, np.ndarray] | None = None  # the frame whose keys the packer holds
-        self._truth_cache: tuple[int, dict[str, np.ndarray]] = (-1, {})
         self.observation_space = self._make_observation_space()
         self._pack = ObservationPacker(self.observation_space)
+        # the truth, the held frame and the packer's work vector live in one block shared with the compiled step
+        self._plan = StepPlan(self)
+        self._truth_rec, self._frame_rec = self._plan.truth, self._plan.frame
+        self._truth_k = -1  # the physics step (self._k) the truth record is of; -1: not computed
+        self._frame_no = 0  # camera frames taken (the held frame's number)
+        self._packed_frame_no = -1  # the frame whose keys the packer's work vector holds
+        self._frame_image: np.ndarray | None = None
         self._fMo = self.get_fMo()
 
     # ------------------------------------------------------------------ camera (franka_vs_gym.vision)
@@ -119,9 +135,12 @@ class VisualServoEnv(FrankaEnv):
         """A camera measurement now: ideal projection + pixel noise, or detection on a rendered image."""
         from franka_vs_gym.vision import detected_measurement, ideal_measurement
 
-        if self.feature_source == "ideal":
-            m = ideal_measurement(self.get_cMo(), self.tag_size, self.intrinsics, noise_px=self.feature_noise,
-                                  rng=self.np_random if self.feature_noise else None)
+        if self.feature_source == "ideal":  # the truth record's values, with noisy corners
+            t = self._truth_now()
+            m = ideal_measurement(t[R_CMO].reshape(4, 4), self.tag_size, self.intrinsics,
+                                  noise_px=self.feature_noise, rng=self.np_random if self.feature_noise else None)
+            return {"features": m.corners_xy.ravel(), "feature_depth": t[R_DEPTH], "tag_pose": t[R_POSE],
+                    "visible": t[R_VISIBLE:R_VISIBLE + 1]}
         else:
             image = self._detection_camera.render()
             m = detected_measurement(image, self._detector, self.tag_id, self.tag_size, self.intrinsics)
@@ -161,7 +180,30 @@ class VisualServoEnv(FrankaEnv):
 
     def get_cMo(self) -> np.ndarray:
         """True pose of the tag in the camera frame c (4, 4)."""
-        return camera_tag_poses(self.sim.get_fMe()[None], self.sim.get_eMc(), self._fMo[None])[0]
+        return self._truth_now()[R_CMO].reshape(4, 4).copy()
+
+    @property
+    def _fMo(self) -> np.ndarray:
+        """The tag's pose in the robot base frame (4, 4), static during an episode (a view of the step plan)."""
+        return self._plan.fMo
+
+    @_fMo.setter
+    def _fMo(self, fMo: np.ndarray) -> None:
+        self._plan.fMo[:] = fMo
+
+    def _truth_now(self) -> np.ndarray:
+        """The truth record (kernels.REC) of the current state, computed once per physics step: the camera's ground
+        truth of the tag (features, depths, visibility, cMo, pose vector, feature error)."""
+        if self._truth_k != self._k:
+            plan = self._plan
+            plan.refresh(self)
+            q = np.ascontiguousarray(self.sim.joint_views()[0])
+            truth_records(plan.geo_or_none, q[None], plan.fMo.reshape(1, 16), plan.truth[None],
+                          fMe=None if plan.geo_or_none is not None else self.sim.get_fMe()[None],
+                          eMc=self.sim.get_eMc(), tag_size=self.tag_size, intrinsics=self.intrinsics,
+                          features_desired=self.features_desired)
+            self._truth_k = self._k
+        return self._truth_rec
 
     # ------------------------------------------------------------------ episode
     def _place_tag(self) -> None:
@@ -221,7 +263,8 @@ class VisualServoEnv(FrankaEnv):
         if not self._cameras_ready:
             self._make_cameras()
         self._k = 0
-        self._truth_cache = (-1, {})
+        self._truth_k = -1
+        self._plan.refresh(self)
         self._capture()
 
     def _segments(self) -> tuple[tuple[int, bool], ...]:
@@ -238,66 +281,69 @@ class VisualServoEnv(FrankaEnv):
             self._capture()
 
     # ------------------------------------------------------------------ observation
-    def _measure_true(self) -> dict[str, np.ndarray]:
-        cMo = self.get_cMo()
-        _, xy, Z, visible = project_tag(cMo[None], self.tag_size, self.intrinsics)
-        # tag_pose (theta-u of cMo) is added only where an observation needs it (see _with_pose)
-        return {"features": xy[0].ravel(), "feature_depth": Z[0], "visible": np.array([1.0 if visible[0] else 0.0]),
-                "cMo": cMo}
-
-    @staticmethod
-    def _with_pose(m: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-        out = dict(m)
-        out["tag_pose"] = pose_vector(m["cMo"])
-        return out
-
     def _capture(self) -> None:
         """Take a camera frame now: the measured features and/or the image."""
-        frame: dict[str, np.ndarray] = {}
         if self.observation_type != "image":
+            f = self._frame_rec
             if self.feature_source == "ideal" and not self.feature_noise:
-                truth = self._measure_true()
-                self._truth_cache = (self._k, truth)
-                frame.update(self._with_pose(truth))
+                f[:] = self._truth_now()
             else:
-                frame.update(self._measure())
-            if not frame["visible"][0]:
-                frame["features"] = np.zeros(8)
-                frame["feature_depth"] = self.depth_desired.copy()
-                frame["tag_pose"] = np.zeros(6)
+                m = self._measure()
+                f[R_FEATURES], f[R_DEPTH], f[R_POSE], f[R_VISIBLE] = (m["features"], m["feature_depth"],
+                                                                      m["tag_pose"], m["visible"][0])
+            if not f[R_VISIBLE]:
+                f[R_FEATURES] = 0.0
+                f[R_DEPTH] = self.depth_desired
+                f[R_POSE] = 0.0
         if self._image_camera is not None:
-            frame["image"] = self._image_camera.render()
-        self._frame = frame
+            self._frame_image = self._image_camera.render()
+        self._frame_no += 1
+
+    def _write_seen(self, rec: np.ndarray) -> None:
+        """The tag keys of the observation from a record whose unseen values are already replaced."""
+        w = self._pack.write
+        w("features", rec[R_FEATURES])
+        w("feature_depth", rec[R_DEPTH])
+        w("tag_pose", rec[R_POSE])
+        w("visible", rec[R_VISIBLE])
+        w("features_desired", self.features_desired)
+        w("tag_pose_desired", self.tag_pose_desired)
 
     def _get_obs(self) -> dict[str, np.ndarray]:
         q, dq = self._noisy_joint_state()
-        raw: dict[str, np.ndarray] = {"q": q, "dq": dq}
-        # ground truth now, also used by the reward and the checks of this step (reused if a frame was just taken)
-        k, truth = self._truth_cache
-        self._truth = truth if k == self._k else self._measure_true()
-        if self.observation_type == "state":
-            m = self._with_pose(self._truth)
-            if not m["visible"][0]:
-                m["features"], m["feature_depth"], m["tag_pose"] = np.zeros(8), self.depth_desired.copy(), np.zeros(6)
-            raw.update(m)
-            raw["features_desired"] = self.features_desired
-            raw["tag_pose_desired"] = self.tag_pose_desired
-            return self._pack(raw)
-        # camera observations: the held frame's keys are written into the packer's buffer once per frame (a
-        # frame is a new dict, also when the batched vector env hands a robot back), q and dq at every step
-        pack, frame = self._pack, self._frame
-        if self._packed_frame is not frame:
-            held = dict(frame, features_desired=self.features_desired, tag_pose_desired=self.tag_pose_desired)
-            for k in pack.keys:
-                if k != "q" and k != "dq":
-                    pack.write(k, held[k])
-            self._packed_frame = frame
+        pack = self._pack
+        if self.observation_type == "state":  # the truth now, at the control rate
+            t = self._truth_now()
+            if t[R_VISIBLE]:
+                self._write_seen(t)
+            else:
+                unseen = t.copy()
+                unseen[R_FEATURES], unseen[R_DEPTH], unseen[R_POSE] = 0.0, self.depth_desired, 0.0
+                self._write_seen(unseen)
+            self._packed_frame_no = -1
+        elif self.observation_type != "image" and self._packed_frame_no != self._frame_no:
+            # the held frame's keys are written into the packer's buffer once per frame, q and dq at every step
+            self._write_seen(self._frame_rec)
+            self._packed_frame_no = self._frame_no
         pack.write("q", q)
         pack.write("dq", dq)
         obs = pack.finish()
-        if "image" in frame:
-            obs["image"] = frame["image"].copy()  # a held frame must not be shared between observations
+        if self._frame_image is not None and "image" in self.observation_space.spaces:
+            obs["image"] = self._frame_image.copy()  # a held frame must not be shared between observations
         return obs
+
+    def _step_reflex(self, e: ControlException):
+        self._truth_k = -1  # the brakes moved the joints within the period: the truth is of the state now
+        return super()._step_reflex(e)
+
+    # ------------------------------------------------------------------ the compiled step
+    def step(self, action: Any):
+        plan = self._plan
+        if plan.fast and self._diverged is None and self._last_obs is not None and plan.eligible(self):
+            out = plan.step(self, action)
+            if out is not None:
+                return out
+        return super().step(action)
 
     def _reset_info(self) -> dict[str, Any]:
         return {"error": self._task_error()}
@@ -309,4 +355,134 @@ class VisualServoEnv(FrankaEnv):
     def _seen(self) -> bool:
         """Whether the whole tag is in the camera's field of view now (ground truth, so that a missed detection or
         a noisy measurement does not end an episode)."""
-        return bool(self._truth["visible"][0])
+        return bool(self._truth_now()[R_VISIBLE])
+
+
+class StepPlan:
+    """A visual environment's numbers shared with the compiled step (``franka_vs_gym/sim/_task.c``): one float64
+    block (the geometry of the robot, camera and tag; the tag pose fMo; the truth and held-frame records; the action
+    bounds; the observation packer's work vector and bounds) and one int64 block (MuJoCo addresses, observation
+    offsets). The environment's ``_truth_rec``, ``_frame_rec``, ``_fMo`` and its packer's work vector are views of
+    it, so the Python and the compiled halves of a step read and write the same numbers.
+
+    The compiled step (:meth:`step`) runs a control period of the common configuration: joint-torque actions inside
+    the action space as a float32/float64 vector, ideal features (no pixel noise) or state observations, no joint
+    noise, the compiled plant with the robot's reflexes armed and commands passed as given, the period one physics
+    segment. It gives the same bits as the general path (``FrankaEnv.step``), which takes every other step.
+    """
+
+    KEYS = ("q", "dq", "features", "features_desired", "feature_depth", "tag_pose", "tag_pose_desired", "visible")
+
+    def __init__(self, env: VisualServoEnv) -> None:
+        pack = env._pack
+        S = pack.low.size
+        self.P = np.zeros(plant.TASK_P_FIXED + 3 * S)
+        self.I = np.zeros(plant.TASK_I_SIZE, dtype=np.int64)
+        P = self.P
+        self.geo = P[:GEO]
+        self.fMo = P[GEO:GEO + 16].reshape(4, 4)
+        self.fMo[:] = np.eye(4)
+        self.truth = P[GEO + 16:GEO + 16 + REC]
+        self.frame = P[GEO + 16 + REC:GEO + 16 + 2 * REC]
+        o = GEO + 16 + 2 * REC
+        self.act_lo, self.act_hi, self.tau_max, self.action = (P[o:o + 7], P[o + 7:o + 14], P[o + 14:o + 21],
+                                                                P[o + 21:o + 28])
+        self.q_lo, self.q_hi = P[o + 28:o + 35], P[o + 35:o + 42]
+        self.depth_d, self.pose_d, self.cost = P[o + 42:o + 46], P[o + 46:o + 52], P[o + 52:o + 53]
+        self.cost_now = P[o + 53:o + 54]
+        w0 = plant.TASK_P_FIXED
+        assert o + 54 == w0, "the step plan's layout differs from franka_vs_gym/sim/_task.c"
+        work = P[w0:w0 + S]
+        work[:] = pack._work
+        pack._work = work  # (the packer writes into it in place)
+        P[w0 + S:w0 + 2 * S], P[w0 + 2 * S:w0 + 3 * S] = pack.low, pack.high
+        self.size = S
+        self.views = pack._views
+        self.geo_or_none: np.ndarray | None = None
+        self._key: tuple[Any, Any] | None = None
+        # the configuration the compiled step covers (the per-step conditions are in eligible)
+        sim = env.sim
+        self.fast = (plant.visual_post is not None and env.action_type == "torque"
+                     and env.observation_type in ("features", "state") and env.feature_source == "ideal"
+                     and not env.feature_noise and not env.joint_noise and not env.velocity_noise
+                     and set(pack.keys) <= set(self.KEYS) and type(env).__module__.startswith("franka_vs_gym.envs."))
+        self.state_flag = 2 if env.observation_type == "state" else 0
+        self.torque_cost = float(getattr(env, "torque_cost", 0.0))
+        I = self.I
+        lay = sim.batch_layout()
+        I[0] = lay.first_joint
+        I[1:8] = np.arange(lay.qpos.start, lay.qpos.stop)
+        I[8:15] = np.arange(lay.qvel.start, lay.qvel.stop)
+        I[15] = lay.ctrl_torque.start
+        for j, k in enumerate(self.KEYS):
+            I[16 + j] = pack._slices[k].start if k in pack._slices else -1
+        I[24] = S
+        if env.action_type == "torque":
+            self.act_lo[:], self.act_hi[:] = env._act_lo_tol, env._act_hi_tol
+        self.tau_max[:] = sim.tau_max
+        self.q_lo[:], self.q_hi[:] = env._q_lo_fail, env._q_hi_fail
+        self.depth_d[:], self.pose_d[:] = env.depth_desired, env.tag_pose_desired
+        self.cost[0] = self.torque_cost
+        self.n_substeps, self.camera_substeps = env.n_substeps, env.camera_substeps
+        self.model, self.data = env.world.model, env.world.data
+        self.m_addr, self.d_addr = self.model._address, self.data._address
+        self._tau_cmd, self._tau_applied = sim.torque_command_views()
+
+    def refresh(self, env: VisualServoEnv) -> None:
+        """Rebuild the geometry block when the robot's kinematic model (a new tool or payload rebuilds it) or the
+        camera mount changed."""
+        sim = env.sim
+        key = sim.kinematics_key()
+        if self._key is not None and key[0] is self._key[0] and key[1] is self._key[1]:
+            return
+        geo = camera_geometry(sim.model, sim.get_eMc(), tag_corners(env.tag_size), env.intrinsics,
+                              env.features_desired)
+        if geo is None:
+            self.geo_or_none = None
+        else:
+            self.geo[:] = geo
+            self.geo_or_none = self.geo
+        self._key = key
+        env._truth_k = -1
+
+    def eligible(self, env: VisualServoEnv) -> bool:
+        """Whether the next control period can run in the compiled step."""
+        key, now = self._key, env.sim.kinematics_key()
+        if key is None or self.geo_or_none is None or now[0] is not key[0] or now[1] is not key[1]:
+            return False
+        k0 = env._k
+        k1 = k0 + self.n_substeps
+        last = (k1 // self.camera_substeps) * self.camera_substeps
+        return (last <= k0 or last == k1) and env.sim.runs_inside_mj_step(FORCE_TORQUE)
+
+    def step(self, env: VisualServoEnv, action: Any):
+        """One control period in the compiled step; None (nothing done) when the action is not a plain vector inside
+        the action space (the general path then checks it, clips it or names the problem)."""
+        if plant.visual_pre(self.P, self.I, self.d_addr, action, self._tau_cmd, self._tau_applied) < 0:
+            return None
+        env._reflex = None
+        env._action = self.action
+        n = self.n_substeps
+        mujoco.mj_step(self.model, self.data, n)
+        k1 = env._k + n
+        capture = k1 % self.camera_substeps == 0
+        flags = (1 if capture else 0) | self.state_flag | (4 if env._packed_frame_no != env._frame_no else 0)
+        out = np.empty(self.size, dtype=np.float32)
+        code = plant.visual_post(self.P, self.I, self.m_addr, self.d_addr, out, flags)
+        if code < 0:  # a diverging state or a reflex: the general path ends the step
+            try:
+                env.world.after_steps()
+                env._segment_done(n, capture)
+            except SimulationDiverged as e:
+                return env._step_diverged(e)
+            except ControlException as e:
+                env._reflex = e
+            return env._step_end()
+        env._k = env._truth_k = k1
+        if capture:
+            env._frame_no += 1
+        env._packed_frame_no = -1 if self.state_flag else env._frame_no
+        env._pack.last = out
+        env._steps += 1
+        obs = {k: out[sl] if sh is None else out[sl].reshape(sh) for k, sl, sh in self.views}
+        return env._finish_step(obs, check_robot=code == 1)

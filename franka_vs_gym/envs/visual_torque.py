@@ -45,5 +45,8 @@ class FrankaVisualTorqueEnv(FrankaIBVSEnv):
     def _evaluate(self, action):
         reward, success, failure, info = super()._evaluate(action)
         if self.action_type == "torque" and self.torque_cost:
-            reward -= float(torque_penalty(action, self.tau_max, self.torque_cost))
+            plan = self._plan
+            # (the compiled step computed the cost of its action, plan.action, with the kernel's formula)
+            reward -= float(plan.cost_now[0]) if action is plan.action else torque_penalty(action, self.tau_max,
+                                                                                          self.torque_cost)
         return reward, success, failure, info

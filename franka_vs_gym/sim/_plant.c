@@ -43,6 +43,8 @@
 
 #include <mujoco/mujoco.h>
 
+#include "_task.h"
+
 #define FVS_TAG 1179013959.0 /* "FVSG" as an integer, exactly representable */
 #define FVS_RTAG 1179013960.0 /* a robot whose reflexes the plant watches */
 #define FVS_RCOL 9 /* first reflex column (after the friction law's) */
@@ -143,6 +145,14 @@ static int fvs_check(const mjModel* m, mjData* d, int j0, mjtNum* s) {
   return code;
 }
 
+mjtNum* fvs_reflex_record(const mjModel* m, mjData* d, int j0) {
+  return fvs_record(m, d, j0);
+}
+
+int fvs_reflex_check(const mjModel* m, mjData* d, int j0, mjtNum* s) {
+  return fvs_check(m, d, j0, s);
+}
+
 static void fvs_reflexes(const mjModel* m, mjData* d) {
   for (int j0 = 0; j0 + 7 <= m->njnt; j0++) {
     mjtNum* s = fvs_record(m, d, j0);
@@ -238,6 +248,14 @@ static PyMethodDef methods[] = {
     {"check", (PyCFunction)(void (*)(void))check, METH_FASTCALL,
      "check(model_address, data_address, first_joint): the plant's reflex check on the current state (0 not armed, "
      "1 violation recorded, 2 within the limits)."},
+    {"tag_truth", (PyCFunction)(void (*)(void))fvs_tag_truth, METH_FASTCALL,
+     "tag_truth(geo, q, fMo, out): the camera's ground truth of a tag for n robots (records, see _task.c)."},
+    {"torque_cost", (PyCFunction)(void (*)(void))fvs_torque_cost, METH_FASTCALL,
+     "torque_cost(tau, tau_max, cost, out): cost * mean((tau / tau_max)^2) of each row."},
+    {"visual_pre", (PyCFunction)(void (*)(void))fvs_visual_pre, METH_FASTCALL,
+     "visual_pre(P, I, data_address, action, tau_cmd, tau_applied): a visual env's torque command (see _task.c)."},
+    {"visual_post", (PyCFunction)(void (*)(void))fvs_visual_post, METH_FASTCALL,
+     "visual_post(P, I, model_address, data_address, out, flags): a visual env's step after its physics."},
     {NULL, NULL, 0, NULL},
 };
 
@@ -248,6 +266,7 @@ static struct PyModuleDef module = {
 };
 
 PyMODINIT_FUNC PyInit__plant(void) {
+  int p_fixed = 0, i_size = 0;
   PyObject* mod = PyModule_Create(&module);
   if (mod == NULL) {
     return NULL;
@@ -257,7 +276,10 @@ PyMODINIT_FUNC PyInit__plant(void) {
       PyModule_AddIntConstant(mod, "NUSER", FVS_NUSER) < 0 ||
       PyModule_AddIntConstant(mod, "RCOL", FVS_RCOL) < 0 ||
       PyModule_AddObject(mod, "RTAG", PyFloat_FromDouble(FVS_RTAG)) < 0 ||
-      PyModule_AddIntConstant(mod, "RSLOT", FVS_RSLOT) < 0) {
+      PyModule_AddIntConstant(mod, "RSLOT", FVS_RSLOT) < 0 ||
+      PyModule_AddIntConstant(mod, "TASK_REC", fvs_plan_sizes(&p_fixed, &i_size)) < 0 ||
+      PyModule_AddIntConstant(mod, "TASK_P_FIXED", p_fixed) < 0 ||
+      PyModule_AddIntConstant(mod, "TASK_I_SIZE", i_size) < 0) {
     Py_DECREF(mod);
     return NULL;
   }

@@ -72,6 +72,9 @@ RCOL = FRICTION_COLS  # columns RCOL..RCOL+7 (9-16): the reflexes
 TAG = 1179013959.0  # jnt_user[:, 0] of a joint whose friction the plant applies
 RTAG = 1179013960.0  # jnt_user[:, RCOL] of a joint whose robot's reflexes the plant checks
 RSLOT = 13  # userdata numbers per robot (its reflex record)
+TASK_REC = 36  # numbers in a truth record of the visual tasks' kernels (franka_vs_gym/sim/_task.c)
+TASK_P_FIXED = 264  # numbers of a visual env's step plan before its observation work vectors (_task.c)
+TASK_I_SIZE = 25  # integers of a visual env's step plan (_task.c)
 
 _native: Any = None
 _reason: str | None = None
@@ -94,7 +97,9 @@ else:
                        f"{mujoco.mj_version()} is installed; reinstall franka_vs_gym (pip install -e .)")
             _native = None
         elif _native.TAG != TAG or _native.NUSER != NUSER or getattr(_native, "RTAG", None) != RTAG \
-                or getattr(_native, "RSLOT", None) != RSLOT or getattr(_native, "RCOL", None) != RCOL:
+                or getattr(_native, "RSLOT", None) != RSLOT or getattr(_native, "RCOL", None) != RCOL \
+                or getattr(_native, "TASK_REC", None) != TASK_REC \
+                or getattr(_native, "TASK_P_FIXED", None) != TASK_P_FIXED:
             _reason = ("the compiled plant is older than its sources (franka_vs_gym/sim/_plant.c); rebuild it "
                        "(pip install -e . or python setup.py build_ext --inplace)")
             _native = None
@@ -105,6 +110,13 @@ _callback = _CB_TYPE(_native.callback_address()) if NATIVE else None
 #: ``check(model._address, data._address, first_joint)``: the plant's reflex check on the current state (0: the
 #: robot is not armed, 1: a violation is recorded, 2: within its limits; the state is then marked checked).
 check = _native.check if NATIVE else None
+#: The visual tasks' compiled kernels (``franka_vs_gym/sim/_task.c``; None without the compiled extension):
+#: ``tag_truth(geo, q, fMo, out)``, ``torque_cost(tau, tau_max, cost, out)`` and the two halves of a visual
+#: environment's step around its physics, ``visual_pre`` and ``visual_post`` (see franka_vs_gym.envs.visual).
+tag_truth = _native.tag_truth if NATIVE else None
+torque_cost = _native.torque_cost if NATIVE else None
+visual_pre = _native.visual_pre if NATIVE else None
+visual_post = _native.visual_post if NATIVE else None
 
 
 def unavailable_reason() -> str | None:
@@ -173,5 +185,6 @@ def plant_friction_torque(model: mujoco.MjModel, data: mujoco.MjData, dofs: Any)
     return -(with_cb - d.qfrc_passive)[np.asarray(dofs)]
 
 
-__all__ = ["FRICTION_COLS", "check", "NATIVE", "NUSER", "RCOL", "RSLOT", "RTAG", "TAG", "friction_rows",
-           "install", "plant_friction_torque", "unavailable_reason"]
+__all__ = ["FRICTION_COLS", "check", "NATIVE", "NUSER", "RCOL", "RSLOT", "RTAG", "TAG", "TASK_I_SIZE", "TASK_P_FIXED",
+           "TASK_REC", "friction_rows", "install", "plant_friction_torque", "tag_truth", "torque_cost",
+           "unavailable_reason", "visual_post", "visual_pre"]

@@ -78,8 +78,8 @@ _IMPLICITFAST = int(mujoco.mjtIntegrator.mjINT_IMPLICITFAST)
 class BatchLayout:
     """A robot's place in its MuJoCo data (:meth:`FrankaSim.batch_layout`): index slices of its joints in ``qpos``
     and ``qvel``, of its torque motors and velocity servos in ``ctrl``, the offset of its reflex record in
-    ``userdata`` (-1 without the compiled plant; see :mod:`franka_vs_gym.sim.reflexes`) and its reflex limits
-    q_min, q_max (rad) and dq_max (rad/s), (7,) each."""
+    ``userdata`` (-1 without the compiled plant; see :mod:`franka_vs_gym.sim.reflexes`), its reflex limits
+    q_min, q_max (rad) and dq_max (rad/s), (7,) each, and the MuJoCo id of its first joint."""
 
     qpos: slice
     qvel: slice
@@ -89,6 +89,7 @@ class BatchLayout:
     q_min: np.ndarray
     q_max: np.ndarray
     dq_max: np.ndarray
+    first_joint: int
 
 
 class FrankaSim:
@@ -859,7 +860,20 @@ class FrankaSim:
         r = self._reflexes
         off = int(self._m.jnt_user[self._jids[0], plant.RCOL + 1]) if r._native else -1
         return BatchLayout(self._qs, self._vs, self._motor, self._vel, off, r.q_min.copy(), r.q_max.copy(),
-                           r.dq_max.copy())
+                           r.dq_max.copy(), int(self._jids[0]))
+
+    def torque_command_views(self) -> tuple[np.ndarray, np.ndarray]:
+        """The arrays ``set_force_torque`` leaves a torque command in with ``command_rates="pass"`` (the commanded
+        torque and the reflexes' last applied torque, (7,) each, Nm): compiled code that writes a torque command
+        into the controls itself (see :meth:`runs_inside_mj_step`) writes them as well, instead of calling
+        :meth:`commands_from_controls`."""
+        return self._tau_cmd, self._reflexes._tau_applied
+
+    def kinematics_key(self) -> tuple[Any, Any]:
+        """Two objects that are replaced whenever the robot's kinematic model (a new tool or payload rebuilds it)
+        or its camera mount changes: geometry computed from ``get_fMe``/``get_eMc`` is current while both are the
+        same objects (compare by identity)."""
+        return self.model.model, self._eMc
 
     def runs_inside_mj_step(self, control_state: RobotState | int) -> bool:
         """Whether a control period of this robot, in ``control_state``, is plain MuJoCo steps: nothing per physics

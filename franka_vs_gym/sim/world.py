@@ -112,6 +112,16 @@ class SimWorld:
         for check in self._checks:
             check()
 
+    def after_steps(self) -> None:
+        """What :meth:`step` does after its physics, for code that called ``mujoco.mj_step`` itself on this world's
+        model and data (every effect inside MuJoCo's step): raises SimulationDiverged if MuJoCo warned of a diverging
+        state, then runs the robots' checks (their reflexes)."""
+        wn = self._wn
+        if wn[self._w_pos] or wn[self._w_vel] or wn[self._w_acc]:
+            self._diverge()
+        for check in self._checks:
+            check()
+
     def _diverge(self) -> None:
         reasons = [msg for w, msg in _BAD_WARNINGS.items() if self._wn[w] > 0]
         self.diverged = "; ".join(reasons) or "the simulation state was reset by MuJoCo"
