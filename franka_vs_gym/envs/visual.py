@@ -198,8 +198,9 @@ class VisualServoEnv(FrankaEnv):
             plan = self._plan
             plan.refresh(self)
             q = np.ascontiguousarray(self.sim.joint_views()[0])
-            truth_records(plan.geo_or_none, q[None], plan.fMo.reshape(1, 16), plan.truth[None],
-                          fMe=None if plan.geo_or_none is not None else self.sim.get_fMe()[None],
+            geo = plan.geo_or_none if plant.tag_truth is not None else None
+            truth_records(geo, q[None], plan.fMo.reshape(1, 16), plan.truth[None],
+                          fMe=None if geo is not None else self.sim.get_fMe()[None],
                           eMc=self.sim.get_eMc(), tag_size=self.tag_size, intrinsics=self.intrinsics,
                           features_desired=self.features_desired)
             self._truth_k = self._k
