@@ -244,3 +244,21 @@ def test_camera_mount_change_mid_episode_moves_the_truth():
 
     ref = camera_tag_poses(u.sim.get_fMe()[None], eMc, u._fMo[None])[0]
     np.testing.assert_allclose(u.get_cMo(), ref, atol=1e-13)
+
+
+def test_tracking_kernel_matches_the_numpy_formulas():
+    """FrankaTorqueTracking-v0's desired trajectory and error: the compiled kernel (the single env's and the batched
+    env's) against kernels.tracking_desired and row_norm in numpy."""
+    rng = np.random.default_rng(0)
+    n = 40
+    q0, A, w = rng.uniform(-2, 2, (n, 7)), rng.uniform(-0.6, 0.6, (n, 7)), rng.uniform(1, 4, (n, 7))
+    t, q = rng.uniform(0, 6, n), rng.uniform(-2, 2, (n, 7))
+    desired, err = np.zeros((n, 21)), np.zeros(n)
+    plant.tracking(q0, A, w, t, q, desired, err)
+    qd, dqd, ddqd = K.tracking_desired(q0, A, w, t[:, None])
+    np.testing.assert_allclose(desired[:, :7], qd, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(desired[:, 7:14], dqd, rtol=1e-15, atol=1e-15)
+    np.testing.assert_allclose(desired[:, 14:], ddqd, rtol=1e-14, atol=1e-14)
+    np.testing.assert_allclose(err, K.row_norm(q - qd), rtol=1e-15)
+    with pytest.raises(ValueError, match="desired has"):
+        plant.tracking(q0, A, w, t, q, np.zeros((n, 20)), err)

@@ -42,14 +42,11 @@ from franka_vs_gym.envs.kernels import (
     feature_reward,
     pbvs_errors,
     pose_reward,
-    row_norm,
     success_bonus,
     torque_penalty,
-    tracking_desired,
-    tracking_reward,
     truth_records,
 )
-from franka_vs_gym.sim import FORCE_TORQUE, VELOCITY
+from franka_vs_gym.sim import FORCE_TORQUE, VELOCITY, plant
 from franka_vs_gym.sim.reflexes import ARMED
 from franka_vs_gym.sim.robot import VELOCITY_COMMAND_SCALE
 from franka_vs_gym.vision.tags import project_tag
@@ -276,6 +273,10 @@ class TorqueTrackingBatch(BatchedTask):
         self.sq_err = np.zeros(n)
         e0 = envs[0]
         self.error_scale, self.success_threshold = e0.error_scale, e0.success_threshold
+        sl = e0._pack._slices
+        self.keys = np.array([sl[k].start for k in ("q", "dq", "q_desired", "dq_desired", "ddq_desired", "time")],
+                             dtype=np.int64)
+        self._cols = np.zeros((4, n))  # reward, error, rms error, success of the rows when all robots step
 
     def load(self, i: int) -> None:
         super().load(i)
@@ -284,28 +285,37 @@ class TorqueTrackingBatch(BatchedTask):
 
     def store(self, i: int) -> None:
         super().store(i)
-        env = self.envs[i]
-        env._sq_err = float(self.sq_err[i])
-        t = float(self.time[i] - self.t0[i])
-        env._desired_now = env.desired(t)
+        self.envs[i]._sq_err = float(self.sq_err[i])
 
     def step_end(self, ids: np.ndarray, out: np.ndarray):
+        """FrankaTorqueTrackingEnv._get_obs and _evaluate for the rows ids: one call of the compiled kernel (the
+        desired trajectory, the packed observation, the error, its running RMS, success and reward)."""
         r = self.rows(ids)
         self.steps[r] += 1
+        m = len(ids)
+        allrows = m == self.n
         q, dq = self.joint_state(ids)
         qo, dqo = self.observed_joint_state(ids, q, dq)
-        t = (self.time[r] - self.t0[r])[:, None]
-        qd, dqd, ddqd = tracking_desired(self.q0[r], self.A[r], self.w[r], t)
-        self.pack(ids, {"q": qo, "dq": dqo, "q_desired": qd, "dq_desired": dqd, "ddq_desired": ddqd, "time": t}, out)
-        err = row_norm(q - qd)
-        sq = self.sq_err[r] + err * err
-        self.sq_err[r] = sq
+        t = self.time[r] - self.t0[r]
         steps = self.steps[r]
-        rms = np.sqrt(sq / np.maximum(steps, 1))
-        success = (steps >= self.max_steps) & (rms < self.success_threshold)
-        reward = tracking_reward(err, self.error_scale)
-        reward, term, trunc, info = self.finish(ids, reward, success, None)  # (no failure: those re-run alone)
-        info["error"], info["rms_error"] = err, rms
+        if allrows:
+            o, work, sq, cols = out, self._v, self.sq_err, self._cols
+        else:
+            o, work, sq, cols = np.empty((m, self.pack_size), np.float32), np.empty((m, self.pack_size)), \
+                self.sq_err[ids], np.empty((4, m))
+        reward, err, rms, success = cols
+        c = np.ascontiguousarray
+        plant.tracking_batch(c(q), c(qo), c(dqo), t, c(self.q0[r]), c(self.A[r]), c(self.w[r]), sq, c(steps),
+                             self.pack_low, self.pack_high, self.keys, work, o, reward, err, rms, success,
+                             self.error_scale, self.success_threshold, float(self.max_steps))
+        if allrows:
+            np.copyto(self.last_obs, o)
+        else:
+            out[ids] = o
+            self.last_obs[ids] = o
+            self.sq_err[ids] = sq
+        reward, term, trunc, info = self.finish(ids, reward.copy(), success != 0.0, None)  # (no failure: re-run alone)
+        info["error"], info["rms_error"] = err.copy(), rms.copy()
         return reward, term, trunc, info
 
 

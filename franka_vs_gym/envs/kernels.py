@@ -54,6 +54,21 @@ def tracking_desired(q0: np.ndarray, A: np.ndarray, w: np.ndarray, t: np.ndarray
     return q0 + A * (1.0 - c), Aw * s, Aw * w * c
 
 
+def tracking_rows(q0: np.ndarray, A: np.ndarray, w: np.ndarray, t: np.ndarray, q: np.ndarray, desired: np.ndarray,
+                  err: np.ndarray) -> None:
+    """FrankaTorqueTracking-v0's desired trajectory and tracking error of n robots, written into ``desired``
+    (n, 21: q_d, dq_d, ddq_d) and ``err`` (n,): q0, A, w, q (n, 7) (or (7,) for one robot) and t (n,) float64, C
+    order. The compiled kernel when built (the formula's one home then, which the single env and the batched vector
+    env both call), else :func:`tracking_desired` and :func:`row_norm` (the same formulas in numpy)."""
+    if plant.tracking is not None:
+        plant.tracking(q0, A, w, t, q, desired, err)
+        return
+    qd, dqd, ddqd = tracking_desired(q0, A, w, np.asarray(t).reshape(-1, 1))
+    d = desired.reshape(-1, 21)
+    d[:, :7], d[:, 7:14], d[:, 14:] = qd, dqd, ddqd
+    err[:] = row_norm(np.reshape(q, (-1, 7)) - d[:, :7])
+
+
 def inverse_poses(aMb: np.ndarray) -> np.ndarray:
     """bMa (N, 4, 4) of rigid poses aMb (N, 4, 4): [R^T, -R^T t]."""
     Rt = aMb[:, :3, :3].swapaxes(1, 2)
@@ -222,4 +237,4 @@ def truth_records(geo: np.ndarray | None, q: np.ndarray, fMo: np.ndarray, out: n
 __all__ = ["GEO", "REC", "R_CMO", "R_DEPTH", "R_ERROR", "R_FEATURES", "R_POSE", "R_VISIBLE", "TAG_LOST",
            "camera_geometry", "camera_tag_poses", "clip_observation", "feature_error", "feature_reward",
            "inverse_poses", "pbvs_errors", "pose_reward", "pose_vectors", "row_norm", "row_sumsq", "success_bonus",
-           "torque_penalty", "tracking_desired", "tracking_reward", "truth_records"]
+           "torque_penalty", "tracking_desired", "tracking_reward", "tracking_rows", "truth_records"]

@@ -9,7 +9,7 @@ import numpy as np
 from gymnasium import spaces
 
 from franka_vs_gym.envs.base import FrankaEnv, ObservationPacker, _positive
-from franka_vs_gym.envs.kernels import row_norm, tracking_desired, tracking_reward
+from franka_vs_gym.envs.kernels import tracking_reward, tracking_rows
 
 
 class FrankaTorqueTrackingEnv(FrankaEnv):
@@ -100,10 +100,19 @@ class FrankaTorqueTrackingEnv(FrankaEnv):
         self._A = np.zeros(7)
         self._w = np.zeros(7)
         self._sq_err = 0.0
+        self._err_now = 0.0
 
     def desired(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(q_d, dq_d, ddq_d) (7,) at time t (s since the episode start)."""
-        return tracking_desired(self._q0, self._A, self._w, t)
+        d = self._tracking(t, self._q0)[0]
+        return d[:7], d[7:14], d[14:]
+
+    def _tracking(self, t: float, q: np.ndarray) -> tuple[np.ndarray, float]:
+        """The desired trajectory (21,: q_d, dq_d, ddq_d) at time t and the tracking error ||q - q_d|| (kernels,
+        the batched vector env's formulas)."""
+        d, e, tb = np.empty(21), np.empty(1), np.array([float(t)])
+        tracking_rows(self._q0, self._A, self._w, tb, np.ascontiguousarray(q, dtype=np.float64), d, e)
+        return d, float(e[0])
 
     def _reset_task(self, options: dict[str, Any]) -> np.ndarray:
         rng = self.np_random
@@ -126,13 +135,12 @@ class FrankaTorqueTrackingEnv(FrankaEnv):
     def _get_obs(self) -> dict[str, np.ndarray]:
         q, dq = self._noisy_joint_state()
         t = self.episode_time
-        qd, dqd, ddqd = self._desired_now = self.desired(t)
-        raw = {"q": q, "dq": dq, "q_desired": qd, "dq_desired": dqd, "ddq_desired": ddqd, "time": t}
+        d, self._err_now = self._tracking(t, self.sim.joint_views()[0])  # (the error of the true joint positions)
+        raw = {"q": q, "dq": dq, "q_desired": d[:7], "dq_desired": d[7:14], "ddq_desired": d[14:], "time": t}
         return self._pack(raw)
 
     def _evaluate(self, action: np.ndarray) -> tuple[float, bool, str | None, dict[str, Any]]:
-        qd = self._desired_now[0]  # computed for this step's observation
-        err = float(row_norm(self.sim.q - qd))
+        err = self._err_now  # computed with this step's observation
         self._sq_err += err * err
         rms = float(np.sqrt(self._sq_err / max(self._steps, 1)))
         success = self._steps >= self.max_steps and rms < self.success_threshold

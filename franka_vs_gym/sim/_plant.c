@@ -256,6 +256,10 @@ static PyMethodDef methods[] = {
      "visual_pre(P, I, data_address, action, tau_cmd, tau_applied): a visual env's torque command (see _task.c)."},
     {"visual_post", (PyCFunction)(void (*)(void))fvs_visual_post, METH_FASTCALL,
      "visual_post(P, I, model_address, data_address, out, flags): a visual env's step after its physics."},
+    {"tracking", (PyCFunction)(void (*)(void))fvs_tracking, METH_FASTCALL,
+     "tracking(q0, A, w, t, q, desired, err): FrankaTorqueTracking-v0's desired trajectory and tracking error."},
+    {"tracking_batch", (PyCFunction)(void (*)(void))fvs_tracking_batch, METH_FASTCALL,
+     "tracking_batch(...): one step's end of n FrankaTorqueTracking-v0 robots (see _task.c)."},
     {NULL, NULL, 0, NULL},
 };
 

@@ -507,3 +507,161 @@ PyObject* fvs_visual_post(PyObject* self, PyObject* const* args, Py_ssize_t narg
   PyBuffer_Release(&pb), PyBuffer_Release(&ib), PyBuffer_Release(&ob);
   return PyLong_FromLong(fail ? 1 : 0);
 }
+
+/* ------------------------------------------------------------------------------------------------ torque tracking */
+/* FrankaTorqueTracking-v0's desired trajectory q_d = q0 + A (1 - cos(w t)), dq_d = (A w) sin(w t),
+ * ddq_d = (A w) w cos(w t) (out: 21 numbers) and the tracking error ||q - q_d|| of one robot. */
+static double tracking_row(const double* q0, const double* A, const double* w, double t, const double* q,
+                           double* out) {
+  double ss = 0.0;
+  for (int k = 0; k < 7; k++) {
+    const double wt = w[k] * t;
+    const double c = cos(wt), s = sin(wt), Aw = A[k] * w[k];
+    out[k] = q0[k] + A[k] * (1.0 - c);
+    out[7 + k] = Aw * s;
+    out[14 + k] = Aw * w[k] * c;
+    const double e = q[k] - out[k];
+    ss = ss + e * e;
+  }
+  return sqrt(ss);
+}
+
+/* tracking(q0 (n, 7), A (n, 7), w (n, 7), t (n), q (n, 7), desired (n, 21), err (n)): the desired trajectory and
+ * tracking error of n robots. */
+PyObject* fvs_tracking(PyObject* self, PyObject* const* args, Py_ssize_t nargs) {
+  (void)self;
+  if (nargs != 7) {
+    PyErr_SetString(PyExc_TypeError, "tracking(q0, A, w, t, q, desired, err)");
+    return NULL;
+  }
+  Py_buffer b[7];
+  static const char* names[7] = {"q0", "A", "w", "t", "q", "desired", "err"};
+  Py_ssize_t n = -1;
+  int got = 0;
+  for (; got < 7; got++) {
+    static const int per[7] = {7, 7, 7, 1, 7, 21, 1};
+    if (get_f64(args[got], &b[got], got == 0 ? -7 : per[got] * n, got >= 5, names[got]) < 0) {
+      break;
+    }
+    if (got == 0) {
+      n = b[0].len / 56;
+    }
+  }
+  if (got == 7) {
+    for (Py_ssize_t i = 0; i < n; i++) {
+      ((double*)b[6].buf)[i] = tracking_row((const double*)b[0].buf + 7 * i, (const double*)b[1].buf + 7 * i,
+                                            (const double*)b[2].buf + 7 * i, ((const double*)b[3].buf)[i],
+                                            (const double*)b[4].buf + 7 * i, (double*)b[5].buf + 21 * i);
+    }
+  }
+  for (int j = 0; j < got; j++) {
+    PyBuffer_Release(&b[j]);
+  }
+  if (got < 7) {
+    return NULL;
+  }
+  Py_RETURN_NONE;
+}
+
+/* tracking_batch(q, qo, dqo, t, q0, A, w, sq_err, steps, low, high, keys, work, out, reward, err, rms, success,
+ *                error_scale, success_threshold, max_steps): one step's end of n robots of FrankaTorqueTracking-v0
+ * (FrankaTorqueTrackingEnv._get_obs and _evaluate). float64 arrays: q (n, 7) true joint positions, qo and dqo
+ * (n, 7) observed ones, t (n) time since the episode start, q0, A, w (n, 7) the trajectories, sq_err (n) (updated),
+ * low and high (S) the observation bounds, work (n, S) (written), reward, err, rms, success (n) (written; success
+ * 1.0 or 0.0); steps (n) and keys (6: offsets in an observation of q, dq, q_desired, dq_desired, ddq_desired,
+ * time) int64; out (n, S) float32. The observation is packed as ObservationPacker packs it (clipped in work, NaN
+ * as 0, cast into out), sq_err += err^2, reward = -min(err / error_scale, 1), rms = sqrt(sq_err / max(steps, 1)),
+ * success = steps >= max_steps and rms < success_threshold. */
+PyObject* fvs_tracking_batch(PyObject* self, PyObject* const* args, Py_ssize_t nargs) {
+  (void)self;
+  enum { NB = 18 };
+  if (nargs != NB + 3) {
+    PyErr_SetString(PyExc_TypeError, "tracking_batch(q, qo, dqo, t, q0, A, w, sq_err, steps, low, high, keys, work, "
+                                     "out, reward, err, rms, success, error_scale, success_threshold, max_steps)");
+    return NULL;
+  }
+  static const char* names[NB] = {"q", "qo", "dqo", "t", "q0", "A", "w", "sq_err", "steps", "low", "high", "keys",
+                                  "work", "out", "reward", "err", "rms", "success"};
+  const double error_scale = PyFloat_AsDouble(args[NB]), threshold = PyFloat_AsDouble(args[NB + 1]),
+               max_steps = PyFloat_AsDouble(args[NB + 2]);
+  if (PyErr_Occurred()) {
+    return NULL;
+  }
+  Py_buffer b[NB];
+  int got = 0, ok = 1;
+  for (; got < NB; got++) {
+    const int writable = got == 7 || got >= 12;
+    if (PyObject_GetBuffer(args[got], &b[got], PyBUF_C_CONTIGUOUS | (writable ? PyBUF_WRITABLE : 0)) < 0) {
+      ok = 0;
+      break;
+    }
+  }
+  const Py_ssize_t n = ok ? b[3].len / 8 : 0, S = ok ? b[9].len / 8 : 0;
+  if (ok) { /* sizes: (n, 7) x 3, (n), (n, 7) x 3, (n), (n) int64, (S) x 2, (6) int64, (n, S), (n, S) f32, (n) x 4 */
+    static const int per7[NB] = {7, 7, 7, 1, 7, 7, 7, 1, 1, 0, 0, 0, 0, 0, 1, 1, 1, 1};
+    for (int j = 0; j < NB && ok; j++) {
+      Py_ssize_t want;
+      if (j == 9 || j == 10) {
+        want = 8 * S;
+      } else if (j == 11) {
+        want = 48;
+      } else if (j == 12) {
+        want = 8 * n * S;
+      } else if (j == 13) {
+        want = 4 * n * S;
+      } else {
+        want = 8 * n * per7[j];
+      }
+      if (b[j].len != want) {
+        PyErr_Format(PyExc_ValueError, "tracking_batch: %s has %zd bytes, expected %zd", names[j], b[j].len, want);
+        ok = 0;
+      }
+    }
+  }
+  if (ok) {
+    const double *q = b[0].buf, *qo = b[1].buf, *dqo = b[2].buf, *t = b[3].buf, *q0 = b[4].buf, *A = b[5].buf,
+                 *w = b[6].buf, *low = b[9].buf, *high = b[10].buf;
+    double *sq = b[7].buf, *work = b[12].buf, *reward = b[14].buf, *err = b[15].buf, *rms = b[16].buf,
+           *success = b[17].buf;
+    const int64_t *steps = b[8].buf, *key = b[11].buf;
+    float* out = b[13].buf;
+    for (Py_ssize_t i = 0; i < n; i++) {
+      double des[21];
+      const double e = tracking_row(q0 + 7 * i, A + 7 * i, w + 7 * i, t[i], q + 7 * i, des);
+      double* v = work + S * i;
+      put(v, key[0], qo + 7 * i, 7);
+      put(v, key[1], dqo + 7 * i, 7);
+      put(v, key[2], des, 7);
+      put(v, key[3], des + 7, 7);
+      put(v, key[4], des + 14, 7);
+      put(v, key[5], t + i, 1);
+      float* o = out + S * i;
+      for (Py_ssize_t j = 0; j < S; j++) {
+        double x = v[j];
+        if (x != x) {
+          v[j] = 0.0;
+          o[j] = 0.0f;
+          continue;
+        }
+        x = x < low[j] ? low[j] : x;
+        x = x > high[j] ? high[j] : x;
+        v[j] = x;
+        o[j] = (float)x;
+      }
+      err[i] = e;
+      sq[i] = sq[i] + e * e;
+      const double st = (double)steps[i];
+      rms[i] = sqrt(sq[i] / (st > 1.0 ? st : 1.0));
+      success[i] = (st >= max_steps && rms[i] < threshold) ? 1.0 : 0.0;
+      const double r = e / error_scale;
+      reward[i] = -(r < 1.0 ? r : 1.0);
+    }
+  }
+  for (int j = 0; j < got; j++) {
+    PyBuffer_Release(&b[j]);
+  }
+  if (!ok) {
+    return NULL;
+  }
+  Py_RETURN_NONE;
+}

@@ -17,5 +17,7 @@ PyObject* fvs_tag_truth(PyObject* self, PyObject* const* args, Py_ssize_t nargs)
 PyObject* fvs_torque_cost(PyObject* self, PyObject* const* args, Py_ssize_t nargs);
 PyObject* fvs_visual_pre(PyObject* self, PyObject* const* args, Py_ssize_t nargs);
 PyObject* fvs_visual_post(PyObject* self, PyObject* const* args, Py_ssize_t nargs);
+PyObject* fvs_tracking(PyObject* self, PyObject* const* args, Py_ssize_t nargs);
+PyObject* fvs_tracking_batch(PyObject* self, PyObject* const* args, Py_ssize_t nargs);
 
 #endif
