@@ -143,7 +143,7 @@ def bench_envs(quick: bool) -> dict:
     from franka_vs_gym.envs.benchmark import bench_step_parts
 
     res["parts"] = {env_id: bench_step_parts(env_id, rounds=3 if quick else 7) for env_id in res["envs"]}
-    names = list(next(iter(res["parts"].values()))["parts"])
+    names = list(dict.fromkeys(k for p in res["parts"].values() for k in p["parts"]))
     table("Where an env step's time goes besides its physics: each part alone, as a share of the step's raw "
           "mj_step time (same run, alternating blocks)",
           [(env_id, p["substeps"], p["physics_us"], p["ratio"],

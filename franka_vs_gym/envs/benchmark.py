@@ -306,14 +306,34 @@ def bench_step_parts(env_id: str, n: int | None = None, rounds: int = 7, seed: i
         fns: dict[str, Any] = {
             "step": step,
             "physics": lambda: mujoco.mj_step(m, d_raw, n_sub),
-            "action check and command": lambda: u._step_begin(a),
-            "reflex check after the period": u.sim.check_reflexes,
-            "observation": u._get_obs,
-            "reward and task checks": lambda: u._evaluate(checked),
-            "joint limits and contacts": u._robot_failure,
         }
-        if hasattr(u, "_capture"):
-            fns["camera frame"] = u._capture
+        plan = getattr(u, "_plan", None)
+        if plan is not None and plan.fast and plan.eligible(u):
+            # the compiled step (franka_vs_gym.envs.visual.StepPlan): its two calls around the physics, then the
+            # Python that ends the step (reward, checks, info, observation dict)
+            from franka_vs_gym.sim import plant
+
+            out = np.empty(plan.size, dtype=np.float32)
+            tau_cmd, tau_applied = u.sim.torque_command_views()
+            obs = u._last_obs
+            fns.update({
+                "compiled command": lambda: plant.visual_pre(plan.P, plan.I, plan.d_addr, a, tau_cmd, tau_applied),
+                "compiled period end (reflexes, truth, frame, observation)":
+                    lambda: plant.visual_post(plan.P, plan.I, plan.m_addr, plan.d_addr, out, 0),
+                "reward, info (Python)": lambda: u._finish_step(obs, False),
+                "observation dict (Python)": lambda: {k: out[sl] if sh is None else out[sl].reshape(sh)
+                                                      for k, sl, sh in plan.views},
+            })
+        else:
+            fns.update({
+                "action check and command": lambda: u._step_begin(a),
+                "reflex check after the period": u.sim.check_reflexes,
+                "observation": u._get_obs,
+                "reward and task checks": lambda: u._evaluate(checked),
+                "joint limits and contacts": u._robot_failure,
+            })
+            if hasattr(u, "_capture"):
+                fns["camera frame"] = u._capture
         n = n if n is not None else (60 if n_sub >= 50 else 300)
         t = _interleaved(fns, dict.fromkeys(fns, n), rounds)
     finally:
