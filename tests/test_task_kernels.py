@@ -262,3 +262,28 @@ def test_tracking_kernel_matches_the_numpy_formulas():
     np.testing.assert_allclose(err, K.row_norm(q - qd), rtol=1e-15)
     with pytest.raises(ValueError, match="desired has"):
         plant.tracking(q0, A, w, t, q, np.zeros((n, 20)), err)
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_state_observation_of_a_reflex_stop_is_the_braked_state(compiled):
+    """A step that a reflex ends reports the ground truth of the state the brakes hold (computed here from the
+    joint positions with pinocchio and the numpy projection), also when a camera frame was taken at the end of the
+    previous period."""
+    env = gym.make("FrankaVisualTorque-v0", observation_type="state")
+    u = env.unwrapped
+    u._plan.fast = u._plan.fast and compiled
+    rng = np.random.default_rng(5)
+    stops = 0
+    env.reset(seed=5)
+    for _ in range(400):
+        obs, _, term, trunc, info = env.step((rng.uniform(-1, 1, 7) * 0.3 * u.tau_max).astype(np.float32))
+        if term and "reflex" in info:
+            ref = _records(u, u.sim.q[None], u._fMo[None], False)[0]
+            if ref[K.R_VISIBLE]:
+                np.testing.assert_allclose(obs["features"], ref[K.R_FEATURES], atol=1e-6)
+                np.testing.assert_allclose(obs["tag_pose"][:3], ref[K.R_POSE][:3], atol=1e-6)
+                stops += 1
+        if term or trunc:
+            env.reset()
+    assert stops >= 10, stops
+    env.close()

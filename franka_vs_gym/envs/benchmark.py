@@ -333,7 +333,11 @@ def bench_step_parts(env_id: str, n: int | None = None, rounds: int = 7, seed: i
                 "joint limits and contacts": u._robot_failure,
             })
             if hasattr(u, "_capture"):
-                fns["camera frame"] = u._capture
+                def frame() -> None:
+                    u._truth_k = -1  # the ground truth computed again, as for a frame taken at a new state
+                    u._capture()
+
+                fns["camera frame"] = frame
         n = n if n is not None else (60 if n_sub >= 50 else 300)
         t = _interleaved(fns, dict.fromkeys(fns, n), rounds)
     finally:
