@@ -287,3 +287,31 @@ def test_state_observation_of_a_reflex_stop_is_the_braked_state(compiled):
             env.reset()
     assert stops >= 10, stops
     env.close()
+
+
+def test_kernels_refuse_wrong_buffers_with_an_error():
+    """Wrong sizes or types give a Python error naming the argument, never a write outside a buffer."""
+    env = gym.make("FrankaVisualTorque-v0")
+    u = env.unwrapped
+    env.reset(seed=0)
+    plan = u._plan
+    with pytest.raises(ValueError, match="out has"):
+        plant.tag_truth(plan.geo, np.zeros((2, 7)), np.zeros((2, 16)), np.zeros((1, K.REC)))
+    with pytest.raises(TypeError, match="q must be a float64"):
+        plant.tag_truth(plan.geo, np.zeros((1, 7), np.float32), np.zeros((1, 16)), np.zeros((1, K.REC)))
+    out = np.empty(plan.size, np.float32)
+    with pytest.raises(ValueError, match="wrong size"):
+        plant.visual_post(plan.P[:-1], plan.I, plan.m_addr, plan.d_addr, out, 0)
+    bad_i = plan.I.copy()
+    bad_i[16] = plan.size  # the offset of q past the observation's end
+    with pytest.raises(ValueError, match="layout"):
+        plant.visual_post(plan.P, bad_i, plan.m_addr, plan.d_addr, out, 0)
+    with pytest.raises(ValueError, match="float32 vector"):
+        plant.visual_post(plan.P, plan.I, plan.m_addr, plan.d_addr, out[:-1], 0)
+    tau_cmd, tau_applied = u.sim.torque_command_views()
+    assert plant.visual_pre(plan.P, plan.I, plan.d_addr, [0.0] * 7, tau_cmd, tau_applied) == -1
+    assert plant.visual_pre(plan.P, plan.I, plan.d_addr, np.zeros(6), tau_cmd, tau_applied) == -1
+    assert plant.visual_pre(plan.P, plan.I, plan.d_addr, np.zeros(7, np.int64), tau_cmd, tau_applied) == -1
+    with pytest.raises(ValueError, match="too short"):
+        plant.visual_pre(plan.P[:10], plan.I, plan.d_addr, np.zeros(7), tau_cmd, tau_applied)
+    env.close()

@@ -392,7 +392,8 @@ class StepPlan:
         self.depth_d, self.pose_d, self.cost = P[o + 42:o + 46], P[o + 46:o + 52], P[o + 52:o + 53]
         self.cost_now = P[o + 53:o + 54]
         w0 = plant.TASK_P_FIXED
-        assert o + 54 == w0, "the step plan's layout differs from franka_vs_gym/sim/_task.c"
+        if o + 54 != w0:
+            raise RuntimeError("the step plan's layout differs from franka_vs_gym/sim/_task.c's")
         work = P[w0:w0 + S]
         work[:] = pack._work
         pack._work = work  # (the packer writes into it in place)

@@ -339,6 +339,11 @@ PyObject* fvs_visual_pre(PyObject* self, PyObject* const* args, Py_ssize_t nargs
   if (get_f64(args[0], &pb, -1, 1, "P") < 0) {
     return NULL;
   }
+  if (pb.len < P_WORK * 8) {
+    PyErr_SetString(PyExc_ValueError, "visual_pre: plan block P too short");
+    PyBuffer_Release(&pb);
+    return NULL;
+  }
   double* P = (double*)pb.buf;
   for (int k = 0; k < 7; k++) {
     if (!(v[k] >= P[P_ACT_LO + k] && v[k] <= P[P_ACT_HI + k])) { /* (NaN fails) */
@@ -368,6 +373,11 @@ PyObject* fvs_visual_pre(PyObject* self, PyObject* const* args, Py_ssize_t nargs
     return NULL;
   }
   const int64_t* I = (const int64_t*)ib.buf;
+  if (I[I_CTRL] < 0) {
+    PyErr_SetString(PyExc_ValueError, "visual_pre: no torque actuators in the plan");
+    PyBuffer_Release(&pb), PyBuffer_Release(&ib), PyBuffer_Release(&tc), PyBuffer_Release(&ta);
+    return NULL;
+  }
   double* tau_cmd = (double*)tc.buf;
   double* tau_applied = (double*)ta.buf;
   for (int k = 0; k < 7; k++) {
@@ -429,8 +439,16 @@ PyObject* fvs_visual_post(PyObject* self, PyObject* const* args, Py_ssize_t narg
   double* P = (double*)pb.buf;
   const int64_t* I = (const int64_t*)ib.buf;
   const int64_t S = I[I_S];
-  if (ib.len != I_SIZE * 8 || pb.len != (P_WORK + 3 * S) * 8) {
-    PyErr_SetString(PyExc_ValueError, "visual_post: plan blocks of the wrong size");
+  static const int key_size[8] = {7, 7, 8, 8, 4, 6, 6, 1};
+  int bad = ib.len != I_SIZE * 8 || pb.len != (P_WORK + 3 * S) * 8;
+  for (int j = 0; j < 8 && !bad; j++) {
+    bad = I[I_KEYS + j] >= 0 && I[I_KEYS + j] + key_size[j] > S;
+  }
+  for (int k = 0; k < 7 && !bad; k++) {
+    bad = I[I_QADR + k] < 0 || I[I_QADR + k] >= m->nq || I[I_DADR + k] < 0 || I[I_DADR + k] >= m->nv;
+  }
+  if (bad) {
+    PyErr_SetString(PyExc_ValueError, "visual_post: plan blocks of the wrong size or layout");
     PyBuffer_Release(&pb), PyBuffer_Release(&ib);
     return NULL;
   }
