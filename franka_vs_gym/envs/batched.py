@@ -6,7 +6,8 @@ trajectory, held camera frame, ...) in the (N, ...) arrays of a :class:`BatchedT
 numpy calls for all robots: the actions checked and written into the batch's controls, one ``Batch.step``, the
 reflex and divergence checks, the observations packed into one preallocated (N, size) matrix, rewards,
 terminations and the info columns. The formulas are those of the single environments
-(:mod:`franka_vs_gym.envs.kernels`, :func:`franka_vs_gym.vision.tags.project_tag`), which call them with N = 1.
+(:mod:`franka_vs_gym.envs.kernels`, with the compiled kernels of ``franka_vs_gym/sim/_task.c`` for the visual tasks'
+ground truth and torque tracking's step end), which call them with N = 1.
 
 A robot goes back to its own environment object (:meth:`BatchedTask.store`: its MuJoCo state into its MjData, its
 task state into its attributes) whenever something per robot happens: a reset, a step whose physics needs Python
