@@ -91,7 +91,6 @@ class VisualServoEnv(FrankaEnv):
         self._pack = ObservationPacker(self.observation_space)
         # the truth, the held frame and the packer's work vector live in one block shared with the compiled step
         self._plan = StepPlan(self)
-        self._truth_rec, self._frame_rec = self._plan.truth, self._plan.frame
         self._truth_k = -1  # the physics step (self._k) the truth record is of; -1: not computed
         self._frame_no = 0  # camera frames taken (the held frame's number)
         self._packed_frame_no = -1  # the frame whose keys the packer's work vector holds
@@ -181,6 +180,20 @@ class VisualServoEnv(FrankaEnv):
     def get_cMo(self) -> np.ndarray:
         """True pose of the tag in the camera frame c (4, 4)."""
         return self._truth_now()[R_CMO].reshape(4, 4).copy()
+
+    @property
+    def _truth_rec(self) -> np.ndarray:
+        """The truth record (kernels.REC) of the state ``_truth_k`` says (a view of the step plan)."""
+        return self._plan.truth
+
+    @property
+    def _frame_rec(self) -> np.ndarray:
+        """The held camera frame as a record (features, depths, visible, pose vector; a view of the step plan)."""
+        return self._plan.frame
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self._pack._work = self._plan.work  # (a copy's packer writes into its own plan's block)
 
     @property
     def _fMo(self) -> np.ndarray:
@@ -377,27 +390,14 @@ class StepPlan:
     def __init__(self, env: VisualServoEnv) -> None:
         pack = env._pack
         S = pack.low.size
+        self.size = S
         self.P = np.zeros(plant.TASK_P_FIXED + 3 * S)
         self.I = np.zeros(plant.TASK_I_SIZE, dtype=np.int64)
-        P = self.P
-        self.geo = P[:GEO]
-        self.fMo = P[GEO:GEO + 16].reshape(4, 4)
+        self._bind()
         self.fMo[:] = np.eye(4)
-        self.truth = P[GEO + 16:GEO + 16 + REC]
-        self.frame = P[GEO + 16 + REC:GEO + 16 + 2 * REC]
-        o = GEO + 16 + 2 * REC
-        self.act_lo, self.act_hi, self.tau_max, self.action = (P[o:o + 7], P[o + 7:o + 14], P[o + 14:o + 21],
-                                                                P[o + 21:o + 28])
-        self.q_lo, self.q_hi = P[o + 28:o + 35], P[o + 35:o + 42]
-        self.depth_d, self.pose_d, self.cost = P[o + 42:o + 46], P[o + 46:o + 52], P[o + 52:o + 53]
-        self.cost_now = P[o + 53:o + 54]
-        w0 = plant.TASK_P_FIXED
-        if o + 54 != w0:
-            raise RuntimeError("the step plan's layout differs from franka_vs_gym/sim/_task.c's")
-        work = P[w0:w0 + S]
-        work[:] = pack._work
-        pack._work = work  # (the packer writes into it in place)
-        P[w0 + S:w0 + 2 * S], P[w0 + 2 * S:w0 + 3 * S] = pack.low, pack.high
+        self.work[:] = pack._work
+        pack._work = self.work  # (the packer writes into it in place)
+        self.low[:], self.high[:] = pack.low, pack.high
         self.size = S
         self.views = pack._views
         self.geo_or_none: np.ndarray | None = None
@@ -429,6 +429,33 @@ class StepPlan:
         self.model, self.data = env.world.model, env.world.data
         self.m_addr, self.d_addr = self.model._address, self.data._address
         self._tau_cmd, self._tau_applied = sim.torque_command_views()
+
+    def _bind(self) -> None:
+        """The named views of the float64 block P (the layout of franka_vs_gym/sim/_task.c)."""
+        P, S = self.P, self.size
+        self.geo = P[:GEO]
+        self.fMo = P[GEO:GEO + 16].reshape(4, 4)
+        self.truth = P[GEO + 16:GEO + 16 + REC]
+        self.frame = P[GEO + 16 + REC:GEO + 16 + 2 * REC]
+        o = GEO + 16 + 2 * REC
+        self.act_lo, self.act_hi, self.tau_max, self.action = (P[o:o + 7], P[o + 7:o + 14], P[o + 14:o + 21],
+                                                                P[o + 21:o + 28])
+        self.q_lo, self.q_hi = P[o + 28:o + 35], P[o + 35:o + 42]
+        self.depth_d, self.pose_d, self.cost = P[o + 42:o + 46], P[o + 46:o + 52], P[o + 52:o + 53]
+        self.cost_now = P[o + 53:o + 54]
+        w0 = plant.TASK_P_FIXED
+        if o + 54 != w0:
+            raise RuntimeError("the step plan's layout differs from franka_vs_gym/sim/_task.c's")
+        self.work, self.low, self.high = P[w0:w0 + S], P[w0 + S:w0 + 2 * S], P[w0 + 2 * S:w0 + 3 * S]
+        if getattr(self, "geo_or_none", None) is not None:
+            self.geo_or_none = self.geo
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        """A copy (``copy.deepcopy`` of the environment) gets its own block: the views are made again from it and
+        the MuJoCo addresses are those of the copy's model and data (the environment re-points its packer)."""
+        self.__dict__.update(state)
+        self._bind()
+        self.m_addr, self.d_addr = self.model._address, self.data._address
 
     def refresh(self, env: VisualServoEnv) -> None:
         """Rebuild the geometry block when the robot's kinematic model (a new tool or payload rebuilds it) or the
