@@ -315,3 +315,21 @@ def test_kernels_refuse_wrong_buffers_with_an_error():
     with pytest.raises(ValueError, match="too short"):
         plant.visual_pre(plan.P[:10], plan.I, plan.d_addr, np.zeros(7), tau_cmd, tau_applied)
     env.close()
+
+
+def test_a_deep_copy_runs_the_compiled_step_on_its_own_physics():
+    import copy
+
+    env = gym.make("FrankaVisualTorque-v0")
+    u = env.unwrapped
+    env.reset(seed=0)
+    u.step(np.zeros(7, np.float32))
+    twin = copy.deepcopy(u)
+    q, ctrl = u.sim.q, u.world.data.ctrl.copy()
+    a = np.full(7, 0.5, np.float32)
+    r2 = [twin.step(a) for _ in range(6)]
+    assert np.array_equal(u.sim.q, q) and np.array_equal(u.world.data.ctrl, ctrl)  # the original is untouched
+    r1 = [u.step(a) for _ in range(6)]
+    _assert_same(r1, r2)
+    assert not np.array_equal(r1[-1][0]["q"], r1[0][0]["q"])  # (the torque moved the arm)
+    env.close()
