@@ -182,6 +182,15 @@ def _servo(u, obs, rng, t):
     return np.clip(tau, -u.tau_max, u.tau_max).astype(np.float32)
 
 
+def _tracker(u, obs, rng, t):
+    """Computed torque on the desired trajectory of the observation: tracks it well enough to succeed."""
+    m = u.sim.model
+    q, dq = obs["q"].astype(float), obs["dq"].astype(float)
+    e, de = obs["q_desired"] - q, obs["dq_desired"] - dq
+    tau = m.mass_matrix(q) @ (obs["ddq_desired"] + 400.0 * e + 40.0 * de) + m.coriolis(q, dq) + m.friction(dq)
+    return np.clip(tau, -u.tau_max, u.tau_max).astype(np.float32)
+
+
 @pytest.mark.parametrize("env_id, kwargs, policy, steps, ends", [
     ("FrankaVisualTorque-v0", {"observation_type": "state"}, _servo, 600, {"success"}),
     ("FrankaVisualTorque-v0", {}, _servo, 600, {"success"}),
@@ -197,6 +206,10 @@ def _servo(u, obs, rng, t):
      set()),
     ("FrankaPBVS-v0", {"action_type": "torque", "control_period": 0.01, "observation_type": "state"},
      _random(0.05), 200, set()),
+    ("FrankaTorqueTracking-v0", {}, _tracker, 1100, {"success"}),
+    ("FrankaTorqueTracking-v0", {"time_limit": 1.0}, _random(0.3), 300, {"joint_velocity_violation"}),
+    ("FrankaTorqueTracking-v0", {"link_mass_range": (0.8, 1.2), "friction_scale_range": (0.5, 1.5),
+                                 "time_limit": 1.0}, _random(0.02), 300, {"time limit"}),
 ])
 def test_compiled_step_gives_the_general_paths_bits(env_id, kwargs, policy, steps, ends):
     """Observations, rewards, ends and infos of the compiled step equal the general path's, bit for bit, across

@@ -9,6 +9,7 @@ import numpy as np
 from gymnasium import spaces
 
 from franka_vs_gym.envs.base import FrankaEnv, ObservationPacker, _positive
+from franka_vs_gym.envs.compiled import TrackingStep
 from franka_vs_gym.envs.kernels import tracking_reward, tracking_rows
 
 
@@ -101,6 +102,18 @@ class FrankaTorqueTrackingEnv(FrankaEnv):
         self._w = np.zeros(7)
         self._sq_err = 0.0
         self._err_now = 0.0
+        self._plan = TrackingStep(self)  # the compiled step of torque actions (franka_vs_gym.envs.compiled)
+
+    def step(self, action: Any):
+        plan = self._plan
+        if plan.fast and self._diverged is None and self._last_obs is not None and plan.eligible(self):
+            out = plan.step(self, action)
+            if out is not None:
+                return out
+        return super().step(action)
+
+    def _after_reset(self) -> None:
+        self._plan.set_trajectory(self._q0, self._A, self._w, self._t0)
 
     def desired(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(q_d, dq_d, ddq_d) (7,) at time t (s since the episode start)."""

@@ -15,20 +15,19 @@ from gymnasium import spaces
 
 from franka_vs_gym.assets.mjcf import TagSpec, mat2quat
 from franka_vs_gym.envs.base import FrankaEnv, ObservationPacker, _nonneg, _positive, _range, substeps
+from franka_vs_gym.envs.compiled import CompiledStep
 from franka_vs_gym.envs.kernels import (
-    GEO,
     R_CMO,
     R_DEPTH,
     R_FEATURES,
     R_POSE,
     R_VISIBLE,
-    REC,
     camera_geometry,
     truth_records,
 )
 from franka_vs_gym.model.description import TAG_SIZE
 from franka_vs_gym.model.geometry import desired_tag_pose, homogeneous, inverse_pose, pose_vector, rot_x, rot_y, rot_z
-from franka_vs_gym.sim import FORCE_TORQUE, SimulationDiverged, plant
+from franka_vs_gym.sim import plant
 from franka_vs_gym.sim.reflexes import ControlException
 from franka_vs_gym.vision.tags import tag_corners
 
@@ -372,90 +371,33 @@ class VisualServoEnv(FrankaEnv):
         return bool(self._truth_now()[R_VISIBLE])
 
 
-class StepPlan:
-    """A visual environment's numbers shared with the compiled step (``franka_vs_gym/sim/_task.c``): one float64
-    block (the geometry of the robot, camera and tag; the tag pose fMo; the truth and held-frame records; the action
-    bounds; the observation packer's work vector and bounds) and one int64 block (MuJoCo addresses, observation
-    offsets). The environment's ``_truth_rec``, ``_frame_rec``, ``_fMo`` and its packer's work vector are views of
-    it, so the Python and the compiled halves of a step read and write the same numbers.
+class StepPlan(CompiledStep):
+    """A visual environment's compiled step (:mod:`franka_vs_gym.envs.compiled`): the task's block holds the geometry
+    of the robot, camera and tag, then come the tag pose fMo and the truth and held-frame records. The
+    environment's ``_truth_rec``, ``_frame_rec``, ``_fMo`` and its packer's work vector are views of the block, so the
+    Python and the compiled halves of a step read and write the same numbers.
 
-    The compiled step (:meth:`step`) runs a control period of the common configuration: joint-torque actions inside
-    the action space as a float32/float64 vector, ideal features (no pixel noise) or state observations, no joint
-    noise, the compiled plant with the robot's reflexes armed and commands passed as given, the period one physics
-    segment. It gives the same bits as the general path (``FrankaEnv.step``), which takes every other step.
+    The compiled step covers joint-torque actions with ideal features (no pixel noise) or state observations, the
+    period one physics segment; the general path (``FrankaEnv.step``) takes every other step, with the same bits.
     """
 
     KEYS = ("q", "dq", "features", "features_desired", "feature_depth", "tag_pose", "tag_pose_desired", "visible")
 
     def __init__(self, env: VisualServoEnv) -> None:
-        pack = env._pack
-        S = pack.low.size
-        self.size = S
-        self.P = np.zeros(plant.TASK_P_FIXED + 3 * S)
-        self.I = np.zeros(plant.TASK_I_SIZE, dtype=np.int64)
-        self._bind()
+        super().__init__(env, fast=(plant.visual_post is not None and env.observation_type in ("features", "state")
+                                    and env.feature_source == "ideal" and not env.feature_noise))
         self.fMo[:] = np.eye(4)
-        self.work[:] = pack._work
-        pack._work = self.work  # (the packer writes into it in place)
-        self.low[:], self.high[:] = pack.low, pack.high
-        self.size = S
-        self.views = pack._views
         self.geo_or_none: np.ndarray | None = None
         self._key: tuple[Any, Any] | None = None
-        # the configuration the compiled step covers (the per-step conditions are in eligible)
-        sim = env.sim
-        self.fast = (plant.visual_post is not None and env.action_type == "torque"
-                     and env.observation_type in ("features", "state") and env.feature_source == "ideal"
-                     and not env.feature_noise and not env.joint_noise and not env.velocity_noise
-                     and set(pack.keys) <= set(self.KEYS) and type(env).__module__.startswith("franka_vs_gym.envs."))
         self.state_flag = 2 if env.observation_type == "state" else 0
-        self.torque_cost = float(getattr(env, "torque_cost", 0.0))
-        I = self.I
-        lay = sim.batch_layout()
-        I[0] = lay.first_joint
-        I[1:8] = np.arange(lay.qpos.start, lay.qpos.stop)
-        I[8:15] = np.arange(lay.qvel.start, lay.qvel.stop)
-        I[15] = lay.ctrl_torque.start
-        for j, k in enumerate(self.KEYS):
-            I[16 + j] = pack._slices[k].start if k in pack._slices else -1
-        I[24] = S
-        if env.action_type == "torque":
-            self.act_lo[:], self.act_hi[:] = env._act_lo_tol, env._act_hi_tol
-        self.tau_max[:] = sim.tau_max
-        self.q_lo[:], self.q_hi[:] = env._q_lo_fail, env._q_hi_fail
         self.depth_d[:], self.pose_d[:] = env.depth_desired, env.tag_pose_desired
-        self.cost[0] = self.torque_cost
-        self.n_substeps, self.camera_substeps = env.n_substeps, env.camera_substeps
-        self.model, self.data = env.world.model, env.world.data
-        self.m_addr, self.d_addr = self.model._address, self.data._address
-        self._tau_cmd, self._tau_applied = sim.torque_command_views()
+        self.cost[0] = float(getattr(env, "torque_cost", 0.0))
+        self.camera_substeps = env.camera_substeps
 
     def _bind(self) -> None:
-        """The named views of the float64 block P (the layout of franka_vs_gym/sim/_task.c)."""
-        P, S = self.P, self.size
-        self.geo = P[:GEO]
-        self.fMo = P[GEO:GEO + 16].reshape(4, 4)
-        self.truth = P[GEO + 16:GEO + 16 + REC]
-        self.frame = P[GEO + 16 + REC:GEO + 16 + 2 * REC]
-        o = GEO + 16 + 2 * REC
-        self.act_lo, self.act_hi, self.tau_max, self.action = (P[o:o + 7], P[o + 7:o + 14], P[o + 14:o + 21],
-                                                                P[o + 21:o + 28])
-        self.q_lo, self.q_hi = P[o + 28:o + 35], P[o + 35:o + 42]
-        self.depth_d, self.pose_d, self.cost = P[o + 42:o + 46], P[o + 46:o + 52], P[o + 52:o + 53]
-        self.cost_now = P[o + 53:o + 54]
-        w0 = plant.TASK_P_FIXED
-        if o + 54 != w0:
-            raise RuntimeError("the step plan's layout differs from franka_vs_gym/sim/_task.c's")
-        self.work, self.low, self.high = P[w0:w0 + S], P[w0 + S:w0 + 2 * S], P[w0 + 2 * S:w0 + 3 * S]
+        super()._bind()
         if getattr(self, "geo_or_none", None) is not None:
             self.geo_or_none = self.geo
-
-    def __setstate__(self, state: dict[str, Any]) -> None:
-        """A copy (``copy.deepcopy`` of the environment) gets its own block: the views are made again from it and
-        the MuJoCo addresses are those of the copy's model and data (the environment re-points its packer)."""
-        self.__dict__.update(state)
-        self._bind()
-        self.m_addr, self.d_addr = self.model._address, self.data._address
 
     def refresh(self, env: VisualServoEnv) -> None:
         """Rebuild the geometry block when the robot's kinematic model (a new tool or payload rebuilds it) or the
@@ -475,43 +417,29 @@ class StepPlan:
         env._truth_k = -1
 
     def eligible(self, env: VisualServoEnv) -> bool:
-        """Whether the next control period can run in the compiled step."""
         key, now = self._key, env.sim.kinematics_key()
         if key is None or self.geo_or_none is None or now[0] is not key[0] or now[1] is not key[1]:
             return False
         k0 = env._k
         k1 = k0 + self.n_substeps
         last = (k1 // self.camera_substeps) * self.camera_substeps
-        return (last <= k0 or last == k1) and env.sim.runs_inside_mj_step(FORCE_TORQUE)
+        return (last <= k0 or last == k1) and super().eligible(env)
 
     def step(self, env: VisualServoEnv, action: Any):
         """One control period in the compiled step; None (nothing done) when the action is not a plain vector inside
-        the action space (the general path then checks it, clips it or names the problem)."""
-        if plant.visual_pre(self.P, self.I, self.d_addr, action, self._tau_cmd, self._tau_applied) < 0:
+        the action space."""
+        if not self.command(env, action):
             return None
-        env._reflex = None
-        env._action = self.action
         n = self.n_substeps
-        mujoco.mj_step(self.model, self.data, n)
         k1 = env._k + n
         capture = k1 % self.camera_substeps == 0
         flags = (1 if capture else 0) | self.state_flag | (4 if env._packed_frame_no != env._frame_no else 0)
         out = np.empty(self.size, dtype=np.float32)
         code = plant.visual_post(self.P, self.I, self.m_addr, self.d_addr, out, flags)
         if code < 0:  # a diverging state or a reflex: the general path ends the step
-            try:
-                env.world.after_steps()
-                env._segment_done(n, capture)
-            except SimulationDiverged as e:
-                return env._step_diverged(e)
-            except ControlException as e:
-                env._reflex = e
-            return env._step_end()
+            return self.general_end(env, n, capture)
         env._k = env._truth_k = k1
         if capture:
             env._frame_no += 1
         env._packed_frame_no = -1 if self.state_flag else env._frame_no
-        env._pack.last = out
-        env._steps += 1
-        obs = {k: out[sl] if sh is None else out[sl].reshape(sh) for k, sl, sh in self.views}
-        return env._finish_step(obs, check_robot=code == 1)
+        return self.finish(env, out, code)

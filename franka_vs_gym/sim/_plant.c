@@ -260,6 +260,8 @@ static PyMethodDef methods[] = {
      "tracking(q0, A, w, t, q, desired, err): FrankaTorqueTracking-v0's desired trajectory and tracking error."},
     {"tracking_batch", (PyCFunction)(void (*)(void))fvs_tracking_batch, METH_FASTCALL,
      "tracking_batch(...): one step's end of n FrankaTorqueTracking-v0 robots (see _task.c)."},
+    {"tracking_post", (PyCFunction)(void (*)(void))fvs_tracking_post, METH_FASTCALL,
+     "tracking_post(P, I, model_address, data_address, out): a torque tracking env's step after its physics."},
     {NULL, NULL, 0, NULL},
 };
 

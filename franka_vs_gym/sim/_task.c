@@ -401,6 +401,110 @@ static void put(double* work, int64_t off, const double* src, int n) {
   }
 }
 
+/* What the two post-physics halves share: the plan's blocks and the output buffer, validated, the reflex check of
+ * the state the period ends with, and the joint state with its failure flag. */
+typedef struct {
+  Py_buffer pb, ib, ob;
+  double* P;
+  const int64_t* I;
+  int64_t S;
+  double q[7], dq[7];
+  int fail; /* a joint outside its failure bounds or a contact in the data */
+} post_ctx;
+
+/* Returns 0 (c ready: the state within the reflexes' limits, marked checked), -1 (MuJoCo warned of a diverging
+ * state, or the reflex record is not armed or a violation is recorded now: nothing else done) or -2 (a Python error
+ * is set). args: P, I, model_address, data_address, out; key_size: the numbers of each observation key slot. */
+static int post_begin(PyObject* const* args, const char* name, const int* key_size, const mjModel** mp, mjData** dp,
+                      post_ctx* c) {
+  const mjModel* m = (const mjModel*)PyLong_AsVoidPtr(args[2]);
+  mjData* d = (mjData*)PyLong_AsVoidPtr(args[3]);
+  if (PyErr_Occurred()) {
+    return -2;
+  }
+  if (m == NULL || d == NULL) {
+    PyErr_Format(PyExc_ValueError, "%s: null model or data", name);
+    return -2;
+  }
+  *mp = m, *dp = d;
+  if (d->warning[mjWARN_BADQPOS].number || d->warning[mjWARN_BADQVEL].number ||
+      d->warning[mjWARN_BADQACC].number) {
+    return -1;
+  }
+  if (get_f64(args[0], &c->pb, -1, 1, "P") < 0) {
+    return -2;
+  }
+  if (PyObject_GetBuffer(args[1], &c->ib, PyBUF_C_CONTIGUOUS) < 0) {
+    PyBuffer_Release(&c->pb);
+    return -2;
+  }
+  c->P = (double*)c->pb.buf;
+  c->I = (const int64_t*)c->ib.buf;
+  const int64_t* I = c->I;
+  int bad = c->ib.len != I_SIZE * 8;
+  const int64_t S = bad ? 0 : I[I_S];
+  c->S = S;
+  bad = bad || c->pb.len != (P_WORK + 3 * S) * 8;
+  for (int j = 0; j < 8 && !bad; j++) {
+    bad = I[I_KEYS + j] >= 0 && I[I_KEYS + j] + key_size[j] > S;
+  }
+  for (int k = 0; k < 7 && !bad; k++) {
+    bad = I[I_QADR + k] < 0 || I[I_QADR + k] >= m->nq || I[I_DADR + k] < 0 || I[I_DADR + k] >= m->nv;
+  }
+  if (bad) {
+    PyErr_Format(PyExc_ValueError, "%s: plan blocks of the wrong size or layout", name);
+    PyBuffer_Release(&c->pb), PyBuffer_Release(&c->ib);
+    return -2;
+  }
+  if (PyObject_GetBuffer(args[4], &c->ob, PyBUF_C_CONTIGUOUS | PyBUF_WRITABLE | PyBUF_FORMAT) < 0) {
+    PyBuffer_Release(&c->pb), PyBuffer_Release(&c->ib);
+    return -2;
+  }
+  if (c->ob.len != S * 4 || c->ob.format == NULL || strchr(c->ob.format, 'f') == NULL) {
+    PyErr_Format(PyExc_ValueError, "%s: out must be a float32 vector of the observation's size", name);
+    PyBuffer_Release(&c->pb), PyBuffer_Release(&c->ib), PyBuffer_Release(&c->ob);
+    return -2;
+  }
+  /* the reflexes: the state this call ends with, checked as the world's after-call check does */
+  mjtNum* s = fvs_reflex_record(m, d, (int)I[I_J0]);
+  if (s == NULL || s[0] != -1.0 || fvs_reflex_check(m, d, (int)I[I_J0], s)) {
+    PyBuffer_Release(&c->pb), PyBuffer_Release(&c->ib), PyBuffer_Release(&c->ob);
+    return -1;
+  }
+  s[1] = d->time;
+  c->fail = d->ncon > 0;
+  for (int k = 0; k < 7; k++) {
+    c->q[k] = d->qpos[I[I_QADR + k]];
+    c->dq[k] = d->qvel[I[I_DADR + k]];
+    c->fail |= c->q[k] < c->P[P_Q_LO + k] || c->q[k] > c->P[P_Q_HI + k];
+  }
+  return 0;
+}
+
+/* The work vector clipped in place to [low, high] (NaN as 0: clip_observation) and cast into out; the buffers
+ * released. Returns the step's code (1 when the joints or contacts need the caller's check, else 0). */
+static PyObject* post_end(post_ctx* c) {
+  const int64_t S = c->S;
+  double* work = c->P + P_WORK;
+  const double* low = work + S;
+  const double* high = work + 2 * S;
+  float* out = (float*)c->ob.buf;
+  for (int64_t i = 0; i < S; i++) {
+    double x = work[i];
+    if (x != x) {
+      work[i] = 0.0;
+      out[i] = 0.0f;
+      continue;
+    }
+    x = x < low[i] ? low[i] : x;
+    x = x > high[i] ? high[i] : x;
+    work[i] = x;
+    out[i] = (float)x;
+  }
+  PyBuffer_Release(&c->pb), PyBuffer_Release(&c->ib), PyBuffer_Release(&c->ob);
+  return PyLong_FromLong(c->fail ? 1 : 0);
+}
+
 /* visual_post(P, I, model_address, data_address, out, flags) after the physics of a period (flags: 1 a camera
  * frame is taken now, 2 state observations, 4 the held frame changed since the work vector was last written):
  *   -1: MuJoCo warned of a diverging state, or the robot's reflex record is not armed or a violation is recorded
@@ -410,73 +514,25 @@ static void put(double* work, int64_t off, const double* src, int n) {
  *    1: the same, with a joint outside its failure bounds or a contact in the data (the caller names it). */
 PyObject* fvs_visual_post(PyObject* self, PyObject* const* args, Py_ssize_t nargs) {
   (void)self;
+  static const int key_size[8] = {7, 7, 8, 8, 4, 6, 6, 1};
   if (nargs != 6) {
     PyErr_SetString(PyExc_TypeError, "visual_post(P, I, model_address, data_address, out, flags)");
     return NULL;
   }
-  const mjModel* m = (const mjModel*)PyLong_AsVoidPtr(args[2]);
-  mjData* d = (mjData*)PyLong_AsVoidPtr(args[3]);
   const long flags = PyLong_AsLong(args[5]);
-  if (PyErr_Occurred()) {
+  if (flags == -1 && PyErr_Occurred()) {
     return NULL;
   }
-  if (m == NULL || d == NULL) {
-    PyErr_SetString(PyExc_ValueError, "visual_post: null model or data");
-    return NULL;
+  const mjModel* m;
+  mjData* d;
+  post_ctx c;
+  const int r = post_begin(args, "visual_post", key_size, &m, &d, &c);
+  if (r != 0) {
+    return r == -1 ? PyLong_FromLong(-1) : NULL;
   }
-  if (d->warning[mjWARN_BADQPOS].number || d->warning[mjWARN_BADQVEL].number ||
-      d->warning[mjWARN_BADQACC].number) {
-    return PyLong_FromLong(-1);
-  }
-  Py_buffer pb, ib, ob;
-  if (get_f64(args[0], &pb, -1, 1, "P") < 0) {
-    return NULL;
-  }
-  if (PyObject_GetBuffer(args[1], &ib, PyBUF_C_CONTIGUOUS) < 0) {
-    PyBuffer_Release(&pb);
-    return NULL;
-  }
-  double* P = (double*)pb.buf;
-  const int64_t* I = (const int64_t*)ib.buf;
-  const int64_t S = I[I_S];
-  static const int key_size[8] = {7, 7, 8, 8, 4, 6, 6, 1};
-  int bad = ib.len != I_SIZE * 8 || pb.len != (P_WORK + 3 * S) * 8;
-  for (int j = 0; j < 8 && !bad; j++) {
-    bad = I[I_KEYS + j] >= 0 && I[I_KEYS + j] + key_size[j] > S;
-  }
-  for (int k = 0; k < 7 && !bad; k++) {
-    bad = I[I_QADR + k] < 0 || I[I_QADR + k] >= m->nq || I[I_DADR + k] < 0 || I[I_DADR + k] >= m->nv;
-  }
-  if (bad) {
-    PyErr_SetString(PyExc_ValueError, "visual_post: plan blocks of the wrong size or layout");
-    PyBuffer_Release(&pb), PyBuffer_Release(&ib);
-    return NULL;
-  }
-  if (PyObject_GetBuffer(args[4], &ob, PyBUF_C_CONTIGUOUS | PyBUF_WRITABLE) < 0) {
-    PyBuffer_Release(&pb), PyBuffer_Release(&ib);
-    return NULL;
-  }
-  if (ob.len != S * 4) {
-    PyErr_SetString(PyExc_ValueError, "visual_post: out must be a float32 vector of the observation's size");
-    PyBuffer_Release(&pb), PyBuffer_Release(&ib), PyBuffer_Release(&ob);
-    return NULL;
-  }
-  /* the reflexes: the state this call ends with, checked as the world's after-call check does */
-  mjtNum* s = fvs_reflex_record(m, d, (int)I[I_J0]);
-  if (s == NULL || s[0] != -1.0 || fvs_reflex_check(m, d, (int)I[I_J0], s)) {
-    PyBuffer_Release(&pb), PyBuffer_Release(&ib), PyBuffer_Release(&ob);
-    return PyLong_FromLong(-1);
-  }
-  s[1] = d->time;
-  double q[7], dq[7];
-  int fail = d->ncon > 0;
-  for (int k = 0; k < 7; k++) {
-    q[k] = d->qpos[I[I_QADR + k]];
-    dq[k] = d->qvel[I[I_DADR + k]];
-    fail |= q[k] < P[P_Q_LO + k] || q[k] > P[P_Q_HI + k];
-  }
+  double* P = c.P;
   double* truth = P + P_TRUTH;
-  truth_row(P + P_GEO, q, P + P_FMO, truth);
+  truth_row(P + P_GEO, c.q, P + P_FMO, truth);
   double* frame = P + P_FRAME;
   const int seen = truth[12] != 0.0;
   if (flags & 1) { /* the frame is the truth, zeros where the tag is not seen (the goal depths) */
@@ -488,9 +544,9 @@ PyObject* fvs_visual_post(PyObject* self, PyObject* const* args, Py_ssize_t narg
     }
   }
   double* work = P + P_WORK;
-  const int64_t* key = I + I_KEYS;
-  put(work, key[0], q, 7);
-  put(work, key[1], dq, 7);
+  const int64_t* key = c.I + I_KEYS;
+  put(work, key[0], c.q, 7);
+  put(work, key[1], c.dq, 7);
   if (flags & 2) { /* state observations: the truth now */
     static const double zeros[8] = {0.0};
     put(work, key[2], seen ? truth : zeros, 8);
@@ -507,23 +563,8 @@ PyObject* fvs_visual_post(PyObject* self, PyObject* const* args, Py_ssize_t narg
     put(work, key[3], P + P_GEO + 114, 8);
     put(work, key[6], P + P_POSE_D, 6);
   }
-  const double* low = work + S;
-  const double* high = work + 2 * S;
-  float* out = (float*)ob.buf;
-  for (int64_t i = 0; i < S; i++) { /* clip_observation: clipped in place, NaN read as 0 */
-    double x = work[i];
-    if (x != x) {
-      work[i] = 0.0;
-      out[i] = 0.0f;
-      continue;
-    }
-    x = x < low[i] ? low[i] : x;
-    x = x > high[i] ? high[i] : x;
-    work[i] = x;
-    out[i] = (float)x;
-  }
-  PyBuffer_Release(&pb), PyBuffer_Release(&ib), PyBuffer_Release(&ob);
-  return PyLong_FromLong(fail ? 1 : 0);
+  (void)m, (void)d;
+  return post_end(&c);
 }
 
 /* ------------------------------------------------------------------------------------------------ torque tracking */
@@ -682,4 +723,40 @@ PyObject* fvs_tracking_batch(PyObject* self, PyObject* const* args, Py_ssize_t n
     return NULL;
   }
   Py_RETURN_NONE;
+}
+
+/* tracking_post(P, I, model_address, data_address, out) after the physics of a FrankaTorqueTracking-v0 period (the
+ * plan's geometry block holds the episode's q0, A, w (7 each) and its start time t0; its key slots are q, dq,
+ * q_desired, dq_desired, ddq_desired, time): codes as visual_post's; on 0 or 1 the desired trajectory at
+ * t = time - t0 packed with q, dq and t into out and the tracking error of the true joint positions written into the
+ * truth record's first number. */
+PyObject* fvs_tracking_post(PyObject* self, PyObject* const* args, Py_ssize_t nargs) {
+  (void)self;
+  static const int key_size[8] = {7, 7, 7, 7, 7, 1, 0, 0};
+  if (nargs != 5) {
+    PyErr_SetString(PyExc_TypeError, "tracking_post(P, I, model_address, data_address, out)");
+    return NULL;
+  }
+  const mjModel* m;
+  mjData* d;
+  post_ctx c;
+  const int r = post_begin(args, "tracking_post", key_size, &m, &d, &c);
+  if (r != 0) {
+    return r == -1 ? PyLong_FromLong(-1) : NULL;
+  }
+  double* P = c.P;
+  const double* traj = P + P_GEO;
+  const double t = d->time - traj[21];
+  double des[21];
+  P[P_TRUTH] = tracking_row(traj, traj + 7, traj + 14, t, c.q, des);
+  double* work = P + P_WORK;
+  const int64_t* key = c.I + I_KEYS;
+  put(work, key[0], c.q, 7);
+  put(work, key[1], c.dq, 7);
+  put(work, key[2], des, 7);
+  put(work, key[3], des + 7, 7);
+  put(work, key[4], des + 14, 7);
+  put(work, key[5], &t, 1);
+  (void)m;
+  return post_end(&c);
 }

@@ -19,5 +19,6 @@ PyObject* fvs_visual_pre(PyObject* self, PyObject* const* args, Py_ssize_t nargs
 PyObject* fvs_visual_post(PyObject* self, PyObject* const* args, Py_ssize_t nargs);
 PyObject* fvs_tracking(PyObject* self, PyObject* const* args, Py_ssize_t nargs);
 PyObject* fvs_tracking_batch(PyObject* self, PyObject* const* args, Py_ssize_t nargs);
+PyObject* fvs_tracking_post(PyObject* self, PyObject* const* args, Py_ssize_t nargs);
 
 #endif

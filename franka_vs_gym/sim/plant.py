@@ -99,7 +99,7 @@ else:
         elif _native.TAG != TAG or _native.NUSER != NUSER or getattr(_native, "RTAG", None) != RTAG \
                 or getattr(_native, "RSLOT", None) != RSLOT or getattr(_native, "RCOL", None) != RCOL \
                 or getattr(_native, "TASK_REC", None) != TASK_REC \
-                or getattr(_native, "TASK_P_FIXED", None) != TASK_P_FIXED or not hasattr(_native, "tracking_batch"):
+                or getattr(_native, "TASK_P_FIXED", None) != TASK_P_FIXED or not hasattr(_native, "tracking_post"):
             _reason = ("the compiled plant is older than its sources (franka_vs_gym/sim/_plant.c); rebuild it "
                        "(pip install -e . or python setup.py build_ext --inplace)")
             _native = None
@@ -121,6 +121,9 @@ visual_post = _native.visual_post if NATIVE else None
 #: error of n robots) and ``tracking_batch(...)`` (a step's end for the batched vector env).
 tracking = _native.tracking if NATIVE else None
 tracking_batch = _native.tracking_batch if NATIVE else None
+#: ``tracking_post(P, I, model_address, data_address, out)``: a torque-action FrankaTorqueTracking-v0 env's step after
+#: its physics (see franka_vs_gym.envs.compiled).
+tracking_post = _native.tracking_post if NATIVE else None
 
 
 def unavailable_reason() -> str | None:
@@ -191,4 +194,4 @@ def plant_friction_torque(model: mujoco.MjModel, data: mujoco.MjData, dofs: Any)
 
 __all__ = ["FRICTION_COLS", "check", "NATIVE", "NUSER", "RCOL", "RSLOT", "RTAG", "TAG", "TASK_I_SIZE", "TASK_P_FIXED",
            "TASK_REC", "friction_rows", "install", "plant_friction_torque", "tag_truth", "torque_cost", "tracking",
-           "tracking_batch", "unavailable_reason", "visual_post", "visual_pre"]
+           "tracking_batch", "tracking_post", "unavailable_reason", "visual_post", "visual_pre"]
