@@ -309,8 +309,8 @@ def bench_step_parts(env_id: str, n: int | None = None, rounds: int = 7, seed: i
         }
         plan = getattr(u, "_plan", None)
         if plan is not None and plan.fast and plan.eligible(u):
-            # the compiled step (franka_vs_gym.envs.visual.StepPlan): its two calls around the physics, then the
-            # Python that ends the step (reward, checks, info, observation dict)
+            # the compiled step (franka_vs_gym.envs.compiled): its two calls around the physics, then the Python
+            # that ends the step (reward, checks, info, observation dict)
             from franka_vs_gym.sim import plant
 
             out = np.empty(plan.size, dtype=np.float32)
@@ -318,8 +318,7 @@ def bench_step_parts(env_id: str, n: int | None = None, rounds: int = 7, seed: i
             obs = u._last_obs
             fns.update({
                 "compiled command": lambda: plant.visual_pre(plan.P, plan.I, plan.d_addr, a, tau_cmd, tau_applied),
-                "compiled period end (reflexes, truth, frame, observation)":
-                    lambda: plant.visual_post(plan.P, plan.I, plan.m_addr, plan.d_addr, out, 0),
+                "compiled period end (reflexes, task, observation)": lambda: plan.post(out),
                 "reward, info (Python)": lambda: u._finish_step(obs, False),
                 "observation dict (Python)": lambda: {k: out[sl] if sh is None else out[sl].reshape(sh)
                                                       for k, sl, sh in plan.views},

@@ -130,6 +130,12 @@ class CompiledStep:
         return env._finish_step(obs, check_robot=code == 1)
 
     def step(self, env: Any, action: Any):
+        """One control period in the compiled step; None (nothing done) when the action is not a plain vector inside
+        the action space."""
+        raise NotImplementedError
+
+    def post(self, out: np.ndarray) -> int:
+        """The compiled period end alone on the current state (no camera frame taken), for benchmarks."""
         raise NotImplementedError
 
 
@@ -156,6 +162,9 @@ class TrackingStep(CompiledStep):
             return self.general_end(env, self.n_substeps, False)
         env._err_now = float(self.truth[0])
         return self.finish(env, out, code)
+
+    def post(self, out: np.ndarray) -> int:
+        return plant.tracking_post(self.P, self.I, self.m_addr, self.d_addr, out)
 
 
 __all__ = ["CompiledStep", "TrackingStep"]

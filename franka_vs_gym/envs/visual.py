@@ -443,3 +443,6 @@ class StepPlan(CompiledStep):
             env._frame_no += 1
         env._packed_frame_no = -1 if self.state_flag else env._frame_no
         return self.finish(env, out, code)
+
+    def post(self, out: np.ndarray) -> int:
+        return plant.visual_post(self.P, self.I, self.m_addr, self.d_addr, out, self.state_flag)
