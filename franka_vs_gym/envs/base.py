@@ -166,6 +166,9 @@ class FrankaEnv(gym.Env):
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
+    #: A task's compiled step (:class:`franka_vs_gym.envs.compiled.CompiledStep`), taken by :meth:`step` when it
+    #: covers the configuration and the period; None: every step in Python.
+    _plan: Any = None
     supported_action_types: tuple[str, ...] = ACTION_TYPES
     supported_observation_types: tuple[str, ...] = OBSERVATION_TYPES
     terminate_on_success = True
@@ -405,6 +408,12 @@ class FrankaEnv(gym.Env):
         return {}
 
     def step(self, action: Any):
+        plan = self._plan
+        if plan is not None and plan.fast and self._diverged is None and self._last_obs is not None \
+                and plan.eligible(self):
+            out = plan.step(self, action)  # the compiled step (franka_vs_gym.envs.compiled): same bits
+            if out is not None:
+                return out
         self._step_begin(action)
         try:
             if self._reflex is None:

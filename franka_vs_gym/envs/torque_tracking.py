@@ -104,14 +104,6 @@ class FrankaTorqueTrackingEnv(FrankaEnv):
         self._err_now = 0.0
         self._plan = TrackingStep(self)  # the compiled step of torque actions (franka_vs_gym.envs.compiled)
 
-    def step(self, action: Any):
-        plan = self._plan
-        if plan.fast and self._diverged is None and self._last_obs is not None and plan.eligible(self):
-            out = plan.step(self, action)
-            if out is not None:
-                return out
-        return super().step(action)
-
     def _after_reset(self) -> None:
         self._plan.set_trajectory(self._q0, self._A, self._w, self._t0)
 

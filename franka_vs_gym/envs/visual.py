@@ -349,15 +349,6 @@ class VisualServoEnv(FrankaEnv):
         self._truth_k = -1  # the brakes moved the joints within the period: the truth is of the state now
         return super()._step_reflex(e)
 
-    # ------------------------------------------------------------------ the compiled step
-    def step(self, action: Any):
-        plan = self._plan
-        if plan.fast and self._diverged is None and self._last_obs is not None and plan.eligible(self):
-            out = plan.step(self, action)
-            if out is not None:
-                return out
-        return super().step(action)
-
     def _reset_info(self) -> dict[str, Any]:
         return {"error": self._task_error()}
 

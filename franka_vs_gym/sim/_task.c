@@ -394,6 +394,23 @@ PyObject* fvs_visual_pre(PyObject* self, PyObject* const* args, Py_ssize_t nargs
   return PyLong_FromLong(0);
 }
 
+/* An observation's work vector clipped in place to [low, high] and cast into out (float32), NaN as 0 (not
+ * clipped): kernels.clip_observation's operations, so the same bits. */
+static void clip_cast(double* work, const double* low, const double* high, float* out, Py_ssize_t S) {
+  for (Py_ssize_t i = 0; i < S; i++) {
+    double x = work[i];
+    if (x != x) {
+      work[i] = 0.0;
+      out[i] = 0.0f;
+      continue;
+    }
+    x = x < low[i] ? low[i] : x;
+    x = x > high[i] ? high[i] : x;
+    work[i] = x;
+    out[i] = (float)x;
+  }
+}
+
 /* Copy n numbers into the work vector at key offset off (skipped when the key is absent). */
 static void put(double* work, int64_t off, const double* src, int n) {
   if (off >= 0) {
@@ -486,21 +503,7 @@ static int post_begin(PyObject* const* args, const char* name, const int* key_si
 static PyObject* post_end(post_ctx* c) {
   const int64_t S = c->S;
   double* work = c->P + P_WORK;
-  const double* low = work + S;
-  const double* high = work + 2 * S;
-  float* out = (float*)c->ob.buf;
-  for (int64_t i = 0; i < S; i++) {
-    double x = work[i];
-    if (x != x) {
-      work[i] = 0.0;
-      out[i] = 0.0f;
-      continue;
-    }
-    x = x < low[i] ? low[i] : x;
-    x = x > high[i] ? high[i] : x;
-    work[i] = x;
-    out[i] = (float)x;
-  }
+  clip_cast(work, work + S, work + 2 * S, (float*)c->ob.buf, S);
   PyBuffer_Release(&c->pb), PyBuffer_Release(&c->ib), PyBuffer_Release(&c->ob);
   return PyLong_FromLong(c->fail ? 1 : 0);
 }
@@ -694,19 +697,7 @@ PyObject* fvs_tracking_batch(PyObject* self, PyObject* const* args, Py_ssize_t n
       put(v, key[3], des + 7, 7);
       put(v, key[4], des + 14, 7);
       put(v, key[5], t + i, 1);
-      float* o = out + S * i;
-      for (Py_ssize_t j = 0; j < S; j++) {
-        double x = v[j];
-        if (x != x) {
-          v[j] = 0.0;
-          o[j] = 0.0f;
-          continue;
-        }
-        x = x < low[j] ? low[j] : x;
-        x = x > high[j] ? high[j] : x;
-        v[j] = x;
-        o[j] = (float)x;
-      }
+      clip_cast(v, low, high, out + S * i, S);
       err[i] = e;
       sq[i] = sq[i] + e * e;
       const double st = (double)steps[i];
