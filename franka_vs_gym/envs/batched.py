@@ -30,7 +30,6 @@ import mujoco
 import numpy as np
 
 from franka_vs_gym.envs.kernels import (
-    GEO,
     R_CMO,
     R_DEPTH,
     R_ERROR,
@@ -341,7 +340,9 @@ class VisualBatch(BatchedTask):
         self.terminate_on_tag_lost, self.success_bonus = e0.terminate_on_tag_lost, e0.success_bonus
         self.k = np.zeros(n, dtype=np.int64)
         self.fMo = np.tile(np.eye(4).ravel(), (n, 1))
-        self.geo = np.zeros(GEO)  # the geometry block every robot in the batch shares (see eligible)
+        e0._plan.refresh(e0)
+        # the geometry block every robot in the batch shares (eligible compares each robot's with it)
+        self.geo = e0._plan.geo.copy() if e0._plan.geo_or_none is not None else None
         self.truth, self.frame = np.zeros((n, REC)), np.zeros((n, REC))  # the truth now, the held frame
         self.truth_k = np.full(n, -1, dtype=np.int64)
         if self.kind == "FrankaIBVSEnv" or self.kind == "FrankaVisualTorqueEnv":
@@ -361,11 +362,7 @@ class VisualBatch(BatchedTask):
             return False
         plan = env._plan
         plan.refresh(env)
-        if plan.geo_or_none is None:
-            return False
-        if not self.geo.any():
-            self.geo[:] = plan.geo
-        return np.array_equal(plan.geo, self.geo)
+        return self.geo is not None and plan.geo_or_none is not None and np.array_equal(plan.geo, self.geo)
 
     def single_segment(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(rows whose next period is one physics segment, whether it ends with a camera frame) (len(ids),) each."""

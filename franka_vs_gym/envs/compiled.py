@@ -149,13 +149,13 @@ class TrackingStep(CompiledStep):
         super().__init__(env, fast=plant.tracking_post is not None)
 
     def set_trajectory(self, q0: np.ndarray, A: np.ndarray, w: np.ndarray, t0: float) -> None:
+        """The episode's trajectory and start time (at every reset)."""
         g = self.geo
         g[:7], g[7:14], g[14:21], g[21] = q0, A, w, t0
 
     def step(self, env: Any, action: Any):
         if not self.command(env, action):
             return None
-        self.geo[21] = env._t0
         out = np.empty(self.size, dtype=np.float32)
         code = plant.tracking_post(self.P, self.I, self.m_addr, self.d_addr, out)
         if code < 0:

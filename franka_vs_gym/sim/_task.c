@@ -588,6 +588,18 @@ static double tracking_row(const double* q0, const double* A, const double* w, d
   return sqrt(ss);
 }
 
+/* One robot's torque-tracking observation into its work vector: q, dq, the desired trajectory des (21) and the
+ * time t at the key offsets (q, dq, q_desired, dq_desired, ddq_desired, time). */
+static void put_tracking(double* work, const int64_t* key, const double* q, const double* dq, const double* des,
+                         const double* t) {
+  put(work, key[0], q, 7);
+  put(work, key[1], dq, 7);
+  put(work, key[2], des, 7);
+  put(work, key[3], des + 7, 7);
+  put(work, key[4], des + 14, 7);
+  put(work, key[5], t, 1);
+}
+
 /* tracking(q0 (n, 7), A (n, 7), w (n, 7), t (n), q (n, 7), desired (n, 21), err (n)): the desired trajectory and
  * tracking error of n robots. */
 PyObject* fvs_tracking(PyObject* self, PyObject* const* args, Py_ssize_t nargs) {
@@ -691,12 +703,7 @@ PyObject* fvs_tracking_batch(PyObject* self, PyObject* const* args, Py_ssize_t n
       double des[21];
       const double e = tracking_row(q0 + 7 * i, A + 7 * i, w + 7 * i, t[i], q + 7 * i, des);
       double* v = work + S * i;
-      put(v, key[0], qo + 7 * i, 7);
-      put(v, key[1], dqo + 7 * i, 7);
-      put(v, key[2], des, 7);
-      put(v, key[3], des + 7, 7);
-      put(v, key[4], des + 14, 7);
-      put(v, key[5], t + i, 1);
+      put_tracking(v, key, qo + 7 * i, dqo + 7 * i, des, t + i);
       clip_cast(v, low, high, out + S * i, S);
       err[i] = e;
       sq[i] = sq[i] + e * e;
@@ -742,12 +749,7 @@ PyObject* fvs_tracking_post(PyObject* self, PyObject* const* args, Py_ssize_t na
   P[P_TRUTH] = tracking_row(traj, traj + 7, traj + 14, t, c.q, des);
   double* work = P + P_WORK;
   const int64_t* key = c.I + I_KEYS;
-  put(work, key[0], c.q, 7);
-  put(work, key[1], c.dq, 7);
-  put(work, key[2], des, 7);
-  put(work, key[3], des + 7, 7);
-  put(work, key[4], des + 14, 7);
-  put(work, key[5], &t, 1);
+  put_tracking(work, key, c.q, c.dq, des, &t);
   (void)m;
   return post_end(&c);
 }
