@@ -526,8 +526,8 @@ def load_log(path: str | os.PathLike, topic: str | None = None, progress: bool =
     states or JointState messages (``topic`` chooses the topic, else it is chosen and the choice stated; see
     :mod:`franka_vs_gym.validation.readers`), a Gaz et al. 2019 text folder (see
     the module docstring), or a dump of pylibfranka/franky robot states (JSON, JSON lines, CSV with flattened or
-    whole-list fields, NPZ/NPY, a pickle of franky states; see :mod:`franka_vs_gym.validation.robot_states`). The
-    format of a file is detected from its content.
+    whole-list fields, NPZ/NPY, a pickle of franky states; see
+    :mod:`franka_vs_gym.validation.readers.robot_states`). The format of a file is detected from its content.
 
     The sidecar ``<log>.json`` supplies tool, gravity and controller. ``progress`` shows a progress bar on stderr
     while a ROS bag is decoded. Raises FileNotFoundError when the path does

@@ -22,8 +22,8 @@ Two kinds of topic are read:
    ``time``). Recognised by their fields, not their names. The measured torque, the desired trajectory and the
    commanded torque fill the log's columns, and the tool the robot declared (end effector plus load: ``m_total``,
    ``F_x_Ctotal``, ``I_total``, flange frame) is the log's tool (see
-   :func:`franka_vs_gym.validation.robot_states.tool_from_state`). Time: the message's ``time`` field (the robot's
-   own clock, s) when it advances, else the header stamp, else the bag's receive time.
+   :func:`franka_vs_gym.validation.readers.robot_states.tool_from_state`). Time: the message's ``time`` field (the
+   robot's own clock, s) when it advances, else the header stamp, else the bag's receive time.
 2. ``sensor_msgs/JointState`` messages with the seven arm joints and their efforts (``effort`` = measured link-side
    torque tau_J, what franka_ros's and franka_ros2's state publishers put there). Joint names are mapped to joints
    0..6 by their trailing number: ``fer_joint1``, ``panda_joint1``, ``fr3_joint1``, ``joint1``, ``joint_1`` ... ->
@@ -499,7 +499,7 @@ def _part(obj: Any, member: str) -> np.ndarray | None:
 
 
 def _read_franka(reader: Any, conns: list[Any], layout: str, p: Path, found: str) -> tuple[dict, dict, list[str]]:
-    from franka_vs_gym.validation.robot_states import tool_from_state
+    from franka_vs_gym.validation.readers.robot_states import tool_from_state
 
     opt_names = list(_FLAT_OPTIONAL if layout == "flat" else _NESTED_OPTIONAL)
     cols: dict[str, list[np.ndarray | None]] = {k: [] for k in ("q", "dq", "tau_J", *opt_names)}
@@ -570,28 +570,3 @@ def _read_franka(reader: Any, conns: list[Any], layout: str, p: Path, found: str
             notes.append(f"the declared load changed during the bag (m_total {load_change[0]:.4g} -> "
                          f"{load_change[1]:.4g} kg at message {load_change[2]}): the first is used")
     return arrays, meta, notes
-
-
-def is_libfranka_csv(header: list[str]) -> bool:
-    """A header written by libfranka's logToCSV (``state.q[0]`` columns)."""
-    return any(h.strip().startswith("state.q[") for h in header)
-
-
-def libfranka_columns(header: list[str]) -> tuple[list[str], float]:
-    """Column names of a logToCSV header renamed to the log format, and the factor converting its time to s."""
-    names = []
-    for h in header:
-        h = h.strip()
-        if h.startswith("state."):
-            names.append(h[len("state."):])
-        elif h.startswith("cmd.tau_J_d"):
-            names.append(h[len("cmd."):])
-        elif h.startswith("cmd."):
-            names.append("cmd_" + h[len("cmd."):].replace("[", "_").replace("]", ""))
-        else:
-            names.append(h)
-    return names, 1e-3
-
-
-__all__ = ["bag_kind", "franka_layout", "is_libfranka_csv", "is_rosbag", "joint_index", "libfranka_columns",
-           "read_rosbag"]
