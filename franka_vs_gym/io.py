@@ -186,6 +186,17 @@ def read_text(path: PathLike, what: str = "file", max_bytes: int = MAX_TEXT_BYTE
         raise UserError(f"{what} {path} is not UTF-8 text (byte {e.start})") from None
 
 
+def loads_json(text: str, where: str) -> Any:
+    """``json.loads``; JSON nested deeper than Python's parser can follow (a RecursionError) is a UserError naming
+    ``where``. Syntax errors stay ``json.JSONDecodeError`` for the caller to word."""
+    import json
+
+    try:
+        return json.loads(text)
+    except RecursionError:
+        raise UserError(f"{where}: JSON nested too deeply to read") from None
+
+
 def _npy_header(fh: IO[bytes], name: str, where: str) -> tuple[tuple[int, ...], bool, np.dtype]:
     fmt = np.lib.format
     try:

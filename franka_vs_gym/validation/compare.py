@@ -18,6 +18,7 @@ bring the residual RMSE below it.
 from __future__ import annotations
 
 import math
+import re
 import sys
 from dataclasses import dataclass, field
 from typing import Any
@@ -99,6 +100,10 @@ class ReplayResult:
     q: np.ndarray
     tau: np.ndarray
     diverged: str | None = None
+    #: how this replay stopped early (mode, time, joint, reason), or None when it ran to the end of the log
+    stop: dict[str, Any] | None = None
+    #: the replays tried before this one that could not run (each a ``stop`` record); this one is the fallback
+    fallback_from: list[dict[str, Any]] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         def clean_list(a: np.ndarray, nd: int) -> list:
@@ -107,7 +112,22 @@ class ReplayResult:
         tot_q, tot_tau = float(rmse(self.rmse_q)), float(rmse(self.rmse_tau))
         return {"mode": self.mode, "rmse_q": clean_list(self.rmse_q, 6), "rmse_tau": clean_list(self.rmse_tau, 4),
                 "rmse_q_total": tot_q if np.isfinite(tot_q) else None,
-                "rmse_tau_total": tot_tau if np.isfinite(tot_tau) else None, "diverged": self.diverged}
+                "rmse_tau_total": tot_tau if np.isfinite(tot_tau) else None, "diverged": self.diverged,
+                "stop": self.stop, "fallback_from": self.fallback_from, "status": self.status()}
+
+    def status(self) -> str:
+        """One line: what was replayed, and which replays could not run and why."""
+        out = [f"{s['mode']} replay stopped at t = {s['time_s']:.3f} s"
+               + (f" (joint {s['joint']})" if s.get("joint") is not None else "") + f": {s['reason']}"
+               for s in self.fallback_from]
+        if out:
+            out.append(f"fell back to the {self.mode} replay")
+        if self.stop is not None:
+            s = self.stop
+            out.append(f"{s['mode']} replay stopped at t = {s['time_s']:.3f} s"
+                       + (f" (joint {s['joint']})" if s.get("joint") is not None else "") + f": {s['reason']}; "
+                       "its RMSE covers the samples before")
+        return "; ".join(out) if out else f"{self.mode} replay ran to the end of the log"
 
 
 @dataclass
@@ -195,6 +215,7 @@ def replay(data: ProcessedLog, config: ModelConfig, mode: str | None = None) -> 
     """Re-run the logged experiment in the MuJoCo plant built from ``config`` (see the module docstring)."""
     from franka_vs_gym.control.computed_torque import ComputedTorque
     from franka_vs_gym.model.franka_model import FrankaModel
+    from franka_vs_gym.sim.reflexes import ControlException
     from franka_vs_gym.sim.robot import FORCE_TORQUE, JOINT_STATE, FrankaSim, SimulationDiverged
 
     log = data.log
@@ -248,7 +269,9 @@ def replay(data: ProcessedLog, config: ModelConfig, mode: str | None = None) -> 
         law = _SteadyEq2(FrankaModel(config), ref.kp, ref.kd, ref.ki, True)
         qd, dqd, ddqd = data.q, data.dq, data.ddq
     diverged = None
+    stop: dict[str, Any] | None = None
     t = data.time
+    k = start
     try:
         for k in range(start, n):
             q, dq = sim.get_position(), sim.get_velocity()
@@ -260,19 +283,37 @@ def replay(data: ProcessedLog, config: ModelConfig, mode: str | None = None) -> 
             sim.set_force_torque(JOINT_STATE, cmd)
             sim.step()
             tau_sim[k] = sim.get_force_torque()
-    except SimulationDiverged as e:
-        diverged = f"diverged at t = {t[k]:.3f} s: {e}"
-        q_sim[k:] = np.nan
-        tau_sim[k:] = np.nan
-    except ValueError as e:  # the plant refused a state or command (e.g. outside the joint limits)
-        diverged = f"stopped at t = {t[k]:.3f} s: {e}"
+    except (SimulationDiverged, ControlException, ValueError) as e:
+        # diverged, a reflex aborted the motion (as libfranka would), or the plant refused a state or command (e.g.
+        # outside the joint limits): reported with the mode, time and joint, the samples before kept
+        what = ("diverged" if isinstance(e, SimulationDiverged) else
+                "reflex" if isinstance(e, ControlException) else "refused")
+        diverged = f"{'diverged' if what == 'diverged' else 'stopped'} at t = {t[k]:.3f} s: {e}"
+        m = re.search(r"joint (\d)", str(e))
+        stop = {"mode": mode, "time_s": round(float(t[k]), 4), "joint": int(m.group(1)) if m else None,
+                "kind": what, "reason": " ".join(str(e).split())}
         q_sim[k:] = np.nan
         tau_sim[k:] = np.nan
     if measured_lag > 0:
         tau_sim[start:] = shift(tau_sim[start:], t[start:], measured_lag)
     ok = np.isfinite(q_sim[:, 0]) & np.isfinite(tau_sim[:, 0])
+    if not ok.any():  # stopped at its first sample: nothing to compare
+        return ReplayResult(mode, np.full(7, np.nan), np.full(7, np.nan), q_sim, tau_sim, diverged, stop)
     return ReplayResult(mode, rmse(q_sim[ok] - data.q[ok]), rmse(tau_sim[ok] - data.tau[ok]), q_sim, tau_sim,
-                        diverged)
+                        diverged, stop)
+
+
+def replay_with_fallback(data: ProcessedLog, config: ModelConfig, mode: str | None = None) -> ReplayResult:
+    """:func:`replay`; when that replay stops before the end of the log (a reflex, a divergence, a refused state) in
+    a mode other than tracking, the log is replayed again in ``tracking`` mode (eq. (2) following the measured
+    motion, which can run on any log), and the result says which replay stopped where and why
+    (``fallback_from``, :meth:`ReplayResult.status`)."""
+    first = replay(data, config, mode)
+    if first.stop is None or first.mode == "tracking":
+        return first
+    second = replay(data, config, "tracking")
+    second.fallback_from = [first.stop]
+    return second
 
 
 def compare(log: MeasurementLog | ProcessedLog | str, model: Any = None, *, rigid_body: bool = False,
@@ -289,7 +330,9 @@ def compare(log: MeasurementLog | ProcessedLog | str, model: Any = None, *, rigi
                         np.abs(r).max(axis=0), data.noise.copy(), concentration_table(data, r))
     if do_replay:
         progress("simulation replay in the MuJoCo plant", verbose)
-        res.replay = replay(data, cfg, replay_mode)
+        res.replay = replay_with_fallback(data, cfg, replay_mode)
+        if res.replay.fallback_from or res.replay.stop:
+            progress(f"replay: {res.replay.status()}", verbose)
     return res
 
 
@@ -313,10 +356,11 @@ def format_compare(res: CompareResult) -> str:
     if res.replay is not None:
         rp = res.replay
         lines.append(f"replay ({rp.mode}): RMSE_q = {np.round(rp.rmse_q, 4).tolist()} rad")
-        lines.append(f"                   RMSE_tau = {np.round(rp.rmse_tau, 3).tolist()} Nm"
-                     + (f"  [{rp.diverged}]" if rp.diverged else ""))
+        lines.append(f"                   RMSE_tau = {np.round(rp.rmse_tau, 3).tolist()} Nm")
+        if rp.fallback_from or rp.stop:
+            lines.append(f"replay status: {rp.status()}")
     return "\n".join(lines)
 
 
 __all__ = ["CompareResult", "ReplayResult", "as_processed", "baseline_config", "compare", "concentration_table",
-           "format_compare", "progress", "replay", "rmse", "tool_from_log"]
+           "format_compare", "progress", "replay", "replay_with_fallback", "rmse", "tool_from_log"]
