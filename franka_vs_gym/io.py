@@ -481,9 +481,19 @@ class OutputSet:
                 if os.path.lexists(target):
                     backup = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".old", dir=target.parent))
                     backup = backup / target.name
-                    os.rename(target, backup)
-                    pending = (target, backup)
-                    os.rename(stage, target)
+                    if not folder and not target.is_dir():
+                        # a file is replaced in one atomic rename: readers of the path never find it missing; the
+                        # old content stays reachable through a hard link (a copy where links are not supported)
+                        try:
+                            os.link(target, backup, follow_symlinks=False)
+                        except OSError:
+                            shutil.copy2(target, backup, follow_symlinks=False)
+                        pending = (target, backup)
+                        os.replace(stage, target)
+                    else:
+                        os.rename(target, backup)
+                        pending = (target, backup)
+                        os.rename(stage, target)
                 elif not folder:
                     _place(stage, target, False, what)
                 else:
@@ -496,6 +506,11 @@ class OutputSet:
                     os.rename(pending[1], pending[0])
                     os.rmdir(pending[1].parent)
             for target, backup in reversed(done):
+                if backup is not None and not backup.is_dir() and not target.is_dir():
+                    with contextlib.suppress(OSError):  # the old file back in one rename
+                        os.replace(backup, target)
+                        os.rmdir(backup.parent)
+                    continue
                 with contextlib.suppress(OSError):
                     if target.is_dir() and not target.is_symlink():
                         shutil.rmtree(target)

@@ -55,19 +55,57 @@ def tool_from_log(log: MeasurementLog) -> Tool:
 TOOLS = ("franka_hand", "none", "unknown")
 
 
+def estimate_tool(data: ProcessedLog, cfg: ModelConfig) -> tuple[Tool, str]:
+    """For a log that declares no tool: whether the Franka Hand (or another mass) is on the flange, from the torques.
+
+    The torque the hand adds (gravity and inertia, the model with the hand minus the model without) is regressed on
+    the residual of the model without a tool over up to 4000 samples: the factor ``a`` (the hand-equivalent load,
+    1 = the hand's 0.73 kg at its centre of mass) and the RMS residual on joints 1, 3 and 5 (the gravity-loaded
+    ones) with and without the hand are the evidence. ``a < 0.5``: no tool; otherwise the hand; outside [0.5, 1.5]
+    another mass is likely and said. Returns the tool and one line stating the evidence."""
+    idx = np.unique(np.linspace(0, data.n - 1, min(data.n, 4000)).astype(int))
+    sub = data.subset(idx)
+    bare = cfg.copy(tool=Tool.none())
+    hand = cfg.copy(tool=Tool.franka_hand())
+    p0 = evaluate(bare, sub).predicted
+    p1 = evaluate(hand, sub).predicted
+    r0 = sub.tau - p0
+    h = p1 - p0
+    a = float(np.sum(r0 * h) / max(float(np.sum(h * h)), 1e-12))
+    js = [1, 3, 5]
+    e0 = float(np.sqrt(np.mean(r0[:, js] ** 2)))
+    e1 = float(np.sqrt(np.mean((sub.tau - p1)[:, js] ** 2)))
+    mass = hand.tool.body.mass
+    evidence = (f"the torques fit a flange load of {a:.2f} x the Franka Hand's ({a * mass:.2f} kg at its centre of "
+                f"mass); RMS residual on joints 1, 3, 5: {e0:.3f} Nm without a tool, {e1:.3f} Nm with the hand")
+    if a < 0.5:
+        chosen, text = Tool.none(), "no tool"
+    else:
+        chosen, text = Tool.franka_hand(), "the Franka Hand"
+    note = (f"not declared by the log: {text} estimated from the data ({evidence})")
+    if not 0.5 <= a <= 1.5 and a >= 0.25:
+        note += "; another mass is likely on the flange: 'diagnose' names a payload, or use --tool unknown"
+    return chosen, note + "; use --tool to say which"
+
+
 def baseline_config(log: MeasurementLog, model: Any = None, rigid_body: bool = False,
-                    tool: str | None = None, robot: Any = None) -> ModelConfig:
+                    tool: str | None = None, robot: Any = None, data: ProcessedLog | None = None) -> ModelConfig:
     """The model to start from: ``model`` (a ModelConfig or a calibrated-model file) if given, else the library's
     default FER with the log's declared tool and gravity. ``rigid_body`` removes all friction. ``tool`` overrides
     the tool: "franka_hand", "none", or "unknown" (no tool in the model; ``diagnose`` and ``fit`` then fit the
     tool's mass, centre of mass and inertia as a payload). ``robot`` (a registered name such as "fer" or "fr3", or a
-    RobotDescription) chooses the robot (default the FER; a model file for another robot is an error)."""
+    RobotDescription) chooses the robot (default the FER; a model file for another robot is an error). A log that
+    declares no tool, given with its processed ``data``, gets the tool :func:`estimate_tool` finds (the evidence in
+    the configuration's ``notes["tool_estimate"]``, stated in every output's assumptions)."""
     if tool is not None and tool not in TOOLS:
         raise ValueError(f"unknown --tool {tool!r}: choose from {', '.join(TOOLS)}")
     if model is not None:
         cfg = resolve_config(model, robot)
     else:
         cfg = ModelConfig(robot=robot_description(robot), tool=tool_from_log(log), gravity=log.gravity)
+        if tool is None and not log.tool_declared and data is not None:
+            est, note = estimate_tool(data, cfg)
+            cfg = cfg.copy(tool=est, notes={**cfg.notes, "tool_estimate": note})
     if tool is not None:
         cfg = cfg.copy(tool=Tool.franka_hand() if tool == "franka_hand" else Tool.none())
     if rigid_body:
@@ -322,7 +360,7 @@ def compare(log: MeasurementLog | ProcessedLog | str, model: Any = None, *, rigi
     """Compare ``model`` (default: the baseline for the log, see :func:`baseline_config`) with a log."""
     progress("cleaning the log", verbose)
     data = as_processed(log, settings)
-    cfg = baseline_config(data.log, model, rigid_body, tool=tool, robot=robot)
+    cfg = baseline_config(data.log, model, rigid_body, tool=tool, robot=robot, data=data)
     progress(f"inverse dynamics on {data.n} samples", verbose)
     ev = evaluate(cfg, data)
     r = data.tau - ev.predicted

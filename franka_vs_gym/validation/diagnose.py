@@ -548,7 +548,7 @@ def diagnose(log: MeasurementLog | ProcessedLog | str, model: Any = None, *, rig
 
     progress("cleaning the log", verbose)
     data = as_processed(log, settings)
-    cfg = baseline_config(data.log, model, rigid_body, tool=tool, robot=robot)
+    cfg = baseline_config(data.log, model, rigid_body, tool=tool, robot=robot, data=data)
     fx = decimated(data)
     progress(f"evaluating the baseline model and regressors on {fx.n} samples"
              + (f" (the log decimated to {fx.settings.rate:g} Hz)" if fx is not data else ""), verbose)
@@ -737,7 +737,7 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
     from franka_vs_gym.validation.structure import assumptions_of
 
     data = as_processed(log, settings)
-    cfg = baseline_config(data.log, model, rigid_body, tool=tool, robot=robot)
+    cfg = baseline_config(data.log, model, rigid_body, tool=tool, robot=robot, data=data)
     joints_of: dict[str, list[int]] = {}
     fit_notes: dict[str, str] = {}  # effect -> what was constrained, left out or not applied, and why
     auto = [e.strip() for e in effects] == ["auto"]

@@ -276,6 +276,17 @@ def _meta_kwargs(meta: dict[str, Any]) -> dict[str, Any]:
     if kw["controller"] is not None and not isinstance(kw["controller"], dict):
         raise ValueError(f"controller in the log metadata must be an object or null, got "
                          f"{type(kw['controller']).__name__}")
+    for gain in ("kp", "kd", "ki"):  # one number for every joint, or 7
+        v = (kw["controller"] or {}).get(gain)
+        if v is None:
+            continue
+        try:
+            a = np.asarray(v, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError(f"controller.{gain} in the log metadata must be a number or 7 numbers, got {v!r}") from None
+        if a.shape not in ((), (7,)) or not np.isfinite(a).all():
+            raise ValueError(f"controller.{gain} in the log metadata must be a finite number or 7 numbers (one per "
+                             f"joint), got {np.shape(a)[0] if a.ndim == 1 else np.shape(a)} values: {v!r}")
     kw["extra"] = meta
     return kw
 
@@ -588,6 +599,9 @@ def load_log(path: str | os.PathLike, topic: str | None = None, progress: bool =
         except UnicodeDecodeError as e:  # a binary file of no format we read
             raise ValueError(f"{p}: not a log: byte {e.start} is not UTF-8 text, and the content is no NPZ, NPY, "
                              "pickle of robot states or ROS bag") from None
+        except csv.Error as e:  # e.g. "field larger than field limit (131072)": a blob or a corrupt file
+            raise ValueError(f"{p}: not a readable table: {e} (a cell of over 128 KiB; a blob in a column or a "
+                             "corrupt file?)") from None
         meta = _with_sidecar(meta, _read_sidecar(p))
     kw = _meta_kwargs(meta)
     t = arrays.pop("time")

@@ -35,6 +35,8 @@ from scipy import signal
 from franka_vs_gym.validation.logs import OPTIONAL, MeasurementLog
 
 MAX_RATE = 1000.0  # Hz: logs faster than this are resampled down to it
+MAX_USER_RATE = 10_000.0  # Hz: the highest --rate accepted (10x the FER's state rate)
+MIN_CUTOFF = 0.1  # Hz: the lowest --cutoff accepted (below it the filter removes the motion, and goes singular)
 GAP_FACTOR = 4.0  # default max_gap: this many of the log's own median sample periods (at least 50 ms)
 #: the smallest torque noise floor used, Nm: a noise-free (simulated) log has an estimated floor near 0, while the
 #: processing itself leaves errors of up to about 1e-3 Nm (acceleration from the filtered velocity, resampling; the
@@ -60,8 +62,14 @@ class CleanSettings:
     def __post_init__(self) -> None:
         if self.rate is not None and not self.rate > 0:
             raise ValueError(f"rate must be > 0 Hz, got {self.rate}")
+        if self.rate is not None and self.rate > MAX_USER_RATE:
+            raise ValueError(f"rate {self.rate:g} Hz is above {MAX_USER_RATE:g} Hz (the FER's state comes at 1 kHz; a "
+                             "finer grid only interpolates)")
         if self.cutoff is not None and not self.cutoff > 0:
             raise ValueError(f"cutoff must be > 0 Hz, got {self.cutoff}")
+        if self.cutoff is not None and self.cutoff < MIN_CUTOFF:
+            raise ValueError(f"cutoff {self.cutoff:g} Hz is below {MIN_CUTOFF:g} Hz: such a low-pass removes the motion "
+                             "itself (the default is 10 Hz)")
         if self.rate is not None and self.cutoff is not None and not self.cutoff < self.rate / 2:
             raise ValueError(f"cutoff must be in (0, rate/2) = (0, {self.rate / 2}) Hz, got {self.cutoff}")
         if self.max_gap is not None and not self.max_gap > 0:
