@@ -161,6 +161,8 @@ class FrankaSim:
         self._offset = cfg.torque_offset.copy()
         self.servo_gains = np.array(cfg.robot.servo_gains, dtype=np.float64)  # joint velocity servo, Nm s/rad
         self._torque_noise = float(torque_noise)
+        if not (math.isfinite(self._torque_noise) and self._torque_noise >= 0):
+            raise ValueError(f"torque_noise must be a finite number >= 0 Nm (standard deviation), got {torque_noise}")
         self._rng = np.random.default_rng(seed)
         self._state = RobotState.STATE_STOP
         self._eMc = DEFAULT_eMc.copy()

@@ -78,6 +78,8 @@ def main(args: argparse.Namespace) -> int:
         print(f"{j:5d}  {res.rmse_before[j]:7.3f}  {res.rmse_after[j]:6.3f}  {res.noise_floor[j]:8.3f}")
     tb, ta = float(np.sqrt(np.mean(res.rmse_before ** 2))), float(np.sqrt(np.mean(res.rmse_after ** 2)))
     print(f"total  {tb:7.3f}  {ta:6.3f}")
+    for name, why in res.notes.items():
+        print(f"{name}: {why}")
     print(f"effects: {', '.join(res.effects) or 'none'}; parameters: {json.dumps(res.params)}")
     print(f"calibrated model: {out}")
     return 0

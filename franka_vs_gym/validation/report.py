@@ -208,6 +208,8 @@ def markdown_report(res: CompareResult, outdir: str | os.PathLike, diagnosis: Di
         rp = res.replay
         L += [f"| replay RMSE_tau ({rp.mode}) | {_row(rp.rmse_tau)} | |",
               f"| replay RMSE_q (mrad) | {_row(rp.rmse_q * 1e3)} | |"]
+        if rp.fallback_from or rp.stop:
+            L += ["", f"Replay: {rp.status()}.", ""]
     L += ["", "## Where the error concentrates", "",
           "| joint | RMSE | worst window (s) | " + " | ".join(r[2] for r in VELOCITY_REGIMES) + " |",
           "|---" * 6 + "|"]
