@@ -207,3 +207,23 @@ def test_diagnose_reports_intervals_that_cover_a_hidden_payload():
     assert isinstance(p["correlations"], list) and isinstance(p["unidentifiable"], list)
     assert 0 < hi - lo < 0.2  # informative, not a token interval
     assert stats.norm.ppf(0.975) > 1.9
+
+
+def test_command_channel_delay_gets_an_interval_that_covers_it():
+    """A plant that applies its commands 15 ms late (closed loop in the MuJoCo plant): diagnose and fit report the
+    delay on the command channel with a 95 % interval containing 15 ms."""
+    from test_validation_foreign import _foreign_log
+
+    from franka_vs_gym.model.config import ModelConfig
+    from franka_vs_gym.validation.diagnose import diagnose, fit_effects
+    from franka_vs_gym.validation.signals import clean
+
+    data = clean(_foreign_log(ModelConfig(delay=0.015), seed=2))
+    d = diagnose(data)
+    s = next(s for s in d.selection if s.effect == "delay")
+    assert s.channel == "command"
+    lo, hi = s.params_ci95["delay_s"]
+    assert lo < 0.015 < hi and hi - lo < 0.01
+    f = fit_effects(data, ["delay"])
+    lo, hi = f.params_ci95["delay"]["delay_s"]
+    assert lo < f.params["delay"]["delay_s"] < hi

@@ -585,6 +585,7 @@ def diagnose(log: MeasurementLog | ProcessedLog | str, model: Any = None, *, rig
                 ranking = sorted([c for c in ranking if c.effect != "delay"] + [cmd], key=_order)
                 if select:
                     selection.append(Selected("delay", [], cmd.params, np.zeros(7), cmd.score, "command"))
+                    _attach_command_confidence(ctx, cmd.fits[0], selection[-1])
     if not select:
         selection = []
     if select:
@@ -618,6 +619,15 @@ def _attach_confidence(ctx: Context, y: np.ndarray, chosen: list[Term], cur: Set
     conf = confidence(ctx, [t.effect for t in chosen], cur.fits, y)
     for s, ci, corr, unid in zip(selection, conf.params_ci95, conf.correlations, conf.unidentifiable, strict=True):
         s.params_ci95, s.correlations, s.unidentifiable = ci, corr, unid
+
+
+def _attach_command_confidence(ctx: Context, fit: Fit, s: Selected) -> None:
+    """The interval of a delay fitted on the command channel (measured torque vs logged command)."""
+    from franka_vs_gym.validation.uncertainty import confidence
+
+    conf = confidence(ctx, [COMMAND_DELAY], [fit], ctx.cmd_residual)
+    s.params_ci95, s.correlations, s.unidentifiable = (conf.params_ci95[0], conf.correlations[0],
+                                                       conf.unidentifiable[0])
 
 
 def _lack_of_fit(ctx: Context, eng: Engine, chosen: list[Term], cur: SetFit, residual: np.ndarray,
@@ -898,6 +908,11 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
             res.params_ci95[e.name] = {**ci, "joints": params[e.name]["joints"]}
         res.correlations = [c for cs in conf.correlations for c in cs]
         res.unidentifiable = list(dict.fromkeys(u for us in conf.unidentifiable for u in us))
+    if command_fit is not None:  # the delay on the command channel: its own fit, its own residual
+        from franka_vs_gym.validation.uncertainty import confidence
+
+        conf = confidence(ctx, [COMMAND_DELAY], [command_fit], ctx.cmd_residual)
+        res.params_ci95["delay"] = {**conf.params_ci95[0], "joints": params["delay"]["joints"]}
     return res
 
 
