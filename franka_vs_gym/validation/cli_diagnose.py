@@ -4,8 +4,10 @@ the model lack, and is anything left that the library cannot name?
 ``--json`` prints one JSON object: ``rmse_tau`` (7, Nm), ``rmse_tau_total``, ``noise_floor`` (7), ``ranking`` (each
 effect alone, best first: ``effect``, ``joints``, ``params``, ``rmse_tau_after``, ``score``, ``significant``,
 ``plausible``, ``removed_rms``, ``problems``), ``verdict`` (the strongest selected effect or ``"none"``),
-``selected`` (the set fitted together: ``effect``, ``joints``, ``params``, ``contribution`` (Nm removed per joint in
-context), ``score``), ``rmse_tau_selected``, ``explained`` and ``unexplained`` (what the residual still follows),
+``selected`` (the set fitted together: ``effect``, ``joints``, ``params``, ``params_ci95`` (the same keys, each
+number replaced by its 95 % interval ``[low, high]``, ``null`` where the log cannot identify it), ``correlations``
+(parameter pairs with abs(r) > 0.9), ``unidentifiable`` (combinations the log cannot separate, in words),
+``contribution`` (Nm removed per joint in context), ``score``), ``rmse_tau_selected``, ``explained`` and ``unexplained`` (what the residual still follows),
 ``assumptions`` (tool, gravity, rate, cleaning, warnings) and ``notes`` (why effects were rejected). Progress goes to
 stderr.
 """
@@ -73,8 +75,19 @@ def main(args: argparse.Namespace) -> int:
         print(f"{i + 1:4d}  {c.effect:34s} {c.score:8.1f}  {'yes' if c.significant else 'no ':3s}  "
               f"{'yes' if c.plausible else 'no ':5s}  {str(c.joints):22s} {np.round(c.rmse_tau_after, 3).tolist()}")
     print(f"verdict: {d.verdict}")
+    from franka_vs_gym.validation.uncertainty import format_params
+
     for s in d.selection:
         print(f"selected: {s.effect:26s} joints {s.joints}  removes (Nm) {np.round(s.contribution, 3).tolist()}")
+        if s.params_ci95:
+            print(f"  95% intervals: {format_params(s.params, s.params_ci95, s.joints)}")
+        corr = sorted(s.correlations, key=lambda c: -abs(c["r"]))
+        for c in corr[:5]:
+            print(f"  correlated: {c['a']} and {c['b']} (r = {c['r']})")
+        if len(corr) > 5:
+            print(f"  correlated: {len(corr) - 5} more pairs with abs(r) > 0.9 (see --json)")
+        for u in s.unidentifiable:
+            print(f"  not identifiable: {u}")
     if d.rmse_tau_selected is not None and d.selection:
         print(f"held-out RMSE with the selected set (Nm): {np.round(d.rmse_tau_selected, 3).tolist()}")
     for n in d.notes:

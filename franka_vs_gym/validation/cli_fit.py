@@ -81,5 +81,20 @@ def main(args: argparse.Namespace) -> int:
     for name, why in res.notes.items():
         print(f"{name}: {why}")
     print(f"effects: {', '.join(res.effects) or 'none'}; parameters: {json.dumps(res.params)}")
+    if res.params_ci95:
+        from franka_vs_gym.validation.uncertainty import format_params
+
+        for name in res.effects:
+            if name in res.params_ci95:
+                shown = {k: v for k, v in res.params[name].items() if k not in ("joints", "problems")}
+                print(f"  {name} with 95% intervals: "
+                      f"{format_params(shown, res.params_ci95[name], res.params[name].get('joints'))}")
+        corr = sorted(res.correlations, key=lambda c: -abs(c["r"]))
+        for c in corr[:5]:
+            print(f"  correlated: {c['a']} and {c['b']} (r = {c['r']})")
+        if len(corr) > 5:
+            print(f"  correlated: {len(corr) - 5} more pairs with abs(r) > 0.9 (see --json)")
+        for u in res.unidentifiable:
+            print(f"  not identifiable: {u}")
     print(f"calibrated model: {out}")
     return 0

@@ -120,9 +120,16 @@ class Selected:
     score: float
     channel: str = "inverse_dynamics"
     lack_of_fit: list[Any] = field(default_factory=list)  # failed lack-of-fit tests (lackfit.LackOfFit)
+    # 95 % intervals (same structure as params, [low, high] or None where not identifiable), strongly correlated
+    # parameter pairs and unidentifiable combinations in words (validation.uncertainty)
+    params_ci95: dict[str, Any] = field(default_factory=dict)
+    correlations: list[dict[str, Any]] = field(default_factory=list)
+    unidentifiable: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         d = {"effect": self.effect, "joints": list(map(int, self.joints)), "params": self.params,
+             "params_ci95": self.params_ci95, "correlations": self.correlations,
+             "unidentifiable": self.unidentifiable,
              "contribution": np.round(self.contribution, 4).tolist(), "score": round(float(self.score), 2),
              "channel": self.channel}
         if self.lack_of_fit:
@@ -566,6 +573,9 @@ def diagnose(log: MeasurementLog | ProcessedLog | str, model: Any = None, *, rig
     ranking, chosen, cur = sel.run(select, forced=forced)
     notes = [f"{n} not selected: {why}" for n, why in sel.rejections.items()]
     selection = sel.describe(chosen, cur) if chosen else []
+    if chosen and select:
+        progress("95% intervals of the selected set's parameters", verbose)
+        _attach_confidence(ctx, y, chosen, cur, selection)
     # the delay may be on the command channel instead (commands reach the joints late)
     if any(e.name == "delay" for e in cands):
         meas = next((c for c in ranking if c.effect == "delay"), None)
@@ -575,6 +585,7 @@ def diagnose(log: MeasurementLog | ProcessedLog | str, model: Any = None, *, rig
                 ranking = sorted([c for c in ranking if c.effect != "delay"] + [cmd], key=_order)
                 if select:
                     selection.append(Selected("delay", [], cmd.params, np.zeros(7), cmd.score, "command"))
+                    _attach_command_confidence(ctx, cmd.fits[0], selection[-1])
     if not select:
         selection = []
     if select:
@@ -597,6 +608,26 @@ def diagnose(log: MeasurementLog | ProcessedLog | str, model: Any = None, *, rig
     if fx is not data:
         d.assumptions["effects_analysed_at_hz"] = fx.settings.rate
     return d
+
+
+def _attach_confidence(ctx: Context, y: np.ndarray, chosen: list[Term], cur: SetFit,
+                       selection: list[Selected]) -> None:
+    """Intervals, correlations and unidentifiable combinations of the jointly fitted selection
+    (:mod:`~franka_vs_gym.validation.uncertainty`)."""
+    from franka_vs_gym.validation.uncertainty import confidence
+
+    conf = confidence(ctx, [t.effect for t in chosen], cur.fits, y)
+    for s, ci, corr, unid in zip(selection, conf.params_ci95, conf.correlations, conf.unidentifiable, strict=True):
+        s.params_ci95, s.correlations, s.unidentifiable = ci, corr, unid
+
+
+def _attach_command_confidence(ctx: Context, fit: Fit, s: Selected) -> None:
+    """The interval of a delay fitted on the command channel (measured torque vs logged command)."""
+    from franka_vs_gym.validation.uncertainty import confidence
+
+    conf = confidence(ctx, [COMMAND_DELAY], [fit], ctx.cmd_residual)
+    s.params_ci95, s.correlations, s.unidentifiable = (conf.params_ci95[0], conf.correlations[0],
+                                                       conf.unidentifiable[0])
 
 
 def _lack_of_fit(ctx: Context, eng: Engine, chosen: list[Term], cur: SetFit, residual: np.ndarray,
@@ -643,9 +674,14 @@ class FitResult:
     assumptions: dict[str, Any] = field(default_factory=dict)
     #: effect -> what was constrained, left out or not applied, and why (one line each)
     notes: dict[str, str] = field(default_factory=dict)
+    # 95 % intervals per effect (same structure as params), correlated pairs, unidentifiable combinations
+    params_ci95: dict[str, Any] = field(default_factory=dict)
+    correlations: list[dict[str, Any]] = field(default_factory=list)
+    unidentifiable: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"effects": self.effects, "params": self.params, "notes": self.notes,
+        return {"effects": self.effects, "params": self.params, "notes": self.notes, "params_ci95": self.params_ci95,
+                "correlations": self.correlations, "unidentifiable": self.unidentifiable,
                 "rmse_tau_before": np.round(self.rmse_before, 4).tolist(),
                 "rmse_tau_after": np.round(self.rmse_after, 4).tolist(),
                 "rmse_tau_total_before": round(float(rmse(self.rmse_before)), 4),
@@ -923,8 +959,25 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
     for name, probs in implausible.items():
         if name in params:
             params[name]["problems"] = probs
-    return FitResult(cfg, new, names, fits, params, rmse(y_full), rmse(r_after), noise.copy(), data, y_full, r_after,
-                     holdout_info, assumptions_of(data, cfg, tool), fit_notes)
+    res = FitResult(cfg, new, names, fits, params, rmse(y_full), rmse(r_after), noise.copy(), data, y_full, r_after,
+                    holdout_info, assumptions_of(data, cfg, tool), fit_notes)
+    if len(members) > (command_fit is not None):
+        from franka_vs_gym.validation.uncertainty import confidence
+
+        progress("95% intervals of the fitted parameters", verbose)
+        # the jointly fitted effects that the model took (a command-channel delay is fitted on its own channel)
+        k = len(members) - (command_fit is not None)
+        conf = confidence(ctx, members[:k], fits[:k], y)
+        for e, ci in zip(members[:k], conf.params_ci95, strict=True):
+            res.params_ci95[e.name] = {**ci, "joints": params[e.name]["joints"]}
+        res.correlations = [c for cs in conf.correlations for c in cs]
+        res.unidentifiable = list(dict.fromkeys(u for us in conf.unidentifiable for u in us))
+    if command_fit is not None:  # the delay on the command channel: its own fit, its own residual
+        from franka_vs_gym.validation.uncertainty import confidence
+
+        conf = confidence(ctx, [COMMAND_DELAY], [command_fit], ctx.cmd_residual)
+        res.params_ci95["delay"] = {**conf.params_ci95[0], "joints": params["delay"]["joints"]}
+    return res
 
 
 __all__ = ["Candidate", "Diagnosis", "FitResult", "Selected", "diagnose", "fit_effects", "n_eff",

@@ -152,6 +152,19 @@ def plot_unexplained(diagnosis: Diagnosis, path: Path) -> Path | None:
     return path
 
 
+def _interval_lines(items) -> list[str]:
+    """Markdown lines: each effect's parameters with their 95 % intervals, correlated pairs, unidentifiable ones."""
+    from franka_vs_gym.validation.uncertainty import format_params
+
+    L = ["Parameters with 95 % intervals ([not identifiable]: the log cannot determine it):", ""]
+    for name, params, ci, corr, unid, joints in items:
+        shown = {k: v for k, v in params.items() if k not in ("joints", "problems")}
+        L.append(f"- **{name}**: {format_params(shown, ci, joints)}")
+        L += [f"  - correlated: {c['a']} and {c['b']} (r = {c['r']})" for c in corr]
+        L += [f"  - not identifiable: {u}" for u in unid]
+    return L + [""]
+
+
 def _diagnosis_section(d: Diagnosis, out: Path) -> list[str]:
     L = ["## Diagnosis", "", f"Verdict: **{d.verdict}**; selected (fitted together, in context): "
          + (", ".join(f"{s.effect} (joints {s.joints})" for s in d.selection) or "nothing"), ""]
@@ -161,6 +174,8 @@ def _diagnosis_section(d: Diagnosis, out: Path) -> list[str]:
         for s in d.selection:
             L.append(f"| {s.effect} | {s.joints} | {s.score:.1f} | {np.round(s.contribution, 3).tolist()} |")
         L.append("")
+        L += _interval_lines([(s.effect, s.params, s.params_ci95, s.correlations, s.unidentifiable, s.joints)
+                              for s in d.selection])
     if d.unexplained is not None:
         L += [f"Explained: **{d.unexplained.explained}**. " + " ".join(d.unexplained.text), ""]
         p = plot_unexplained(d, out / "unexplained.png")
@@ -234,6 +249,11 @@ def markdown_report(res: CompareResult, outdir: str | os.PathLike, diagnosis: Di
             L.append(f"| {name} | {_row(vals)} |")
         L += ["", f"![before and after]({p.name})", "", "Fitted parameters:", "", "```",
               json.dumps(fit.params, indent=1), "```", ""]
+        if fit.params_ci95:
+            L += _interval_lines([(n, fit.params[n], fit.params_ci95.get(n, {}), [], [], fit.params[n].get("joints"))
+                                  for n in fit.effects if n in fit.params_ci95])
+            L += [f"- correlated: {c['a']} and {c['b']} (r = {c['r']})" for c in fit.correlations]
+            L += [f"- not identifiable: {u}" for u in fit.unidentifiable] + [""]
     md.write_text("\n".join(L))
     return md
 
