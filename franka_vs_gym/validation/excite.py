@@ -44,7 +44,9 @@ from franka_vs_gym.model.config import ModelConfig
 Z95 = 1.959963984540054
 NEFF_RATE = 100.0  # Hz: effective independent samples per second of a 1 kHz log (integrated autocorrelation 10 ms)
 DESIGN_SAMPLES = 360  # samples of a whole motion (other than a designed one) the criterion is evaluated on
-PERIOD_SAMPLES = 120  # samples of one period of a designed motion
+PERIOD_SAMPLES = 120  # samples of one period of a designed motion (its reported widths)
+SEARCH_SAMPLES = 48  # samples of one period while searching (8 Hz for a 6 s period: 10 per period of its top
+# harmonic, 0.83 Hz)
 PERIOD = 6.0  # s, the nominal period of the Fourier series (f0 about 0.17 Hz; 5 harmonics reach 0.83 Hz)
 
 
@@ -131,6 +133,9 @@ def generic_motion(duration: float, seed: int = 0) -> SampledMotion:
 
 
 # ---------------------------------------------------------------------------------------------- information
+_PLANNED_LOG: list[Any] = []  # the one metadata-only log object of planned motions (built once)
+
+
 def _processed(time_s: np.ndarray, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray, noise: np.ndarray):
     """A ProcessedLog of a planned motion (the measured torque set to zero: only the regressors are used)."""
     from dataclasses import replace
@@ -142,12 +147,13 @@ def _processed(time_s: np.ndarray, q: np.ndarray, dq: np.ndarray, ddq: np.ndarra
     dt = float(time_s[1] - time_s[0])
     rate = 1.0 / dt
     zeros = np.zeros((n, 7))
-    # the log object carries metadata only (tool, gravity: the model's defaults); its samples are the first two
-    log = MeasurementLog(np.array([0.0, 0.001]), q[:2], dq[:2], zeros[:2], extra={"planned": True})
+    if not _PLANNED_LOG:  # metadata only (tool, gravity: the defaults; the model's are the configuration's)
+        _PLANNED_LOG.append(MeasurementLog(np.array([0.0, 0.001]), np.zeros((2, 7)), np.zeros((2, 7)),
+                                           np.zeros((2, 7)), extra={"planned": True}))
     settings = replace(CleanSettings(), rate=rate, cutoff=min(10.0, 0.45 * rate), max_gap=4 * dt)
     report = CleaningReport(n, 0, 0, dt, dt, dt, n, {}, [])
-    return ProcessedLog(time_s - time_s[0], q, dq, ddq, zeros, zeros, {}, np.asarray(noise, float), log, report,
-                        settings)
+    return ProcessedLog(time_s - time_s[0], q, dq, ddq, zeros, zeros, {}, np.asarray(noise, float),
+                        _PLANNED_LOG[0], report, settings)
 
 
 def nominal_shape(effect, ctx) -> dict[str, Any]:
@@ -225,6 +231,9 @@ def motion_context(motion, config: ModelConfig, noise: np.ndarray, samples: int 
     return Context(_processed(t, q, dq, ddq, noise), config)
 
 
+_REST_CACHE: dict[str, Any] = {}  # the rest pose's information while a search varies only the amplitudes
+
+
 def motion_information(motion, config: ModelConfig, effects: list, noise: np.ndarray,
                        samples: int = PERIOD_SAMPLES) -> tuple[np.ndarray, Columns]:
     """Information per second of motion, ``sum_k dt_k x_k x_k^T`` over the whole motion (P, P), of the effects'
@@ -238,10 +247,13 @@ def motion_information(motion, config: ModelConfig, effects: list, noise: np.nda
         cols = columns(Context(_processed(t, q, dq, ddq, noise), config), effects, noise)
         F = cols.information() * (motion.period / samples) * motion.periods
         if motion.rest > 0:
-            qr = np.repeat(motion.centre[None], 2, axis=0)
-            tr = np.array([0.0, motion.rest])
-            rest = columns(Context(_processed(tr, qr, 0 * qr, 0 * qr, noise), config), effects, noise)
-            F = F + rest.information() * motion.rest  # two samples, 2 rest in total
+            key = (tuple(e.name for e in effects), np.asarray(noise, float).tobytes(), motion.centre.tobytes())
+            if _REST_CACHE.get("key") != key or _REST_CACHE.get("config") is not config:
+                qr = np.repeat(motion.centre[None], 2, axis=0)
+                tr = np.array([0.0, motion.rest])
+                rest = columns(Context(_processed(tr, qr, 0 * qr, 0 * qr, noise), config), effects, noise)
+                _REST_CACHE.update(key=key, config=config, info=rest.information())
+            F = F + _REST_CACHE["info"] * motion.rest  # two samples, 2 rest in total
         return F, cols
     t = np.linspace(0.0, motion.duration, samples)
     q, dq, ddq, _ = motion.sample(t)
@@ -505,7 +517,7 @@ def design_excitation(effects: list[str], *, separate: list[list[str]] | None = 
     lo, hi = lim.q_min, lim.q_max
     neutral = cfg.robot.neutral()
     t_lin = rest + np.linspace(0.0, period, int(period * 200), endpoint=False)
-    t_kin = np.concatenate([[0.0], rest + np.linspace(0.0, period, 48, endpoint=False)])
+    t_kin = np.concatenate([[0.0], rest + np.linspace(0.0, period, 30, endpoint=False)])
     d_ref = np.sqrt(np.maximum(np.diag(F_ref), 1e-12 * max(float(np.diag(F_ref).max()), 1e-300)))
 
     def unpack(x: np.ndarray) -> FourierMotion:
@@ -537,7 +549,7 @@ def design_excitation(effects: list[str], *, separate: list[list[str]] | None = 
         m = within(unpack(x))
         if m is None:
             return 1e3
-        f = crit(motion_information(m, cfg, effs, sig)[0])
+        f = crit(motion_information(m, cfg, effs, sig, SEARCH_SAMPLES)[0])
         if f < best["f"]:
             best["f"], best["m"] = f, m
         return f
@@ -741,11 +753,14 @@ def main():
     robot.relative_dynamics_factor = RelativeDynamicsFactor(0.2, 0.2, 0.2)
     robot.move(JointMotion(CENTRE.tolist()))
     robot.relative_dynamics_factor = 1.0
-    times = np.arange(1, int(round(DURATION / STEP)) + 1) * STEP
-    waypoints = []
-    for t in times:
+    # the first rest held at the centre pose, waypoints through the motion, the last rest held at its end
+    waypoints = [JointWaypoint(CENTRE.tolist(), hold_target_duration=Duration(int(REST * 1000)))]
+    times = REST + np.arange(1, int(round(PERIOD * PERIODS / STEP)) + 1) * STEP
+    for k, t in enumerate(times):
         q, dq = excitation(float(t))
-        waypoints.append(JointWaypoint(JointState(q.tolist(), dq.tolist()), minimum_time=Duration(int(STEP * 1000))))
+        hold = Duration(int(REST * 1000)) if k == len(times) - 1 else Duration(0)
+        waypoints.append(JointWaypoint(JointState(q.tolist(), dq.tolist()), minimum_time=Duration(int(STEP * 1000)),
+                                       hold_target_duration=hold))
     motion = JointWaypointMotion(waypoints)
     rec = StateRecorder(seconds=DURATION + 5)
     motion.register_callback(rec)
