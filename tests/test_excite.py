@@ -226,3 +226,21 @@ def test_franky_script_plays_the_design(tmp_path):
     q_design = np.column_stack([np.interp(log.time, design[:, 0], design[:, 1 + j]) for j in range(7)])
     assert np.abs(log.q - q_design).max() < 0.01
     assert np.ptp(log.q, axis=0).min() > 0.05  # every joint moved
+
+
+def test_sigmoid_question_is_its_three_parameters():
+    """The model's sigmoid (phi1, phi2, phi3 per joint) is designed for through the law's sensitivities: the phi1
+    column is the law at height 1 (it is linear in phi1), and all 21 parameters get finite widths."""
+    from franka_vs_gym.model.friction import gaz_sigmoid
+    from franka_vs_gym.validation.effects import get_effect
+    from franka_vs_gym.validation.excite import columns, motion_context
+
+    m = _random_motion(np.random.default_rng(6), L=5)
+    cfg = ModelConfig()
+    ctx = motion_context(m, cfg, np.ones(7), samples=200)
+    cols = columns(ctx, [get_effect("sigmoid_friction")], np.ones(7))
+    fr = cfg.friction
+    expect = gaz_sigmoid(ctx.data.dq, 1.0, fr.phi2, fr.phi3)
+    assert np.allclose(cols.A[:, :, 0].sum(axis=1), expect[:, 0], atol=1e-6)  # joint 0's phi1 column
+    F, _ = motion_information(m, cfg, [get_effect("sigmoid_friction")], np.full(7, 0.2))
+    assert len(cols.names) == 21 and np.isfinite(predicted_widths(F, 100.0)).all()

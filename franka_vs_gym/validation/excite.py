@@ -198,15 +198,41 @@ def _param_names(effect, p: int) -> list[str]:
     return [f"c{k}" for k in range(p)]
 
 
+def _sigmoid_jacobian(ctx) -> tuple[np.ndarray, list[str]]:
+    """The sigmoid law's sensitivity to its three parameters at the model's values (central differences): the
+    re-identification of the model's sigmoid (``fit``'s replacement form) linearised. (The additive design of
+    ``SigmoidFriction`` at the model's own shape repeats the model's column, which says nothing of phi2 and phi3.)"""
+    from franka_vs_gym.model.friction import gaz_sigmoid
+
+    fr = ctx.config.friction
+    p = [np.asarray(fr.phi1, float), np.asarray(fr.phi2, float), np.asarray(fr.phi3, float)]
+    if not p[0].any():  # no sigmoid in the model: the one the generators inject
+        from franka_vs_gym.model.config import Friction
+
+        base = Friction()
+        p = [np.asarray(base.phi1, float), np.asarray(base.phi2, float), np.asarray(base.phi3, float)]
+    steps = (1e-3, 1e-3 * np.maximum(p[1], 1.0), 1e-4)
+    cols = []
+    for k in range(3):
+        hi, lo = [x.copy() for x in p], [x.copy() for x in p]
+        hi[k] = hi[k] + steps[k]
+        lo[k] = lo[k] - steps[k]
+        cols.append((gaz_sigmoid(ctx.data.dq, *hi) - gaz_sigmoid(ctx.data.dq, *lo)) / (2 * np.asarray(steps[k])))
+    return np.stack(cols, axis=2), ["phi1_Nm", "phi2_s_per_rad", "phi3_rad_per_s"]
+
+
 def columns(ctx, effects: list, noise: np.ndarray) -> Columns:
     """The effects' design columns on a context, per-joint effects spread to one parameter per joint and column."""
     n = ctx.n
     blocks, names, owner = [], [], []
     w = 1.0 / np.maximum(np.asarray(noise, float), 1e-6)
     for e in effects:
-        D = e.design(ctx, nominal_shape(e, ctx))  # (n, 7, p)
+        if e.name == "sigmoid_friction":
+            D, base = _sigmoid_jacobian(ctx)
+        else:
+            D = e.design(ctx, nominal_shape(e, ctx))  # (n, 7, p)
+            base = _param_names(e, D.shape[2])
         p = D.shape[2]
-        base = _param_names(e, p)
         if e.per_joint:
             for j in range(7):
                 blk = np.zeros((n, 7, p))
