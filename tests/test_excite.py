@@ -117,6 +117,8 @@ def test_question_from_a_diagnosis(tmp_path):
     p.write_text(json.dumps({"selected": [{"effect": "payload"}],
                              "ambiguous": [["coulomb_friction", "torque_offset"]]}))
     assert question_from(str(p)) == ([], [["coulomb_friction", "torque_offset"]])
+    p.write_text(json.dumps({"selected": [], "ambiguity": [{"candidates": ["armature", "delay"], "joints": [1]}]}))
+    assert question_from(str(p)) == ([], [["armature", "delay"]])
     p.write_text(json.dumps({"selected": [{"effect": "payload"}, {"effect": "armature"}]}))
     assert question_from(str(p)) == (["payload", "armature"], [])
 

@@ -59,8 +59,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def question_from(path: str) -> tuple[list[str], list[list[str]]]:
-    """(effects, groups to separate) read from a diagnosis JSON: ``ambiguous`` (``[[A, B], ...]``) when present and
-    non-empty, else the ``selected`` effects."""
+    """(effects, groups to separate) read from a diagnosis JSON: ``ambiguous`` (``[[A, B], ...]``, or the
+    ``candidates`` of ``ambiguity``) when present and non-empty, else the ``selected`` effects."""
     from franka_vs_gym import io
     from franka_vs_gym.errors import UserError
 
@@ -71,6 +71,8 @@ def question_from(path: str) -> tuple[list[str], list[list[str]]]:
     if not isinstance(d, dict):
         raise UserError(f"{path}: expected the JSON object of 'franka-vs diagnose --json'")
     amb = d.get("ambiguous") or []
+    if not amb and isinstance(d.get("ambiguity"), list):  # the detailed form: [{"candidates": [A, B], ...}]
+        amb = [a.get("candidates") for a in d["ambiguity"] if isinstance(a, dict)]
     if not isinstance(amb, list) or not all(isinstance(g, list) and all(isinstance(x, str) for x in g) for g in amb):
         raise UserError(f"{path}: 'ambiguous' must be a list of lists of effect names")
     groups = [g for g in amb if len(g) >= 2]
