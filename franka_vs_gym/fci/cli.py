@@ -21,6 +21,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="table (default), tag (8 cm AprilTag id 0 on the table) or empty (no table)")
     p.add_argument("--record", metavar="LOG", help="write the session as a workbench log (.csv or .npz + .json)")
     p.add_argument("--no-camera", action="store_true", help="no wrist camera in the plant")
+    p.add_argument("--truth", metavar="FILE",
+                   help="a hidden truth the plant carries and the robot's model (--model) does not know: a calibrated "
+                        "model file, or a JSON list of effects with values (payload, gravity_tilt, friction laws, "
+                        "armature, torque_offset, link_mass, delay; see docs/fci.md)")
 
 
 def main(args: argparse.Namespace) -> int:
@@ -40,7 +44,7 @@ def main(args: argparse.Namespace) -> int:
 
         tags = [TagSpec()]
     server = FCIServer(args.host, lockstep=args.lockstep, model=args.model, robot=robot, q0=args.q0, tags=tags,
-                       camera=not args.no_camera, record=args.record, table=args.scene != "empty")
+                       camera=not args.no_camera, record=args.record, table=args.scene != "empty", truth=args.truth)
     try:
         server.serve_forever()
     except OSError as e:  # address in use / not available: one line, not a traceback

@@ -155,6 +155,9 @@ class FCIRobot:
         self.EE_T_K = np.eye(4)
         self.m_load, self.F_x_Cload, self.I_load = 0.0, np.zeros(3), np.zeros((3, 3))
         self._load_model = None  # FrankaModel with the declared load, when one is set
+        # a plant that differs from the robot's model (serve --truth): the model of the bodies MuJoCo's gravcomp
+        # compensates; the robot's own gravity compensation is then commanded as the difference
+        self.plant_gravity = None  # FrankaModel or None
         self.K_theta = np.array(DEFAULT_K_THETA)
         self.K_x = np.array(DEFAULT_K_X)
         self.torque_thresholds = np.array(DEFAULT_TORQUE_THRESHOLDS)
@@ -502,7 +505,10 @@ class FCIRobot:
                 sim.step()  # the simulator's brakes hold the arm until automatic_error_recovery
                 return ()
             tau = self.control_torque(cmd)
-            if self._load_model is not None:
+            if self.plant_gravity is not None:
+                believed = self._load_model if self._load_model is not None else self.model
+                tau = tau + believed.gravity(self.q) - self.plant_gravity.gravity(self.q)
+            elif self._load_model is not None:
                 tau = tau + self._load_model.gravity(self.q) - self.model.gravity(self.q)
             sim.set_force_torque(JOINT_STATE, tau)
             sim.step()

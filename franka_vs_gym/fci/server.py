@@ -98,6 +98,9 @@ class FCIServer:
     port, gripper_port : 1337 and 1338 as libfranka fixes them (change only for tests of the server itself).
     max_missed_commands : real time: cycles in a row without a command before the communication-constraints reflex
         (default :data:`~franka_vs_gym.fci.robot.MAX_MISSED_COMMANDS`, 20).
+    truth : path of a truth file (:mod:`franka_vs_gym.fci.truth`: a calibrated model file or a list of effects with
+        values) or a :class:`~franka_vs_gym.fci.truth.Truth`: the plant carries it, the robot's own model (``model``:
+        what ``load_model``, ``set_load``, the internal controllers and the gravity compensation use) does not.
     verbose : print the ready line and connection events.
 
     Attributes
@@ -113,7 +116,7 @@ class FCIServer:
                  record: str | Path | None = None,
                  port: int = codec.ROBOT_PORT,
                  gripper_port: int = codec.GRIPPER_PORT, max_missed_commands: int | None = None,
-                 verbose: bool = True) -> None:
+                 verbose: bool = True, truth: Any = None) -> None:
         from franka_vs_gym.sim import FrankaSim
 
         self.host, self.port, self.gripper_port = host, int(port), int(gripper_port)
@@ -139,8 +142,12 @@ class FCIServer:
             # first, as libfranka does, then its own plant checks); the simulator's would pre-empt them when the
             # internal controller overshoots a command at the limit
             kwargs["reflexes"] = False
-        self.sim = FrankaSim(model, **kwargs)
-        self.robot = FCIRobot(self.sim, self.description)
+        self.truth = None
+        if truth is None:
+            self.sim = FrankaSim(model, **kwargs)
+            self.robot = FCIRobot(self.sim, self.description)
+        else:
+            self.sim, self.robot = self._hidden_truth(truth, model, kwargs)
         if max_missed_commands is not None:
             self.robot.max_missed_commands = int(max_missed_commands)
         self.hand = SimulatedHand(self.sim)
@@ -167,6 +174,24 @@ class FCIServer:
         self.deadlines_total = 0
         self.late_cycles = 0  # real-time cycles the server itself could not run in time (dropped)
         self._renderers: dict[tuple[int, int], Any] = {}
+
+    def _hidden_truth(self, truth: Any, model: Any, kwargs: dict[str, Any]) -> tuple[Any, FCIRobot]:
+        """The plant built from the truth, the robot's model from ``model``; the robot's gravity compensation is
+        its own model's (MuJoCo's gravcomp compensates the plant's bodies: the difference is commanded)."""
+        from franka_vs_gym.fci.truth import Truth, load_truth
+        from franka_vs_gym.model.config import resolve_config
+        from franka_vs_gym.model.franka_model import FrankaModel
+        from franka_vs_gym.sim import FrankaSim
+
+        believed = resolve_config(model, kwargs.get("robot", self.description))
+        t = truth if isinstance(truth, Truth) else load_truth(truth, believed)
+        kw = {k: v for k, v in kwargs.items() if k != "robot"}
+        sim = FrankaSim(t.plant, undeclared_payload=t.payload, torque_noise=t.torque_noise, seed=t.seed, **kw)
+        sim.model = FrankaModel(believed)  # what the robot knows
+        robot = FCIRobot(sim, self.description)
+        robot.plant_gravity = FrankaModel(t.plant)  # what the plant's gravcomp bodies weigh
+        self.truth = t
+        return sim, robot
 
     # ------------------------------------------------------------------ lifecycle
     def __enter__(self) -> FCIServer:

@@ -1,0 +1,248 @@
+"""franka-vs excite (the designed excitation) and franka-vs serve --truth (a plant the robot's model does not know),
+end to end: design -> serve with a hidden payload -> the generated pylibfranka script, unmodified, in its own
+process -> diagnose and fit the recording."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from conftest import loopback_host
+
+from franka_vs_gym.model.config import ModelConfig
+from franka_vs_gym.model.franka_model import FrankaModel
+from franka_vs_gym.validation.excite import (
+    FourierMotion,
+    design_excitation,
+    effect_widths,
+    generic_motion,
+    motion_information,
+    predicted_widths,
+    trajectory_table,
+)
+
+NET = 231  # this file's loopback nets (conftest.loopback_host)
+
+
+def _random_motion(rng, L=5):
+    return FourierMotion(FrankaModel().config.robot.neutral(), rng.normal(0, 0.05, (7, L)),
+                         rng.normal(0, 0.05, (7, L)), 6.0, 2, 1.0).constrained()
+
+
+def test_motion_starts_and_ends_at_rest_and_its_derivatives_are_consistent():
+    m = _random_motion(np.random.default_rng(3))
+    rows = trajectory_table(m, 1000.0)
+    t, q, dq, ddq = rows[:, 0], rows[:, 1:8], rows[:, 8:15], rows[:, 15:22]
+    # at rest at both ends and during the rests
+    for k in (0, -1):
+        assert np.allclose(dq[k], 0) and np.allclose(ddq[k], 0)
+    inside = (t > m.rest + 0.01) & (t < m.duration - m.rest - 0.01)
+    assert np.abs(dq[inside]).max() > 0.05
+    # the analytic velocity and acceleration against numerical derivatives of the sampled position (independent)
+    assert np.allclose(np.gradient(q, t, axis=0)[1:-1], dq[1:-1], atol=2e-5)
+    # (the jerk steps where the motion leaves a rest: a central difference there is off by jerk x dt / 2)
+    assert np.allclose(np.gradient(dq, t, axis=0)[1:-1], ddq[1:-1], atol=1e-3 * np.abs(ddq).max())
+    # leaving the rest is smooth: velocity and acceleration continuous at the junctions
+    j = int(np.searchsorted(t, m.rest))
+    assert np.abs(dq[j - 2:j + 3]).max() < 1e-3 and np.abs(ddq[j - 2:j + 3]).max() < 0.2
+
+
+def test_offset_width_is_the_white_noise_formula():
+    """A torque offset's column is 1: its predicted 95 % width is 2 x 1.96 sigma / sqrt(duration x neff_rate)."""
+    from franka_vs_gym.validation.effects import get_effect
+
+    sig = np.array([0.3, 0.25, 0.2, 0.2, 0.1, 0.08, 0.05])
+    m = _random_motion(np.random.default_rng(4))
+    F, cols = motion_information(m, ModelConfig(), [get_effect("torque_offset")], sig)
+    w = predicted_widths(F, 50.0)
+    assert np.allclose(w, 2 * 1.959964 * sig / np.sqrt(m.duration * 50.0), rtol=1e-6)
+    assert cols.names == [f"torque_offset[{j}]" for j in range(7)]
+
+
+def test_unseen_direction_is_infinite_not_narrow():
+    """Viscous friction and a per-joint Coulomb step are both zero on a joint that never moves: no finite width."""
+    from franka_vs_gym.validation.effects import get_effect
+
+    m = _random_motion(np.random.default_rng(5))
+    m.a[6] = 0.0
+    m.b[6] = 0.0
+    F, cols = motion_information(m, ModelConfig(), [get_effect("viscous_friction")], np.full(7, 0.2))
+    w = predicted_widths(F, 100.0)
+    assert np.isinf(w[6]) and np.isfinite(w[:6]).all()
+
+
+def test_design_keeps_limits_and_table_clearance_and_beats_generic():
+    d = design_excitation(["armature"], duration=14.0, time_budget=12.0, fraction=0.5, clearance=0.15, seed=1)
+    model = FrankaModel()
+    lim = model.limits()
+    rows = trajectory_table(d.motion, 1000.0)
+    t, q = rows[:, 0], rows[:, 1:8]
+    # limits checked independently: numerical derivatives of the sampled positions
+    dq = np.gradient(q, t, axis=0)
+    ddq = np.gradient(dq, t, axis=0)
+    dddq = np.gradient(ddq, t, axis=0)
+    assert (q >= lim["q_min"] + 0.2 - 1e-9).all() and (q <= lim["q_max"] - 0.2 + 1e-9).all()
+    assert (np.abs(dq) <= 0.5 * lim["dq_max"] * 1.001).all()
+    assert (np.abs(ddq[2:-2]) <= 0.5 * lim["ddq_max"] * 1.01).all()
+    assert (np.abs(dddq[3:-3]) <= 0.5 * lim["dddq_max"] * 1.05).all()
+    # the flange (FrankaModel's own kinematics) stays 0.15 m over the table top
+    z = np.array([model.fMfl(qk)[2, 3] for qk in q[::50]])
+    assert z.min() >= 0.15 - 1e-6
+    assert d.summary()[0]["median_width_ratio_reference_over_designed"] > 1.5
+    assert np.all(np.isfinite(d.widths))
+
+
+def _cli(*argv):
+    return subprocess.run([sys.executable, "-m", "franka_vs_gym.cli", *argv], capture_output=True, text=True,
+                          timeout=120)
+
+
+def test_cli_errors_are_one_line(tmp_path):
+    r = _cli("excite", "--effects", "no_such_effect", "-o", str(tmp_path / "x"))
+    assert r.returncode == 2 and "unknown effect 'no_such_effect'" in r.stderr and "Traceback" not in r.stderr
+    r = _cli("excite", "--separate", "payload", "-o", str(tmp_path / "x"))
+    assert r.returncode == 2 and "--separate needs two or more effects" in r.stderr
+    diag = tmp_path / "d.json"
+    diag.write_text(json.dumps({"selected": [], "verdict": "none"}))
+    r = _cli("excite", "--from", str(diag), "-o", str(tmp_path / "x"))
+    assert r.returncode == 2 and "names no ambiguous or selected effect" in r.stderr
+    assert not (tmp_path / "x").exists()
+
+
+def test_question_from_a_diagnosis(tmp_path):
+    from franka_vs_gym.validation.cli_excite import question_from
+
+    p = tmp_path / "diag.json"
+    p.write_text(json.dumps({"selected": [{"effect": "payload"}],
+                             "ambiguous": [["coulomb_friction", "torque_offset"]]}))
+    assert question_from(str(p)) == ([], [["coulomb_friction", "torque_offset"]])
+    p.write_text(json.dumps({"selected": [], "ambiguity": [{"candidates": ["armature", "delay"], "joints": [1]}]}))
+    assert question_from(str(p)) == ([], [["armature", "delay"]])
+    p.write_text(json.dumps({"selected": [{"effect": "payload"}, {"effect": "armature"}]}))
+    assert question_from(str(p)) == (["payload", "armature"], [])
+
+
+def test_truth_file_errors(tmp_path):
+    from franka_vs_gym.errors import UserError
+    from franka_vs_gym.fci.truth import load_truth
+
+    p = tmp_path / "t.json"
+    for items, msg in (([{"effect": "backlash"}], "unsupported effect 'backlash'"),
+                       ([{"effect": "coulomb_friction", "coulomb_Nm": [1, 2]}], "'coulomb_Nm' must be 7"),
+                       ([{"effect": "payload"}], "missing 'mass_kg'"),
+                       ([{"effect": "delay", "delay_s": 0.5}], "delay_s must be in [0, 0.1]")):
+        p.write_text(json.dumps(items))
+        with pytest.raises(UserError, match=msg.replace("[", r"\[").replace("]", r"\]")):
+            load_truth(p, ModelConfig())
+    p.write_text(json.dumps([{"effect": "armature", "armature_kgm2": 0.1},
+                             {"effect": "gravity_tilt", "tilt_deg": 3.0, "axis": [0, 1, 0]}]))
+    t = load_truth(p, ModelConfig())
+    assert np.allclose(t.plant.armature, 0.1)
+    g = t.plant.gravity
+    assert np.isclose(np.degrees(np.arccos(-g[2] / np.linalg.norm(g))), 3.0)
+
+
+def test_truth_plant_differs_from_the_robots_model():
+    """A tilted plant under the robot's own (vertical) gravity compensation: holding still takes a torque the
+    robot's model does not predict, and the measured tau_J is the plant's gravity, not the model's."""
+    from franka_vs_gym.fci import FCIServer
+    from franka_vs_gym.fci.truth import Truth
+
+    believed = ModelConfig()
+    plant = believed.copy(gravity=np.array([0.0, 9.81 * np.sin(0.05), -9.81 * np.cos(0.05)]))
+    with FCIServer(loopback_host(NET), lockstep=True, camera=False, verbose=False,
+                   truth=Truth(plant, None, 0.0, None, "test", [])) as srv:
+        q = srv.sim.get_position()
+        assert np.allclose(srv.sim.model.config.gravity, believed.gravity)  # the robot believes vertical
+        assert np.allclose(srv.robot.plant_gravity.gravity(q), FrankaModel(plant).gravity(q))
+        for _ in range(300):  # idle: the robot holds its pose with its internal controller
+            srv.robot.step(None)
+        tau = srv.sim.get_force_torque()
+        q = srv.sim.get_position()
+    g_plant, g_model = FrankaModel(plant).gravity(q), FrankaModel(believed).gravity(q)
+    assert np.abs(g_plant - g_model).max() > 0.5
+    assert np.abs(tau - g_plant).max() < 0.2 * np.abs(g_plant - g_model).max()
+
+
+def test_end_to_end_designed_payload_on_serve_with_hidden_truth(tmp_path):
+    from franka_vs_gym.cli import main as cli_main
+    from franka_vs_gym.fci import FCIServer
+    from franka_vs_gym.validation.compare import as_processed
+    from franka_vs_gym.validation.diagnose import diagnose, fit_effects
+    from franka_vs_gym.validation.effects import get_effect
+    from franka_vs_gym.validation.logs import load_log
+
+    duration = 8.0
+    out = tmp_path / "excite"
+    assert cli_main(["excite", "--effects", "payload", "--duration", str(duration), "--time-budget", "20",
+                     "--rest", "0.5", "-o", str(out), "--quiet", "--json"]) == 0
+    truth = {"effects": [{"effect": "payload", "mass_kg": 1.3, "com_flange_m": [0.02, -0.01, 0.07]}],
+             "torque_noise_Nm": 0.1, "seed": 2}
+    tf = tmp_path / "truth.json"
+    tf.write_text(json.dumps(truth))
+    with FCIServer(loopback_host(NET + 1), lockstep=True, camera=False, verbose=False, truth=str(tf)) as srv:
+        r = subprocess.run([sys.executable, str(out / "play_excitation_pylibfranka.py"), srv.host],
+                           capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-3000:]
+    rec = json.loads(r.stdout.strip().splitlines()[-1])
+    assert rec["dropped"] == 0 and rec["samples"] == int(round(duration * 1000)) + 1
+    log = load_log(rec["log"])
+    data = as_processed(log)
+    d = diagnose(data)
+    assert "payload" in d.selected, d.to_dict()["selected"]
+    res = fit_effects(data, ["payload"], holdout=None)
+    th = get_effect("payload").coef(res.fits[0])  # m, m c (joint-7 frame), inertia
+    from franka_vs_gym.validation.evaluate import FLANGE_OFFSET
+
+    m_true, c_true = 1.3, np.array([0.02, -0.01, 0.07]) + FLANGE_OFFSET
+    widths = effect_widths(data, ["payload"], ModelConfig())
+    w = np.array(list(widths.values()))
+    truth_vec = np.concatenate([[m_true], m_true * c_true])
+    # the truth inside the predicted 95 % interval around the fit (mass and first moments)
+    assert np.all(np.abs(th[:4] - truth_vec) <= w[:4] / 2), (th[:4], truth_vec, w[:4])
+    # the designed recording's intervals at least 2x narrower than a generic excitation of the same duration
+    # (same noise floor, same effective sample size), median over the payload's parameters
+    F_gen, _ = motion_information(generic_motion(duration), ModelConfig(), [get_effect("payload")], data.noise)
+    w_gen = predicted_widths(F_gen, 100.0)
+    assert np.median(w_gen / w) >= 2.0, (w_gen / w)
+
+
+def test_franky_script_plays_the_design(tmp_path):
+    """The generated franky script, unmodified in its own process against serve, records the designed motion:
+    its length, and the joints within 10 mrad of the design (the internal controller's tracking included)."""
+    from franka_vs_gym.cli import main as cli_main
+    from franka_vs_gym.fci import FCIServer
+    from franka_vs_gym.validation.logs import load_log
+
+    out = tmp_path / "excite"
+    assert cli_main(["excite", "--effects", "armature", "--duration", "6", "--time-budget", "3", "--rest", "0.5",
+                     "-o", str(out), "--quiet", "--json"]) == 0
+    with FCIServer(loopback_host(NET + 2), lockstep=True, camera=False, verbose=False) as srv:
+        r = subprocess.run([sys.executable, str(out / "play_excitation_franky.py"), srv.host], capture_output=True,
+                           text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-3000:]
+    log = load_log(json.loads(r.stdout.strip().splitlines()[-1])["log"])
+    design = np.loadtxt(out / "trajectory.csv", delimiter=",", skiprows=1)
+    assert abs(log.duration - design[-1, 0]) < 0.05
+    q_design = np.column_stack([np.interp(log.time, design[:, 0], design[:, 1 + j]) for j in range(7)])
+    assert np.abs(log.q - q_design).max() < 0.01
+    assert np.ptp(log.q, axis=0).min() > 0.05  # every joint moved
+
+
+def test_sigmoid_question_is_its_three_parameters():
+    """The model's sigmoid (phi1, phi2, phi3 per joint) is designed for through the law's sensitivities: the phi1
+    column is the law at height 1 (it is linear in phi1), and all 21 parameters get finite widths."""
+    from franka_vs_gym.model.friction import gaz_sigmoid
+    from franka_vs_gym.validation.effects import get_effect
+    from franka_vs_gym.validation.excite import columns, motion_context
+
+    m = _random_motion(np.random.default_rng(6), L=5)
+    cfg = ModelConfig()
+    ctx = motion_context(m, cfg, np.ones(7), samples=200)
+    cols = columns(ctx, [get_effect("sigmoid_friction")], np.ones(7))
+    fr = cfg.friction
+    expect = gaz_sigmoid(ctx.data.dq, 1.0, fr.phi2, fr.phi3)
+    assert np.allclose(cols.A[:, :, 0].sum(axis=1), expect[:, 0], atol=1e-6)  # joint 0's phi1 column
+    F, _ = motion_information(m, cfg, [get_effect("sigmoid_friction")], np.full(7, 0.2))
+    assert len(cols.names) == 21 and np.isfinite(predicted_widths(F, 100.0)).all()
