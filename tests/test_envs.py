@@ -325,7 +325,8 @@ def test_model_file_is_used(tmp_path):
     path = cfg.save(tmp_path / "calibrated.json")
     env = gym.make("FrankaTorqueTracking-v0", model=str(path))
     u = env.unwrapped
-    np.testing.assert_allclose(u.world.model.dof_armature[u.sim.dof_slice], 0.123)
+    rotor = np.array(u.sim.model.config.robot.rotor_inertia)  # the plant adds the motors' effective armature
+    np.testing.assert_allclose(u.world.model.dof_armature[u.sim.dof_slice], 0.123 + rotor)
     np.testing.assert_allclose(u.sim.model.config.armature, 0.123)
     env.close()
 
