@@ -210,13 +210,16 @@ class FCIRobot:
         return J
 
     def _update_cartesian_controller(self) -> None:
-        """The Cartesian impedance acts on the stiffness frame K: its controller's model has K as end effector."""
+        """The Cartesian impedance acts on the stiffness frame K: its controller's model has K as end effector, and
+        it knows the motors (the plant's effective armature on the diagonal of its mass matrix: task inertia,
+        damping and null space as the joints really are)."""
         from franka_vs_gym.model import FrankaModel
         from franka_vs_gym.model.config import Tool
 
         cfg = self.model.config
         flMK = self.F_T_NE @ self.NE_T_EE @ self.EE_T_K
-        model = FrankaModel(cfg.copy(tool=Tool(cfg.tool.name, flMK, cfg.tool.body)))
+        model = FrankaModel(cfg.copy(tool=Tool(cfg.tool.name, flMK, cfg.tool.body),
+                                     armature=cfg.armature + self.sim.rotor_inertia))
         self.cart_ctrl = CartesianImpedance(model, k_translation=self.K_x[:3], k_rotation=self.K_x[3:])
 
     def _reset_desired(self) -> None:
