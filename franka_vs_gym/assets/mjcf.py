@@ -134,7 +134,8 @@ def _robot_bodies(r: RobotSpec) -> tuple[str, str, str, str]:
         xml.append(f'<body name="{p}link{i + 1}" pos="{_fmt(M[:3, 3])}" quat="{_fmt(mat2quat(M[:3, :3]))}" '
                    f'gravcomp="1">')
         xml.append(_inertial(body))
-        xml.append(f'<joint name="{p}joint{i + 1}" range="{lo} {hi}" armature="{cfg.armature[i]:.12g}" '
+        armature = cfg.armature[i] + robot.rotor_inertia[i]  # link-side armature + the motors' effective armature
+        xml.append(f'<joint name="{p}joint{i + 1}" range="{lo} {hi}" armature="{armature:.12g}" '
                    f'actuatorfrcrange="{-tau} {tau}" actuatorgravcomp="true" {JOINT_STOP}/>')
         xml.append(f'<geom class="fer_visual" mesh="link{i + 1}"/><geom class="fer_collision" mesh="link{i + 1}"/>')
         closing.append("</body>")

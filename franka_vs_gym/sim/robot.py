@@ -159,7 +159,8 @@ class FrankaSim:
         self._setup_delay(cfg)
         self._tau_cmd = np.zeros(7)
         self._offset = cfg.torque_offset.copy()
-        self.servo_gains = np.array(cfg.robot.servo_gains, dtype=np.float64)  # joint velocity servo, Nm s/rad
+        self.rotor_inertia = np.array(cfg.robot.rotor_inertia, dtype=np.float64)  # effective armature, kg m^2
+        self.servo_gains = self._servo_gains(cfg)  # joint velocity servo, Nm s/rad
         self._torque_noise = float(torque_noise)
         if not (math.isfinite(self._torque_noise) and self._torque_noise >= 0):
             raise ValueError(f"torque_noise must be a finite number >= 0 Nm (standard deviation), got {torque_noise}")
@@ -197,6 +198,17 @@ class FrankaSim:
             raise ValueError(f"no robot with prefix {prefix!r} in the world "
                              f"(have {[r.prefix for r in world.scene.robots]})")
         return world, specs[0], specs[0].config
+
+    def _servo_gains(self, cfg: ModelConfig) -> np.ndarray:
+        """The joint velocity servo's gains (7,) Nm s/rad: the description's ``servo_gains`` (bandwidth
+        ``kv / B_ii`` at the neutral pose) plus the motors' effective armature at the same bandwidth, so the servo
+        keeps its bandwidth on the heavier joint (at most 0.5 / dt, so ``kv dt / (B_ii + rotor)`` stays below 1)."""
+        kv = np.array(cfg.robot.servo_gains, dtype=np.float64)
+        if not self.rotor_inertia.any():
+            return kv
+        b = np.diag(self.model.mass_matrix(cfg.robot.neutral()))
+        bandwidth = np.minimum(kv / b, 0.5 / self.dt)  # rad/s; at most half the implicit step's bound
+        return kv + bandwidth * self.rotor_inertia
 
     def _use_mounting_gravity(self, cfg: ModelConfig) -> None:
         """Gravity as the robot sees it: the world's gravity expressed in this robot's base frame (mounting)."""
@@ -259,6 +271,9 @@ class FrankaSim:
         damping = m.dof_damping[self._vs].copy()
         self._joint_damping = damping if damping.any() else None
         self._implicit_actuators = int(m.opt.integrator) == _IMPLICITFAST
+        rot = m.dof_armature[self._vs] - self.spec.config.armature
+        self._rotor = rot if np.abs(rot).max() > 0 else None  # the plant's effective armature (motor side)
+        self._rotor_per_dt = None if self._rotor is None else self._rotor / m.opt.timestep
 
     def _applied_torque(self) -> np.ndarray:
         """The joint actuators' torque over the last physics step (7,), Nm: gravity compensation, torque motors and
@@ -270,14 +285,21 @@ class FrankaSim:
         servos apply their force at the end-of-step velocity dq1 (``Kv (dq_set - dq1)``) and the joints applied
         ``qfrc_actuator + (qDeriv + damping) (dq1 - dq0)`` (``qDeriv``'s diagonal at these dofs is ``-Kv -
         damping``; it is the step's own, whatever the gains are now). Without servo gains (torque control) nothing
-        is added. A call right after a step sees that step; after ``reset`` (dq1 = dq0) nothing is added."""
+        is added. A call right after a step sees that step; after ``reset`` (dq1 = dq0) nothing is added.
+
+        With an effective armature (``RobotDescription.rotor_inertia``) the actuators drive the motors, and the
+        link side (the torque sensor) receives their torque minus what accelerates the motors over the step:
+        ``rotor (dq1 - dq0) / dt`` is subtracted, so tau_J stays the link-side torque."""
         tau = self._qfrc_actuator
+        rot = self._rotor_per_dt
         if not self._implicit_actuators:
-            return tau
+            return tau if rot is None else tau - rot * (self._qvel - self._servo_velocity)
         k = self._deriv_diag if self._deriv_idx is None else self._d.qDeriv[self._deriv_idx]
         if self._joint_damping is not None:
             k = k + self._joint_damping
-        if not np.count_nonzero(k):
+        if rot is not None:
+            k = k - rot
+        elif not np.count_nonzero(k):
             return tau
         dv = self._qvel - self._servo_velocity
         dv *= k
