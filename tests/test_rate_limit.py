@@ -153,3 +153,31 @@ def test_cartesian_velocity_and_pose_respect_the_norm_limits():
     np.testing.assert_allclose(T[:3, :3], np.eye(3))
     with pytest.raises(ValueError, match="homogeneous"):
         limit_cartesian_pose(np.ones((4, 4)), T0, np.zeros(6), np.zeros(6))
+
+
+@pytest.mark.parametrize("robot", ["fer", "fr3"])
+@pytest.mark.parametrize("mode", ["velocity", "torque"])
+def test_simulated_robot_applies_the_limiter_every_physics_step(robot, mode):
+    """FrankaSim(command_rates="limit") runs the limiter once per physics step (in the compiled plant when built):
+    the controls are, bit for bit, JointRateLimiter's sequence for the same targets, and a jump never trips."""
+    from franka_vs_gym.sim import FORCE_TORQUE, JOINT_STATE, VELOCITY, FrankaSim
+
+    sim = FrankaSim(robot=robot, camera=False, command_rates="limit")
+    sim.set_robot_state(VELOCITY if mode == "velocity" else FORCE_TORQUE)
+    ref = JointRateLimiter(rate_limits(robot), sim.dt)
+    ref.reset(sim.get_position())
+    rng = np.random.default_rng(3)
+    for k in range(300):
+        if k % 60 == 0:
+            target = rng.uniform(-0.5, 0.5, 7) if mode == "velocity" else rng.uniform(-1, 1, 7) * [3, 3, 3, 3, 0.2, 0.2, 0.05]
+        # a controller's loop: read the state (forward kinematics), command, step
+        sim.get_fMe()
+        if mode == "velocity":
+            sim.set_velocity(JOINT_STATE, target)
+        else:
+            sim.set_force_torque(JOINT_STATE, target)
+        sim.step()
+        expected = ref.velocity(target) if mode == "velocity" else ref.torque(target)
+        got = sim._ctrl_vel if mode == "velocity" else sim._ctrl_tau
+        np.testing.assert_array_equal(got, expected)
+    assert sim.current_errors == ()
