@@ -169,7 +169,8 @@ def test_simulated_robot_applies_the_limiter_every_physics_step(robot, mode):
     rng = np.random.default_rng(3)
     for k in range(300):
         if k % 60 == 0:
-            target = rng.uniform(-0.5, 0.5, 7) if mode == "velocity" else rng.uniform(-1, 1, 7) * [3, 3, 3, 3, 0.2, 0.2, 0.05]
+            scale = 0.5 if mode == "velocity" else np.array([3, 3, 3, 3, 0.2, 0.2, 0.05])
+            target = rng.uniform(-1, 1, 7) * scale
         # a controller's loop: read the state (forward kinematics), command, step
         sim.get_fMe()
         if mode == "velocity":

@@ -201,6 +201,6 @@ def plant_friction_torque(model: mujoco.MjModel, data: mujoco.MjData, dofs: Any)
     return -(with_cb - d.qfrc_passive)[np.asarray(dofs)]
 
 
-__all__ = ["FRICTION_COLS", "L0", "LCOL", "check", "NATIVE", "NUSER", "RCOL", "RSLOT", "RTAG", "TAG", "TASK_I_SIZE", "TASK_P_FIXED",
-           "TASK_REC", "friction_rows", "install", "plant_friction_torque", "tag_truth", "torque_cost", "tracking",
-           "tracking_batch", "tracking_post", "unavailable_reason", "visual_post", "visual_pre"]
+__all__ = ["FRICTION_COLS", "L0", "LCOL", "check", "NATIVE", "NUSER", "RCOL", "RSLOT", "RTAG", "TAG", "TASK_I_SIZE",
+           "TASK_P_FIXED", "TASK_REC", "friction_rows", "install", "plant_friction_torque", "tag_truth", "torque_cost",
+           "tracking", "tracking_batch", "tracking_post", "unavailable_reason", "visual_post", "visual_pre"]

@@ -133,9 +133,10 @@ class FrankaSim:
         :class:`~franka_vs_gym.sim.reflexes.ControlException` with libfranka's reason name; ``current_errors``
         lists them and ``automatic_error_recovery()`` clears them. See :mod:`franka_vs_gym.sim.reflexes`.
     command_rates : "pass" (default: commands reach the joints as given), "limit" (through the robot interface's
-        rate limiter, libfranka's ``limitRate`` with the robot's published limits: franka_vs_gym.sim.rate_limit) or "check" (a command that jumps beyond those
-        limits within one 1 ms cycle trips ``controller_torque_discontinuity`` or the joint motion generator's
-        discontinuity reflexes, as a raw libfranka loop does).
+        rate limiter, libfranka's ``limitRate`` with the robot's published limits: franka_vs_gym.sim.rate_limit)
+        or "check" (a command that jumps beyond those limits within one 1 ms cycle trips
+        ``controller_torque_discontinuity`` or the joint motion generator's discontinuity reflexes, as a raw
+        libfranka loop does).
     """
 
     def __init__(self, model: Any = None, *, robot: RobotDescription | str | None = None, friction: bool = True,
