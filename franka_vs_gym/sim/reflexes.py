@@ -230,6 +230,8 @@ class Reflexes:
             L[0] = float(mode) if self._lim_native else 0.0
             L[3] = -1.0
             L[4:] = 0.0
+            # (a reset of the data zeroes userdata: the actuators are written with every start)
+            L[1], L[2] = self.sim._motor.start, self.sim._vel.start
             if self._lim_native:
                 for i in (0, 1, 4):  # target, then the last command before and after a cycle
                     L[4 + 7 * i:11 + 7 * i] = self._limiter.last
