@@ -23,9 +23,9 @@ class FrankaTorqueTrackingEnv(FrankaEnv):
 
     ## Action space
     ``action_type="torque"`` (default): ``Box(-1, 1, (7,), float32)``, gravity-free joint torques normalized by
-    the task's torque scale (``env.unwrapped.action_scale``, Nm: the torque that gives every joint 1.5 times the
-    fastest desired trajectory's peak acceleration ``amplitude (2 pi f_max)^2`` at once at the neutral posture, plus
-    friction at its peak velocity; FER 5.1, 10.8, 7.3, 8.6, 1.2, 1.2, 0.38 Nm with the defaults; see
+    the task's torque scale (``env.unwrapped.action_scale``, Nm: the torque that gives every joint the fastest
+    desired trajectory's peak acceleration ``amplitude (2 pi f_max)^2`` at once at the neutral posture, plus
+    friction at its peak velocity; FER 3.5, 7.3, 4.9, 5.9, 0.9, 0.9, 0.35 Nm with the defaults; see
     :func:`~franka_vs_gym.envs.base.torque_action_scale`); ``action_scale="physical"``: ``Box(-tau_max, tau_max)``
     Nm (tau_max = 87, 87, 87, 87, 12, 12, 12 Nm). ``action_type="joint_velocity"``: ``Box(-1, 1)`` times half the
     rated joint velocities (``Box(-dq_max, dq_max)`` rad/s with ``action_scale="physical"``), executed by the
@@ -88,10 +88,10 @@ class FrankaTorqueTrackingEnv(FrankaEnv):
         self.frequency_range = (float(fr[0]), float(fr[1]))
         self.max_tracking_error = None if max_tracking_error is None else _positive(max_tracking_error,
                                                                                     "max_tracking_error")
-        # the default torque scale covers the fastest desired trajectory: 1.5 x its peak acceleration A (2 pi f)^2,
-        # friction at its peak velocity A 2 pi f
+        # the default torque scale covers the fastest desired trajectory: its peak acceleration A (2 pi f)^2 for
+        # every joint at once, friction at its peak velocity A 2 pi f
         w = 2 * np.pi * self.frequency_range[1]
-        self.torque_scale_motion = (1.5 * self.amplitude * w * w, self.amplitude * w)
+        self.torque_scale_motion = (self.amplitude * w * w, self.amplitude * w)
         super().__init__(action_type=action_type, observation_type=observation_type, control_period=control_period,
                          time_limit=time_limit, camera=False, **kwargs)
         self.error_scale = _positive(error_scale, "error_scale")
