@@ -1027,7 +1027,7 @@ def test_interrupt_stops_within_a_second_and_keeps_the_partial_run(sig, tmp_path
 # ----------------------------------------------------------------------------------------------- determinism
 _TRAJ = """
 import hashlib, numpy as np, gymnasium as gym, franka_vs_gym.envs
-env = gym.make("FrankaTorqueTracking-v0")
+env = gym.make("FrankaTorqueTracking-v0", action_scale="physical")
 obs, _ = env.reset(seed=7)
 rng = np.random.default_rng(7)
 h = hashlib.sha256()

@@ -2,9 +2,12 @@
 
 They consume the visual-servoing observation contract of docs/ARCHITECTURE.md (dict: ``q``, ``features``,
 ``features_desired``, ``feature_depth``, ``tag_pose``, ``tag_pose_desired``, ``visible``) and return a
-``joint_velocity`` action (7,) rad/s (default) or a ``cartesian_velocity`` action (6,), the camera twist in c
-(m/s, rad/s), clipped to the action bounds. ``predict`` has the stable-baselines3 signature, so classical control
-and RL agents are evaluated the same way. When the tag is not seen the policy commands zero velocity.
+``joint_velocity`` action (7,) rad/s (default) or a ``cartesian_velocity`` action (6,), the camera twist in c (m/s,
+rad/s), clipped to the action bounds; with ``action_scale`` (the env's ``action_scale``, or
+:meth:`with_action_scale`, which :func:`~franka_vs_gym.envs.evaluate.evaluate` calls for a normalized env) the
+normalized action of that scale instead, saturated there with its direction kept. ``predict`` has the stable-
+baselines3 signature, so classical control and RL agents are evaluated the same way. When the tag is not seen the
+policy commands zero velocity.
 """
 
 from __future__ import annotations
@@ -52,6 +55,13 @@ def _read(observation: Any) -> dict[str, np.ndarray]:
 
 
 class _ServoPolicy:
+    #: the physical value of an output of 1 per component (None: physical outputs); see with_action_scale
+    action_scale: np.ndarray | None = None
+
+    def with_action_scale(self, scale: Any) -> _ServoPolicy:
+        """A copy whose actions are normalized by ``scale`` (an env's ``action_scale``; None: physical units)."""
+        return _with_scale(self, scale)
+
     def __init__(self, action_type: str, gain: AdaptiveGain | float, eMc: Any, model: Any, robot: Any = None) -> None:
         if action_type not in ACTION_TYPES:
             raise ValueError(f"action_type must be one of {ACTION_TYPES}, got {action_type!r}")
@@ -76,11 +86,26 @@ class _ServoPolicy:
         else:
             v_c = self._camera_twist(o)
         if self.action_type == "cartesian_velocity":
-            ratio = max(1.0, float(np.max(np.abs(v_c) / CARTESIAN_BOUNDS)))
-            return (v_c / ratio).astype(np.float32), None
-        dq = camera_to_joint_velocity(v_c, self.model.eJe(o["q"]), self.eMc)
-        ratio = max(1.0, float(np.max(np.abs(dq) / self.dq_max)))
-        return (dq / ratio).astype(np.float32), None
+            out, bound = v_c, CARTESIAN_BOUNDS
+        else:
+            out, bound = camera_to_joint_velocity(v_c, self.model.eJe(o["q"]), self.eMc), self.dq_max
+        scale = self.action_scale
+        if scale is not None:
+            bound = np.minimum(bound, scale)
+        ratio = max(1.0, float(np.max(np.abs(out) / bound)))
+        out = out / ratio
+        if scale is not None:
+            out = out / scale
+        return out.astype(np.float32), None
+
+
+def _with_scale(policy: Any, scale: Any) -> Any:
+    """A shallow copy of a scripted policy with its action scale set (None: physical)."""
+    import copy
+
+    out = copy.copy(policy)
+    out.action_scale = None if scale is None else np.array(scale, dtype=np.float64)
+    return out
 
 
 class IBVSPolicy(_ServoPolicy):

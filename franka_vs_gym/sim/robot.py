@@ -30,6 +30,7 @@ from franka_vs_gym.model.geometry import (
     twist_transform,
 )
 from franka_vs_gym.sim import plant
+from franka_vs_gym.sim.rate_limit import rate_limits
 from franka_vs_gym.sim.reflexes import ARMED, ControlException, Reflexes, position_profile_time
 from franka_vs_gym.sim.world import SimulationDiverged, SimWorld
 from franka_vs_gym.sim.world import no_op as _no_op
@@ -131,10 +132,11 @@ class FrankaSim:
         velocity or torque beyond its limit holds the joints (brakes) and raises
         :class:`~franka_vs_gym.sim.reflexes.ControlException` with libfranka's reason name; ``current_errors``
         lists them and ``automatic_error_recovery()`` clears them. See :mod:`franka_vs_gym.sim.reflexes`.
-    command_rates : "pass" (default: commands reach the joints as given), "limit" (rate-limited to the torque-rate,
-        acceleration and jerk limits, as libfranka's ``limitRate``) or "check" (a command that jumps beyond those
-        limits within one 1 ms cycle trips ``controller_torque_discontinuity`` or the joint motion generator's
-        discontinuity reflexes, as a raw libfranka loop does).
+    command_rates : "pass" (default: commands reach the joints as given), "limit" (through the robot interface's
+        rate limiter, libfranka's ``limitRate`` with the robot's published limits: franka_vs_gym.sim.rate_limit)
+        or "check" (a command that jumps beyond those limits within one 1 ms cycle trips
+        ``controller_torque_discontinuity`` or the joint motion generator's discontinuity reflexes, as a raw
+        libfranka loop does).
     """
 
     def __init__(self, model: Any = None, *, robot: RobotDescription | str | None = None, friction: bool = True,
@@ -171,7 +173,8 @@ class FrankaSim:
         self._hook = self._make_pre_step()
         world.add_pre_step(self._hook)
         # the reflexes' limits come from the robot description (config.robot)
-        self._reflexes = Reflexes(self, cfg.robot.limits, enabled=reflexes, command_rates=command_rates)
+        self._reflexes = Reflexes(self, cfg.robot.limits, enabled=reflexes, command_rates=command_rates,
+                                  rate_limits=rate_limits(cfg.robot))
         self._reflexes.install(world)
         if self._cam >= 0:
             self.set_eMc(self._eMc)
@@ -907,7 +910,8 @@ class FrankaSim:
         steps such a robot's data elsewhere (``mujoco.batch``) writes its controls as ``set_force_torque`` /
         ``set_velocity`` would and then calls :meth:`commands_from_controls`."""
         r, w = self._reflexes, self.world
-        return (self._native and r._native and r._enabled and r._mode == "pass" and r._hold is None
+        return (self._native and r._native and r._enabled and (r._mode == "pass" or r._lim_native)
+                and r._hold is None
                 and not r._relaxed and not r._check_tau and not r.errors and r._ud[0] == ARMED
                 and not self._delay_steps and self._meas_fifo is None and not w._active and not w._post_hooks
                 and len(w._checks) == 1 and self._state == RobotState(control_state))
@@ -917,6 +921,13 @@ class FrankaSim:
         robot's command state what ``set_force_torque`` (torque control) or ``set_velocity`` (velocity control)
         leaves behind with ``command_rates="pass"`` for those controls."""
         r = self._reflexes
+        target = r.limiter_target()
+        if target is not None:  # rate-limited: the command is the limiter's target (the controls its output)
+            if self._state == RobotState.STATE_FORCE_TORQUE_CONTROL:
+                self._tau_cmd[:] = target
+            else:
+                r._v_target[:] = target
+            return
         if self._state == RobotState.STATE_FORCE_TORQUE_CONTROL:
             self._tau_cmd[:] = self._ctrl_tau
             r._tau_applied[:] = self._ctrl_tau
