@@ -242,9 +242,10 @@ def main(argv: list[str] | None = None) -> int:
           f"{machine['cpus']} CPUs, load {machine['load_at_start']}", flush=True)
     result = run_ibvs(args) if args.task == "ibvs" else run_panda(args)
     machine["load_at_end"] = _load()
+    cmd = " ".join(argv if argv is not None else sys.argv[1:])
     result.update({"goal": args.goal, "seed": args.seed, "eval_seed": args.eval_seed,
                    "eval_episodes": args.eval_episodes, "machine": machine,
-                   "command": "python scripts/time_to_solve.py " + " ".join(argv if argv is not None else sys.argv[1:])})
+                   "command": f"python scripts/time_to_solve.py {cmd}".strip()})
     status = "solved" if result["solved"] else "NOT solved"
     print(f"{result['task']}: {status} after {result['steps']} steps: wall {result['wall_s']:.1f} s (evaluations "
           f"{result['eval_wall_s']:.1f} s), process CPU {result['cpu_s']:.1f} s; load {machine['load_at_start']} -> "
