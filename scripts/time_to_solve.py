@@ -217,7 +217,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--eval-seed", type=int, default=10_000, help="first held-out seed (default 10000)")
     ap.add_argument("--eval-episodes", type=int, default=100)
     ap.add_argument("--eval-every", type=int, default=None,
-                    help="env steps between evaluations (default 16384 for ibvs, 2000 for panda-reach)")
+                    help="env steps between evaluations (default 32768 for ibvs, 2000 for panda-reach)")
     ap.add_argument("--n-envs", type=int, default=16, help="robots in the native vector env (ibvs; default 16)")
     ap.add_argument("--action-scale", type=float, default=0.5, help="rad/s of an action of 1 (ibvs; default 0.5)")
     ap.add_argument("--max-steps", type=int, default=2_000_000, help="training steps at most (ibvs)")
@@ -229,7 +229,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     args.eval_every_set = args.eval_every is not None
     if args.eval_every is None:
-        args.eval_every = 16_384
+        args.eval_every = 32_768
     for name in ("eval_every", "eval_episodes", "n_envs", "max_steps", "threads"):
         if getattr(args, name) < 1:
             ap.error(f"--{name.replace('_', '-')} must be >= 1")
