@@ -73,15 +73,19 @@ def evaluate_ibvs(model: Any, env_id: str, n: int, seed: int, action_scale: floa
     done = np.zeros(n, dtype=bool)
     success = np.zeros(n, dtype=bool)
     t_conv = np.full(n, np.nan)
+    length = np.zeros(n, dtype=np.int64)
     while not done.all():
         a, _ = model.predict(obs, deterministic=True)
         obs, _, dones, infos = venv.step(a)
+        length[~done] += 1
         for i in np.flatnonzero(dones & ~done):
             done[i] = True
             success[i] = bool(infos[i].get("is_success", False))
             t_conv[i] = infos[i].get("time", np.nan) if success[i] else np.nan
     return {"success_rate": float(success.mean()),
-            "mean_time_to_converge": float(np.nanmean(t_conv)) if success.any() else float("nan")}
+            "mean_time_to_converge": float(np.nanmean(t_conv)) if success.any() else float("nan"),
+            "episodes": [{"success": bool(a), "length": int(b), "time_to_converge": float(c)}
+                         for a, b, c in zip(success, length, t_conv, strict=True)]}
 
 
 def run_ibvs(args: argparse.Namespace) -> dict[str, Any]:
@@ -117,6 +121,7 @@ def run_ibvs(args: argparse.Namespace) -> dict[str, Any]:
             r = evaluate_ibvs(self.model, args.env_id, args.eval_episodes, args.eval_seed, args.action_scale,
                               env_kwargs, args.batch_threads)
             clock.eval_wall += time.perf_counter() - t
+            r.pop("episodes")
             row = {"steps": int(self.num_timesteps), "wall_s": round(clock.wall(), 1), "cpu_s": round(clock.cpu(), 1),
                    **r}
             curve.append(row)
