@@ -71,6 +71,10 @@ class _ServoPolicy:
     def _camera_twist(self, o: dict[str, np.ndarray]) -> np.ndarray:  # pragma: no cover - overridden
         raise NotImplementedError
 
+    def _joint_velocity(self, o: dict[str, np.ndarray], v_c: np.ndarray) -> np.ndarray:
+        """The joint velocities (7,) realising the wrist camera's twist v_c."""
+        return camera_to_joint_velocity(v_c, self.model.eJe(o["q"]), self.eMc)
+
     def predict(self, observation: dict[str, Any], state: Any = None, episode_start: Any = None,
                 deterministic: bool = True) -> tuple[np.ndarray, None]:
         """Action for one observation; returns ``(action, None)``."""
@@ -82,7 +86,7 @@ class _ServoPolicy:
         if self.action_type == "cartesian_velocity":
             ratio = max(1.0, float(np.max(np.abs(v_c) / CARTESIAN_BOUNDS)))
             return (v_c / ratio).astype(np.float32), None
-        dq = camera_to_joint_velocity(v_c, self.model.eJe(o["q"]), self.eMc)
+        dq = self._joint_velocity(o, v_c)
         ratio = max(1.0, float(np.max(np.abs(dq) / self.dq_max)))
         return (dq / ratio).astype(np.float32), None
 
@@ -167,14 +171,24 @@ class _EyeToHandPolicy(_ServoPolicy):
 
     def predict(self, observation: dict[str, Any], state: Any = None, episode_start: Any = None,
                 deterministic: bool = True) -> tuple[np.ndarray, None]:
-        o = _read(observation)
-        if "camera_pose" in observation:
-            o["camera_pose"] = np.asarray(observation["camera_pose"], dtype=np.float64).reshape(6)
+        """Action for one observation; returns ``(action, None)``."""
+        if not isinstance(observation, dict) or "camera_pose" not in observation:
+            raise ValueError("observation lacks 'camera_pose' (an eye-to-hand environment's observation is needed)")
+        pose = np.asarray(observation["camera_pose"], dtype=np.float64).reshape(-1)
+        if pose.shape != (6,) or not np.isfinite(pose).all():
+            raise ValueError(f"observation['camera_pose'] must be 6 finite numbers (fMc: t, theta u), got "
+                             f"{np.shape(observation['camera_pose'])}")
+        self._camera_pose = pose
+        return super().predict(observation, state, episode_start, deterministic)
+
+    def _camera_twist(self, o: dict[str, np.ndarray]) -> np.ndarray:
+        return np.zeros(6)  # (the camera does not move: the laws give joint velocities directly)
+
+    def _joint_velocity(self, o: dict[str, np.ndarray], v_c: np.ndarray) -> np.ndarray:
         if o["visible"][0] < 0.5:
-            return np.zeros(7, dtype=np.float32), None
-        dq = self._law(o)
-        ratio = max(1.0, float(np.max(np.abs(dq) / self.dq_max)))
-        return (dq / ratio).astype(np.float32), None
+            return np.zeros(7)
+        o = {**o, "camera_pose": self._camera_pose}
+        return self._law(o)
 
     def _law(self, o: dict[str, np.ndarray]) -> np.ndarray:  # pragma: no cover - overridden
         raise NotImplementedError
