@@ -144,6 +144,11 @@ def test_scene_matches_mujoco_placement(robot):
     of the tag body on the hand, along a motion."""
     env = gym.make("FrankaIBVSEyeToHand-v0", robot=robot)
     u = env.unwrapped
+    # before any reset: the scene's own camera (CameraSpec.from_visp) at the nominal placement, as the task has it
+    d = mujoco.MjData(u._m)
+    mujoco.mj_fwdPosition(u._m, d)
+    wMc = homogeneous(d.cam_xmat[u._cam_id].reshape(3, 3) @ CAMERA_VISP_TO_MUJOCO, d.cam_xpos[u._cam_id])
+    np.testing.assert_allclose(wMc, u.sim.get_wMf() @ u.fMc, atol=1e-9)
     env.reset(seed=3)
     for _ in range(5):
         env.step(env.action_space.sample() * 0.1)
@@ -209,3 +214,18 @@ def test_clear_errors():
     with pytest.raises(ValueError, match="camera_pose"):
         IBVSEyeToHandPolicy().predict(obs)
     env.close()
+
+
+def test_camera_spec_from_visp_places_the_mujoco_camera(rng):
+    """A CameraSpec made from a ViSP pose wMc (z forward, y down) renders from that pose: MuJoCo's camera frame
+    (looking along -z, y up) is wMc turned half a turn about x."""
+    from franka_vs_gym.assets.mjcf import CameraSpec, SceneSpec, scene_xml
+
+    wMc = homogeneous(pin.exp3(rng.uniform(-2, 2, 3)), rng.uniform(-1, 1, 3))
+    m = mujoco.MjModel.from_xml_string(scene_xml(SceneSpec(cameras=[CameraSpec.from_visp("fixed", wMc, 45.0)])))
+    d = mujoco.MjData(m)
+    mujoco.mj_fwdPosition(m, d)
+    c = m.camera("fixed").id
+    np.testing.assert_allclose(d.cam_xpos[c], wMc[:3, 3], atol=1e-9)
+    np.testing.assert_allclose(d.cam_xmat[c].reshape(3, 3), wMc[:3, :3] @ np.diag([1.0, -1.0, -1.0]), atol=1e-9)
+    assert m.cam_fovy[c] == 45.0

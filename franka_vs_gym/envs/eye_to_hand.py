@@ -17,14 +17,16 @@ import numpy as np
 from gymnasium import spaces
 
 from franka_vs_gym.assets.mjcf import CameraSpec, TagSpec, mat2quat
-from franka_vs_gym.envs.base import _nonneg
+from franka_vs_gym.envs.base import _nonneg, _positive
 from franka_vs_gym.envs.ibvs import FrankaIBVSEnv
 from franka_vs_gym.envs.kernels import pose_records
 from franka_vs_gym.envs.pbvs import FrankaPBVSEnv
 from franka_vs_gym.envs.visual import VisualServoEnv
 from franka_vs_gym.model.config import resolve_config
+from franka_vs_gym.model.franka_model import FrankaModel
 from franka_vs_gym.model.geometry import (
     CAMERA_VISP_TO_MUJOCO,
+    desired_tag_pose,
     homogeneous,
     inverse_pose,
     pose_vector,
@@ -58,15 +60,19 @@ class EyeToHandEnv(VisualServoEnv):
             raise ValueError("eMo must be a 4x4 homogeneous transform with a rotation matrix")
         self.eMo = eMo.copy()
         self.oMe = inverse_pose(self.eMo)
-        # the tag is a child of the hand body, whose frame is the flange's: flMo = flMe eMo
-        self._flMe = resolve_config(kwargs.get("model"), kwargs.get("robot")).tool.flMe
+        # the tag is a child of the hand body, whose frame is the flange's: flMo = flMe eMo; the camera starts at its
+        # nominal placement (the goal where the neutral posture holds the tag; the robot's base is the world frame)
+        cfg = resolve_config(kwargs.get("model"), kwargs.get("robot"))
+        self._flMe = cfg.tool.flMe
+        self._fMc_nominal = (FrankaModel(cfg).fMe(cfg.robot.neutral()) @ self.eMo
+                             @ inverse_pose(desired_tag_pose(_positive(desired_distance, "desired_distance"))))
         super().__init__(desired_distance=desired_distance, start_distance_range=start_distance_range,
                          start_offset=start_offset, **kwargs)
         self._cam_id = self._m.camera(CAMERA_NAME).id
         self._q_nominal = self.config.robot.neutral()
         # the goal of the nominal camera placement: the tag where the neutral posture holds it
         self._fMo_nominal = self.sim.model.fMe(self._q_nominal) @ self.eMo
-        self._set_camera(self._fMo_nominal @ inverse_pose(self.cdMo))
+        self._set_camera(self._fMc_nominal)
         self._truth_scratch = np.zeros((1, self._truth_rec.size))
 
     # ------------------------------------------------------------------ scene
@@ -74,7 +80,7 @@ class EyeToHandEnv(VisualServoEnv):
         flMo = self._flMe @ self.eMo
         held = TagSpec(tag_id=tag.tag_id, size=tag.size, pos=tuple(flMo[:3, 3]), quat=tuple(mat2quat(flMo[:3, :3])),
                        parent="r0_hand", name="tag")
-        return {"camera": False, "tags": [held], "cameras": [CameraSpec(CAMERA_NAME)]}
+        return {"camera": False, "tags": [held], "cameras": [CameraSpec.from_visp(CAMERA_NAME, self._fMc_nominal)]}
 
     def _camera_name(self) -> str:
         return CAMERA_NAME
