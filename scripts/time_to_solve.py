@@ -182,7 +182,7 @@ def run_panda(args: argparse.Namespace) -> dict[str, Any]:
     env = gym.make("PandaReach-v3")
     model = DDPG(policy="MultiInputPolicy", env=env, seed=args.seed, device="cpu", verbose=0)
     curve: list[dict[str, float]] = []
-    every = args.eval_every if args.eval_every_set else 2000
+    every = args.eval_every if args.eval_every_set else 5000
 
     class Periodic(BaseCallback):
         def __init__(self) -> None:
@@ -222,7 +222,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--eval-seed", type=int, default=10_000, help="first held-out seed (default 10000)")
     ap.add_argument("--eval-episodes", type=int, default=100)
     ap.add_argument("--eval-every", type=int, default=None,
-                    help="env steps between evaluations (default 32768 for ibvs, 2000 for panda-reach)")
+                    help="env steps between evaluations (default 32768 for ibvs, 5000 for panda-reach)")
     ap.add_argument("--n-envs", type=int, default=16, help="robots in the native vector env (ibvs; default 16)")
     ap.add_argument("--action-scale", type=float, default=0.5, help="rad/s of an action of 1 (ibvs; default 0.5)")
     ap.add_argument("--max-steps", type=int, default=2_000_000, help="training steps at most (ibvs)")
