@@ -47,7 +47,8 @@ def make(env_id, **kw):
 def test_all_ids_registered_on_import():
     for env_id in ENVS:
         assert env_id in gym.registry
-    assert set(ENVS) == {"FrankaIBVS-v0", "FrankaPBVS-v0", "FrankaTorqueTracking-v0", "FrankaVisualTorque-v0"}
+    assert set(ENVS) == {"FrankaIBVS-v0", "FrankaPBVS-v0", "FrankaTorqueTracking-v0", "FrankaVisualTorque-v0",
+                         "FrankaIBVSEyeToHand-v0", "FrankaPBVSEyeToHand-v0"}
     assert franka_vs_gym.evaluate is franka_vs_gym.envs.evaluate
 
 

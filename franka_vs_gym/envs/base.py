@@ -222,7 +222,7 @@ class FrankaEnv(gym.Env):
                  velocity_noise: float = 0.0, action_scale: Any = "normalized", limit_rate: bool = True,
                  clip_actions: bool = False, render_mode: str | None = None, render_width: int = 320,
                  render_height: int = 240, camera: bool = True, tags: list | None = None,
-                 failure_penalty: float = 1.0) -> None:
+                 failure_penalty: float = 1.0, cameras: list | None = None) -> None:
         super().__init__()
         if action_type not in self.supported_action_types:
             raise ValueError(f"action_type must be one of {self.supported_action_types} for {type(self).__name__}, "
@@ -261,7 +261,8 @@ class FrankaEnv(gym.Env):
         payload = (RigidBody(1.0, PAYLOAD_COM, np.full(3, 0.4 * 0.03**2))
                    if self.payload_mass_range is not None and not self.payload_declared else None)
         self.sim = FrankaSim(self.config, camera=camera, tags=tags, timestep=self.physics_step,
-                             undeclared_payload=payload, command_rates="limit" if self.limit_rate else "pass")
+                             undeclared_payload=payload, command_rates="limit" if self.limit_rate else "pass",
+                             cameras=cameras)
         self.robot = self.sim  # the FrankaSim (vpRobotFranka-style API): env.unwrapped.robot.model is its FrankaModel
         self.world = self.sim.world
         self._m, self._d = self.world.model, self.world.data

@@ -16,7 +16,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from franka_vs_gym.assets.mjcf import RobotSpec, SceneSpec, TagSpec, mat2quat
+from franka_vs_gym.assets.mjcf import CameraSpec, RobotSpec, SceneSpec, TagSpec, mat2quat
 from franka_vs_gym.model.checks import as_pose, as_vector
 from franka_vs_gym.model.config import ModelConfig, RigidBody, Tool, resolve_config
 from franka_vs_gym.model.description import FER, RobotDescription
@@ -120,6 +120,8 @@ class FrankaSim:
         Apply the configured joint friction in the plant (default True). The model's friction is unaffected.
     camera : bool
         Add the wrist camera.
+    cameras : list of CameraSpec
+        Cameras fixed in the world (e.g. an eye-to-hand camera).
     tags : list of TagSpec
         AprilTags in the scene (e.g. ``[TagSpec()]``: an 8 cm tag id 0 on the table).
     world, prefix :
@@ -144,8 +146,9 @@ class FrankaSim:
                  world: SimWorld | None = None, prefix: str = "r0_", q0: Any = None, ft_sensor: bool = False,
                  undeclared_payload: RigidBody | None = None, torque_noise: float = 0.0, seed: int | None = None,
                  extra_worldbody: str = "", extra_assets: str = "", reflexes: bool = True,
-                 command_rates: str = "pass") -> None:
+                 command_rates: str = "pass", cameras: list[CameraSpec] | None = None) -> None:
         world, spec, cfg = self._make_world(model, robot, world, prefix, camera=camera, tags=tags, table=table,
+                                            cameras=cameras,
                                             timestep=timestep, ft_sensor=ft_sensor,
                                             undeclared_payload=undeclared_payload, extra_worldbody=extra_worldbody,
                                             extra_assets=extra_assets)
@@ -193,6 +196,7 @@ class FrankaSim:
             if not (timestep > 0 and math.isfinite(timestep)):
                 raise ValueError(f"timestep must be > 0 s, got {timestep}")
             world = SimWorld(SceneSpec(robots=[spec], table=scene["table"], tags=list(scene["tags"] or []),
+                                       cameras=list(scene["cameras"] or []),
                                        timestep=timestep, extra_worldbody=scene["extra_worldbody"],
                                        extra_assets=scene["extra_assets"]))
             return world, spec, cfg
