@@ -153,6 +153,8 @@ class Diagnosis:
     notes: list[str] = field(default_factory=list)
     residual: np.ndarray | None = None
     data: ProcessedLog | None = None  # the whole processed log (the context may hold a decimated copy)
+    # each selected effect's torque (N, 7) Nm on the analysed samples (context.data.time), fitted with the set
+    contributions: dict[str, np.ndarray] = field(default_factory=dict)
 
     @property
     def selected(self) -> list[str]:
@@ -596,6 +598,8 @@ def diagnose(log: MeasurementLog | ProcessedLog | str, model: Any = None, *, rig
                   rmse_sel, unexplained, assumptions_of(data, cfg, tool), notes, residual, data)
     if fx is not data:
         d.assumptions["effects_analysed_at_hz"] = fx.settings.rate
+    if select and chosen:
+        d.contributions = {t.effect.name: c for t, c in zip(chosen, eng.contributions(cur), strict=True)}
     return d
 
 
@@ -641,6 +645,9 @@ class FitResult:
     residual_after: np.ndarray
     holdout: dict[str, Any] | None = None
     assumptions: dict[str, Any] = field(default_factory=dict)
+    # each fitted effect's torque (N, 7) Nm on contribution_time (the fitting samples; the log may be decimated)
+    contributions: dict[str, np.ndarray] = field(default_factory=dict)
+    contribution_time: np.ndarray | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {"effects": self.effects, "params": self.params,
@@ -860,8 +867,9 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
     params = {e.name: {**e.public(f), "joints": list(map(int, f.joints))} for e, f in zip(members, fits, strict=True)}
     for name, probs in implausible.items():
         params[name]["problems"] = probs
+    contribs = {e.name: e.contribution(ctx, f) for e, f in zip(members, fits, strict=True) if f is not command_fit}
     return FitResult(cfg, new, names, fits, params, rmse(y_full), rmse(r_after), noise.copy(), data, y_full, r_after,
-                     holdout_info, assumptions_of(data, cfg, tool))
+                     holdout_info, assumptions_of(data, cfg, tool), contribs, ctx.data.time)
 
 
 __all__ = ["Candidate", "Diagnosis", "FitResult", "Selected", "diagnose", "fit_effects", "n_eff",
