@@ -20,6 +20,8 @@ from __future__ import annotations
 import math
 import re
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -36,10 +38,50 @@ VELOCITY_REGIMES = ((0.0, 0.05, "abs(dq) < 0.05 rad/s (near rest: stiction, offs
                     (0.5, math.inf, "abs(dq) >= 0.5 rad/s (viscous regime)"))
 
 
+class _Progress:
+    """The workbench's progress on stderr: one updating line (tqdm), or one line per stage when verbose."""
+
+    bar: Any = None
+    verbose: bool = False
+
+
 def progress(msg: str, enabled: bool = True) -> None:
-    """Print a progress stage on stderr (never on stdout, which may carry JSON)."""
-    if enabled:
-        print(f"[franka-vs] {msg}", file=sys.stderr, flush=True)
+    """Show a progress stage on stderr (never on stdout, which may carry JSON): on one updating line, or as its own
+    line under :func:`progress_line` with ``verbose`` (warnings always get their own line)."""
+    if not enabled:
+        return
+    text = f"[franka-vs] {msg}"
+    if _Progress.verbose or msg.startswith("warning"):
+        if _Progress.bar is not None:
+            _Progress.bar.write(text, file=sys.stderr)
+        else:
+            print(text, file=sys.stderr, flush=True)
+        return
+    if _Progress.bar is None:
+        from tqdm import tqdm
+
+        _Progress.bar = tqdm(total=None, bar_format="{desc} [{elapsed}]", file=sys.stderr, leave=False,
+                             dynamic_ncols=True, mininterval=0)
+    _Progress.bar.set_description_str(text)
+
+
+def end_progress() -> None:
+    """Clear the progress line (before results are printed)."""
+    if _Progress.bar is not None:
+        _Progress.bar.close()
+        _Progress.bar = None
+
+
+@contextmanager
+def progress_line(verbose: bool = False) -> Iterator[None]:
+    """Within: progress on one updating line (``verbose``: one line per stage); cleared on exit."""
+    old = _Progress.verbose
+    _Progress.verbose = verbose
+    try:
+        yield
+    finally:
+        end_progress()
+        _Progress.verbose = old
 
 
 def tool_from_log(log: MeasurementLog) -> Tool:
@@ -401,4 +443,5 @@ def format_compare(res: CompareResult) -> str:
 
 
 __all__ = ["CompareResult", "ReplayResult", "as_processed", "baseline_config", "compare", "concentration_table",
-           "format_compare", "progress", "replay", "replay_with_fallback", "rmse", "tool_from_log"]
+           "end_progress", "format_compare", "progress", "progress_line", "replay", "replay_with_fallback", "rmse",
+           "tool_from_log"]

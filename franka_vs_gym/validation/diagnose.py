@@ -160,6 +160,8 @@ class Diagnosis:
     notes: list[str] = field(default_factory=list)
     residual: np.ndarray | None = None
     data: ProcessedLog | None = None  # the whole processed log (the context may hold a decimated copy)
+    # each selected effect's torque (N, 7) Nm on the analysed samples (context.data.time), fitted with the set
+    contributions: dict[str, np.ndarray] = field(default_factory=dict)
 
     @property
     def selected(self) -> list[str]:
@@ -607,6 +609,8 @@ def diagnose(log: MeasurementLog | ProcessedLog | str, model: Any = None, *, rig
                   rmse_sel, unexplained, assumptions_of(data, cfg, tool), notes, residual, data)
     if fx is not data:
         d.assumptions["effects_analysed_at_hz"] = fx.settings.rate
+    if select and chosen:
+        d.contributions = {t.effect.name: c for t, c in zip(chosen, eng.contributions(cur), strict=True)}
     return d
 
 
@@ -678,6 +682,9 @@ class FitResult:
     params_ci95: dict[str, Any] = field(default_factory=dict)
     correlations: list[dict[str, Any]] = field(default_factory=list)
     unidentifiable: list[str] = field(default_factory=list)
+    # each fitted effect's torque (N, 7) Nm on contribution_time (the fitting samples; the log may be decimated)
+    contributions: dict[str, np.ndarray] = field(default_factory=dict)
+    contribution_time: np.ndarray | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {"effects": self.effects, "params": self.params, "notes": self.notes, "params_ci95": self.params_ci95,
@@ -977,6 +984,9 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
 
         conf = confidence(ctx, [COMMAND_DELAY], [command_fit], ctx.cmd_residual)
         res.params_ci95["delay"] = {**conf.params_ci95[0], "joints": params["delay"]["joints"]}
+    res.contributions = {e.name: e.contribution(ctx, f) for e, f in zip(members, fits, strict=True)
+                         if f is not command_fit}
+    res.contribution_time = ctx.data.time
     return res
 
 
