@@ -2,9 +2,9 @@
 
 Blocks are fenced with a language: ``python`` blocks run as a script, ``bash`` blocks line by line (``franka-vs``
 and ``python`` commands run; a line ending in ``&`` starts a server in the background, read up to its ready line and
-stopped when the block ends; ``pip install`` lines are checked against the project's extras, since CI itself runs the
-install; a line with ``[--option]`` is a synopsis, whose every option must be in that command's ``--help``);
-``text`` blocks are formulas and output, never commands. Each block runs in a fresh folder next to a link to
+stopped when the block ends; ``pip install`` lines are checked against the project's extras, since CI itself runs
+the install; a line with ``[--option]`` is a synopsis, whose every option must be in that command's ``--help``);
+``json`` blocks must parse; ``text`` blocks are formulas and output, never commands. Each block runs in a fresh folder next to a link to
 ``shared/`` (so ``../shared/data/...`` works as in the repository), with links to ``examples/``, ``baselines/``,
 ``scripts/`` and ``docs/``.
 
@@ -38,7 +38,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"
 DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
-LANGS = {"python", "bash", "text"}
+LANGS = {"python", "bash", "json", "text"}
 _FENCE = re.compile(r"^```(?P<lang>[\w-]*)[ \t]*\n(?P<code>.*?)^```[ \t]*$", re.S | re.M)
 _DIRECTIVE = re.compile(r"<!--\s*doc-test:\s*(?P<body>.*?)\s*-->\s*$")
 
@@ -76,6 +76,7 @@ def _blocks() -> list[Block]:
 
 BLOCKS = _blocks()
 CODE = [b for b in BLOCKS if b.lang in ("python", "bash")]
+JSON = [b for b in BLOCKS if b.lang == "json"]
 
 
 # ----------------------------------------------------------------------------------------------------- fixtures
@@ -303,6 +304,14 @@ def test_code_block_runs(block: Block, tmp_path: Path, made: Path) -> None:
         assert r.returncode == 0, f"{block.id} failed:\n{r.stdout[-1500:]}\n{r.stderr[-3000:]}"
     else:
         _run_bash(block, work, env, timeout)
+
+
+@pytest.mark.parametrize("block", JSON, ids=[b.id for b in JSON])
+def test_json_block_parses(block: Block) -> None:
+    """A documented file format (``json`` block) is valid JSON, so a user can copy it."""
+    import json
+
+    json.loads(block.code)
 
 
 def test_every_block_declares_its_language() -> None:
