@@ -5,8 +5,8 @@ and ``python`` commands run; a line ending in ``&`` starts a server in the backg
 stopped when the block ends; ``pip install`` lines are checked against the project's extras, since CI itself runs
 the install; a line with ``[--option]`` is a synopsis, whose every option must be in that command's ``--help``);
 ``json`` blocks must parse; ``text`` blocks are formulas and output, never commands. Each block runs in a fresh
-folder next to a link to ``shared/`` (so ``../shared/data/...`` works as in the repository), with links to ``examples/``, ``baselines/``,
-``scripts/`` and ``docs/``.
+folder next to a link to ``shared/`` (so ``../shared/data/...`` works as in the repository), with links to
+``examples/``, ``baselines/``, ``scripts/`` and ``docs/``.
 
 A block states what it needs in an HTML comment on the line before its fence, which a reader of the rendered page
 does not see but a reader of the source does:
