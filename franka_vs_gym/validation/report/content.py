@@ -116,8 +116,8 @@ def value_text(r: ParamRow, nd: int = 4) -> str:
     if isinstance(v, list) and len(v) == JOINT_LIST and all(not isinstance(x, list) for x in v):
         parts = []
         for j, x in enumerate(v):
-            if x is None or (isinstance(x, float) and (not math.isfinite(x) or x == 0.0)):
-                continue
+            if x is None or (isinstance(x, (int, float)) and (not math.isfinite(float(x)) or float(x) == 0.0)):
+                continue  # a joint the effect does not act on
             c = ci[j] if isinstance(ci, list) and len(ci) == JOINT_LIST else None
             parts.append(f"j{j} {fmt(x, nd)}" + (f" [{fmt(c[0], 3)}, {fmt(c[1], 3)}]" if _pair(c) else ""))
         return (", ".join(parts) or "0") + unit

@@ -428,8 +428,9 @@ def html_report(res, outdir: str | Path, diagnosis=None, fit=None, model_file: s
         "<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
         f"<title>franka-vs {kind}: {_esc(Path(str(src)).name)}</title>", f"<style>{CSS}</style>", js, script,
         "</head><body>",
-        f"<h1>Model vs measurement ({kind}): {_esc(src)}</h1>",
-        f'<p class="muted">{rep.rows_in} rows in, {res.data.n} samples used at {rep.settings["rate"]:.0f} Hz '
+        f"<h1>Model vs measurement ({kind}): {_esc(Path(str(src)).name)}</h1>",
+        f'<p class="muted">{_esc(src)}: {rep.rows_in} rows in, {res.data.n} samples used at '
+        f'{rep.settings["rate"]:.0f} Hz '
         f"({res.data.time[-1] - res.data.time[0]:.1f} s); zero-phase low-pass {rep.settings['cutoff']} Hz. "
         "Drag to pan, wheel or box to zoom, hover for values, click a legend entry to hide it.</p>",
         _summary_html(res, diagnosis, fit, model_file),
