@@ -67,14 +67,17 @@ def browser():
 
 @pytest.fixture(scope="module")
 def reports(tmp_path_factory) -> dict[str, Path]:
-    """diagnose and fit reports of a log with two hidden effects (viscous friction and a gravity tilt)."""
+    """compare (with the replay), diagnose and fit reports of a log with two hidden effects (viscous friction and a
+    gravity tilt)."""
     tmp = tmp_path_factory.mktemp("browser")
     log, _ = make_hidden_effect_log("viscous_friction+gravity_tilt", 3, duration=8.0)
     p = save_log(log, tmp / "two_effects.npz")
     assert cli(["diagnose", str(p), "--report", str(tmp / "diag"), "--quiet"]) == 0
     assert cli(["fit", str(p), "--add", "viscous_friction,gravity_tilt", "-o", str(tmp / "cal.json"), "--report",
                 str(tmp / "fit"), "--quiet"]) == 0
-    return {"diagnose": tmp / "diag" / "report.html", "fit": tmp / "fit" / "report.html"}
+    assert cli(["compare", str(p), "--report", str(tmp / "cmp"), "--quiet"]) == 0
+    return {"diagnose": tmp / "diag" / "report.html", "fit": tmp / "fit" / "report.html",
+            "compare": tmp / "cmp" / "report.html"}
 
 
 # per rendered plot: its title, how many glyph renderers, how many data points each displays
@@ -135,18 +138,20 @@ def _errors(browser) -> list[str]:
     return [e["message"] for e in browser.get_log("browser") if e["level"] in ("SEVERE", "ERROR")]
 
 
-@pytest.mark.parametrize("kind", ["diagnose", "fit"])
+@pytest.mark.parametrize("kind", ["diagnose", "fit", "compare"])
 def test_report_renders_every_plot_with_data(kind, reports, browser):
     path = reports[kind]
     assert path.stat().st_size < 5e6
     _load(browser, path)
     assert browser.execute_script("return typeof Bokeh") == "object", "Bokeh did not load from the file"
     plots = browser.execute_script(PLOT_STATE)
-    assert len(plots) >= 5, plots  # RMSE bars, torque, residual, follows, effects
+    # RMSE bars, torque, residual, follows, and the effects' torques (diagnose, fit) or the replay (compare)
+    assert len(plots) >= 5, plots
     for p in plots:
         assert p["counts"] and max(p["counts"]) > 0, f"plot {p['title']!r} shows no data"
     titles = " ".join(p["title"] for p in plots)
     assert "measured and model torque" in titles and "residual" in titles
+    assert ("replay in the MuJoCo plant" in titles) == (kind == "compare")
     ink = browser.execute_script(CANVAS_INK)
     assert len(ink) >= 5 and min(ink) > 0.01, ink  # every plot drew something
     # the joint selector swaps each joint's samples in

@@ -85,6 +85,10 @@ def test_mcap_holds_measurement_model_residual_effects_findings(run, capsys):
     scale = np.abs(expect).max()
     assert scale > 0.5  # a 6 degree tilt moves Nm of gravity torque
     np.testing.assert_allclose(tau_eff[k], expect, atol=0.02 * scale)
+    # the model after = the model before + the selected effect's torque, on the same timeline
+    if len(te) == len(t):
+        np.testing.assert_allclose(_arr(topics["/model"][1], "tau_after"), model + tau_eff, atol=3e-4)
+        np.testing.assert_allclose(_arr(topics["/residual"][1], "after"), res - tau_eff, atol=3e-4)
     # the findings: the command's verdict and selection, once at the start
     f = topics["/findings"][1]
     assert len(f) == 1 and f[0]["verdict"] == d["verdict"] == "gravity_tilt"

@@ -42,12 +42,12 @@ class _Progress:
     """The workbench's progress on stderr: one updating line (tqdm), or one line per stage when verbose."""
 
     bar: Any = None
-    verbose: bool = False
+    verbose: bool = True  # outside progress_line (library use): one line per stage, as printed
 
 
 def progress(msg: str, enabled: bool = True) -> None:
-    """Show a progress stage on stderr (never on stdout, which may carry JSON): on one updating line, or as its own
-    line under :func:`progress_line` with ``verbose`` (warnings always get their own line)."""
+    """Show a progress stage on stderr (never on stdout, which may carry JSON): on one updating line within
+    :func:`progress_line`, else (or with its ``verbose``) as its own line; warnings always get their own line."""
     if not enabled:
         return
     text = f"[franka-vs] {msg}"

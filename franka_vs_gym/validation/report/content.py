@@ -108,7 +108,7 @@ def fit_params(fit) -> list[ParamRow]:
     return rows
 
 
-def value_text(r: ParamRow, nd: int = 4) -> str:
+def value_text(r: ParamRow, nd: int = 4, full: bool = False) -> str:
     """'0.312 [0.30, 0.33] deg' or per joint 'j0 0.12, j2 0.3 Nm' (zeros and missing values of unused joints left
     out)."""
     v, ci = r.value, r.ci95
@@ -116,12 +116,15 @@ def value_text(r: ParamRow, nd: int = 4) -> str:
     if isinstance(v, list) and len(v) == JOINT_LIST and all(not isinstance(x, list) for x in v):
         parts = []
         for j, x in enumerate(v):
-            if x is None or (isinstance(x, float) and (not math.isfinite(x) or x == 0.0)):
-                continue
+            if x is None or (isinstance(x, (int, float)) and (not math.isfinite(float(x)) or float(x) == 0.0)):
+                continue  # a joint the effect does not act on
             c = ci[j] if isinstance(ci, list) and len(ci) == JOINT_LIST else None
             parts.append(f"j{j} {fmt(x, nd)}" + (f" [{fmt(c[0], 3)}, {fmt(c[1], 3)}]" if _pair(c) else ""))
         return (", ".join(parts) or "0") + unit
     c = f" [{fmt(ci[0], 3)}, {fmt(ci[1], 3)}]" if _pair(ci) else (f" (95%: {fmt(ci, 3)})" if ci is not None else "")
+    if not full and isinstance(v, list) and len(v) > 2 * JOINT_LIST:  # e.g. 43 base parameters: the size, not all
+        a = np.abs(np.asarray([x for x in v if isinstance(x, (int, float))], float))
+        return f"{len(v)} values, largest {fmt(a.max() if a.size else None, 3)}{unit} (all in --json){c}"
     return f"{fmt(v, nd)}{c}{unit}"
 
 
@@ -243,17 +246,17 @@ def timeline(res, diagnosis=None, fit=None) -> Timeline:
         tl.contributions, tl.contribution_time = dict(c), getattr(fit, "contribution_time", None)
     elif diagnosis is not None:
         ctx_data = diagnosis.context.data
-        if diagnosis.residual is not None and diagnosis.selection:
-            # the selected set is analysed on ctx_data (possibly decimated): its model on that grid
-            r_sel = diagnosis.residual
-            tau_c = ctx_data.tau
-            after = tau_c - r_sel
-            if ctx_data.n == data.n:
-                tl.model_after = after
-            else:  # shown on the whole log's grid, held piecewise between the analysed samples
-                tl.model_after = np.stack([np.interp(data.time, ctx_data.time, after[:, j]) for j in range(7)], 1)
-            tl.after_label = "model + selected effects (" + ", ".join(diagnosis.selected) + ")"
         c = getattr(diagnosis, "contributions", None) or {}
+        added = None
+        if c:  # the selected effects' torque, on the analysed samples (possibly a decimated copy of the log)
+            added = sum(np.asarray(v, float) for v in c.values())
+        elif diagnosis.residual is not None and diagnosis.selection:
+            added = diagnosis.context.residual - diagnosis.residual
+        if added is not None and diagnosis.selection:
+            if ctx_data.n != data.n:  # onto the whole log's grid (the effects' torque is smooth)
+                added = np.stack([np.interp(data.time, ctx_data.time, added[:, j]) for j in range(7)], 1)
+            tl.model_after = tl.model_before + added
+            tl.after_label = "model + selected effects (" + ", ".join(diagnosis.selected) + ")"
         tl.contributions, tl.contribution_time = dict(c), ctx_data.time
     rp = res.replay
     if rp is not None:
@@ -345,9 +348,13 @@ def finding_views(diagnosis) -> list[FindingView]:
             xs = np.mod(np.asarray(x, float), period) / period * 360.0
             label = f"phase of the {period:.3g} {unit} period (deg)"
         else:
-            xs, label = np.asarray(x, float), FOLLOWS.get(group, group)
-        out.append(FindingView(j, group, xs, np.asarray(r, float), float(nf[0]), label,
-                               f"joint {j}: follows {FOLLOWS.get(group, group)}" + (f" ({detail})" if detail else "")))
+            xs = np.asarray(x, float)
+            label = "time (s)" if group in ("slow", "time", "step_drift") else FOLLOWS.get(group, group)
+        if group == "slow":
+            title = f"joint {j}: slow residual (below the filter cutoff), no single variable of the joint"
+        else:
+            title = f"joint {j}: follows {FOLLOWS.get(group, group)}" + (f" ({detail})" if detail else "")
+        out.append(FindingView(j, group, xs, np.asarray(r, float), float(nf[0]), label, title))
     return out
 
 

@@ -21,7 +21,7 @@ import numpy as np
 
 from franka_vs_gym.validation.compare import CompareResult
 from franka_vs_gym.validation.diagnose import Diagnosis, FitResult
-from franka_vs_gym.validation.report.content import binned_mean, finding_views
+from franka_vs_gym.validation.report.content import binned_mean, envelope, finding_views
 
 
 def _plt():
@@ -56,9 +56,10 @@ def plot_residual_time(res: CompareResult, path: Path) -> Path:
     t = res.data.time
     rf = _lowpass_residual(res)
     fig, axes, cell = _grid(plt, "Inverse-dynamics residual tau_J - tau_model over time", sharex=True)
-    step = max(1, len(t) // 6000)
+    step = max(1, len(t) // 4000)
     for j, ax in enumerate(axes):
-        ax.plot(t[::step], res.residual[::step, j], color="0.75", lw=0.5, label="raw")
+        te, re_ = envelope(t, res.residual[:, j], 3000)  # min/max per bucket: the raw residual's extremes stay
+        ax.plot(te, re_, color="0.75", lw=0.5, label="raw")
         ax.plot(t[::step], rf[::step, j], color="C0", lw=1.0, label="low-passed")
         ax.axhspan(-res.noise_floor[j], res.noise_floor[j], color="C2", alpha=0.15, label="+-noise floor")
         ax.set_title(f"joint {j}: RMSE {res.rmse_tau[j]:.3f} Nm", fontsize=9)
@@ -84,7 +85,7 @@ def plot_residual_against(res: CompareResult, x: np.ndarray, xlabel: str, title:
     for j in range(7):
         ax = axes.flat[j]
         xj = x[::step, j] if per_joint_x else x[::step]
-        ax.scatter(xj, rf[::step, j], s=1, alpha=0.4, color="C0")
+        ax.plot(xj, rf[::step, j], ".", ms=1.5, alpha=0.4, color="C0")
         ax.axhline(0, color="k", lw=0.5)
         ax.set_title(f"joint {j}", fontsize=9)
         ax.set_xlabel(xlabel, fontsize=8)

@@ -176,7 +176,8 @@ def _torque_section(R: _Report, tl: Timeline) -> None:
     s = R.section("torque", "", "time (s)", "torque (Nm)")
     s.titles = [f"joint {j}: measured and model torque" for j in range(7)]
     s.trace("measured tau_J", _per_joint(tl.time, tl.tau), COLORS["measured"], width=1.0, alpha=0.8, j0=R.j0)
-    s.trace("model (before)", _per_joint(tl.time, tl.model_before), COLORS["before"], j0=R.j0)
+    s.trace("model (before)" if tl.model_after is not None else "model", _per_joint(tl.time, tl.model_before),
+            COLORS["before"], j0=R.j0)
     if tl.model_after is not None:
         s.trace("model (after)", _per_joint(tl.time, tl.model_after), COLORS["after"], j0=R.j0)
 
@@ -186,7 +187,8 @@ def _residual_section(R: _Report, tl: Timeline) -> None:
     s.titles = [f"joint {j}: residual tau_J - tau_model, +-noise floor {tl.noise[j]:.3f} Nm" for j in range(7)]
     s.noise_band(tl.noise, R.j0)
     ra = tl.residual_after
-    s.trace("before", _per_joint(tl.time, tl.residual_before), COLORS["before"], width=1.0,
+    s.trace("before" if ra is not None else "residual", _per_joint(tl.time, tl.residual_before), COLORS["before"],
+            width=1.0,
             alpha=0.6 if ra is not None else 1.0, j0=R.j0)
     if ra is not None:
         s.trace("after", _per_joint(tl.time, ra), COLORS["after"], width=1.0, j0=R.j0)
@@ -250,7 +252,8 @@ def _rmse_bars(R: _Report, res, fit, diagnosis) -> None:
     from bokeh.models import ColumnDataSource, FactorRange
     from bokeh.plotting import figure
 
-    series = [("before", res.rmse_tau if fit is None else fit.rmse_before)]
+    series = [("before" if (fit is not None or diagnosis is not None) else "model",
+               res.rmse_tau if fit is None else fit.rmse_before)]
     if fit is not None:
         series.append(("after", fit.rmse_after))
     elif diagnosis is not None and diagnosis.rmse_tau_selected is not None and diagnosis.selection:
@@ -258,7 +261,7 @@ def _rmse_bars(R: _Report, res, fit, diagnosis) -> None:
     series.append(("noise floor", res.noise_floor))
     xs = [(f"joint {j}", name) for j in range(7) for name, _ in series]
     vals = [float(v[j]) for j in range(7) for _, v in series]
-    palette = {"before": COLORS["before"], "noise floor": COLORS["band"]}
+    palette = {"before": COLORS["before"], "model": COLORS["before"], "noise floor": COLORS["band"]}
     cols = [palette.get(name, COLORS["after"]) for _ in range(7) for name, _ in series]
     f = figure(x_range=FactorRange(*xs, group_padding=0.6), width=PLOT_W, height=230,
                title="Torque RMSE per joint (Nm)", tools="pan,wheel_zoom,reset,save,hover",
@@ -376,7 +379,7 @@ def _params_html(rows) -> str:
     has_ci = any(r.ci95 is not None for r in rows)
     out = []
     for r in rows:
-        cells = [r.effect, r.name, r.unit or "-", value_text(r).removesuffix(f" {r.unit}")]
+        cells = [r.effect, r.name, r.unit or "-", value_text(r, full=True).removesuffix(f" {r.unit}")]
         if has_ci:
             cells.append(fmt(r.ci95, 3))
         cells.append(r.note)
@@ -428,8 +431,9 @@ def html_report(res, outdir: str | Path, diagnosis=None, fit=None, model_file: s
         "<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
         f"<title>franka-vs {kind}: {_esc(Path(str(src)).name)}</title>", f"<style>{CSS}</style>", js, script,
         "</head><body>",
-        f"<h1>Model vs measurement ({kind}): {_esc(src)}</h1>",
-        f'<p class="muted">{rep.rows_in} rows in, {res.data.n} samples used at {rep.settings["rate"]:.0f} Hz '
+        f"<h1>Model vs measurement ({kind}): {_esc(Path(str(src)).name)}</h1>",
+        f'<p class="muted">{_esc(src)}: {rep.rows_in} rows in, {res.data.n} samples used at '
+        f'{rep.settings["rate"]:.0f} Hz '
         f"({res.data.time[-1] - res.data.time[0]:.1f} s); zero-phase low-pass {rep.settings['cutoff']} Hz. "
         "Drag to pan, wheel or box to zoom, hover for values, click a legend entry to hide it.</p>",
         _summary_html(res, diagnosis, fit, model_file),
@@ -486,6 +490,11 @@ def html_report(res, outdir: str | Path, diagnosis=None, fit=None, model_file: s
         B.append(f"<p>Mode <b>{_esc(rp.mode)}</b>" + (f"; {_esc(rp.diverged)}" if rp.diverged else "")
                  + f". RMSE_q {fmt(np.round(rp.rmse_q * 1e3, 3).tolist(), 3)} mrad, RMSE_tau "
                  f"{fmt(np.round(rp.rmse_tau, 3).tolist(), 3)} Nm.</p>")
+        known = {"mode", "rmse_q", "rmse_tau", "rmse_q_total", "rmse_tau_total", "diverged"}
+        more = {k: v for k, v in rp.to_dict().items() if k not in known and v not in (None, [], {})}
+        if more:  # what newer replays say about themselves (e.g. why a mode was not available)
+            B.append(_table(["replay", "value"], [[k, v if isinstance(v, str) else json.dumps(v, default=str)]
+                                                  for k, v in more.items()]))
         B.append(divs["replay"])
     else:
         B.append("<p class='muted'>No replay in this run (diagnose and fit compare by inverse dynamics; run "

@@ -1,0 +1,108 @@
+"""What the report and the terminal show, without a browser: the verdict with its fitted values first, progress on
+one updating line, report.html's content and size, the phase view of a periodic finding, the display decimation."""
+
+from __future__ import annotations
+
+import json
+import re
+import types
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from franka_vs_gym.cli import main as cli
+from franka_vs_gym.validation.hidden import make_hidden_effect_log
+from franka_vs_gym.validation.logs import save_log
+from franka_vs_gym.validation.report.content import binned_mean, envelope, finding_views, unit_of, value_text
+from franka_vs_gym.validation.structure import Finding, Unexplained
+
+
+@pytest.fixture(scope="module")
+def tilt_log(tmp_path_factory) -> Path:
+    log, _ = make_hidden_effect_log("gravity_tilt", 41, duration=8.0, magnitude=1.5)
+    return save_log(log, tmp_path_factory.mktemp("views") / "tilt.csv")
+
+
+def test_diagnose_prints_verdict_with_values_first_and_one_progress_line(tilt_log, tmp_path, capsys):
+    rep = tmp_path / "rep"
+    assert cli(["diagnose", str(tilt_log), "--report", str(rep)]) == 0
+    out, err = capsys.readouterr()
+    lines = out.splitlines()
+    assert lines[0] == "verdict: gravity_tilt"
+    # the fitted value on the next line, with its unit: a tilt of 1.5 x 4 deg (x [0.7, 1.3])
+    m = re.search(r"tilt ([0-9.]+) deg", lines[1])
+    assert lines[1].lstrip().startswith("gravity_tilt") and m and 4.0 < float(m.group(1)) < 10.0
+    assert "m/s^2" in lines[1]
+    assert lines[-1].startswith("next: franka-vs fit ") and "--add gravity_tilt" in lines[-1]
+    assert "each effect alone" not in out  # the ranking is a detail (--verbose)
+    # progress: one updating line (carriage returns), no stage per line
+    assert "[franka-vs]" in err
+    assert err.count("\n") <= 1, err
+    # --verbose: one line per stage and the ranking
+    assert cli(["diagnose", str(tilt_log), "--verbose"]) == 0
+    out_v, err_v = capsys.readouterr()
+    assert "each effect alone" in out_v and err_v.count("\n[franka-vs]") + err_v.startswith("[franka-vs]") > 10
+
+    # report.html: self-contained, small, says the verdict with units, the ranking's status and the next command
+    html = (rep / "report.html").read_text()
+    assert (rep / "report.html").stat().st_size < 5e6
+    assert not re.findall(r'<(?:script|link)[^>]+(?:src|href)="https?://', html)
+    assert "Verdict: gravity_tilt" in html and "m/s^2" in html and "deg" in html
+    assert "franka-vs fit" in html and "Bokeh" in html
+    assert "True" not in re.sub(r"<script.*?</script>", "", html, flags=re.S)
+    md = (rep / "report.md").read_text()
+    assert "| True |" not in md and "| False |" not in md  # statuses in words, next to the reasons
+    assert "| gravity_tilt | tilt |" in md and "deg" in md
+
+
+def test_fit_prints_one_line_per_effect(tilt_log, tmp_path, capsys):
+    out_file = tmp_path / "cal.json"
+    assert cli(["fit", str(tilt_log), "--add", "gravity_tilt", "-o", str(out_file)]) == 0
+    out = capsys.readouterr().out
+    lines = out.splitlines()
+    assert lines[0].startswith("fitted: gravity_tilt; total torque RMSE")
+    assert lines[1].lstrip().startswith("gravity_tilt") and "m/s^2" in lines[1]
+    # no parameter spread one number per line: every line with a number list holds the whole list
+    assert not any(re.fullmatch(r"\s*-?[0-9.]+,?", x) for x in lines)
+    assert lines[-1].startswith("next: franka-vs diagnose")
+
+
+def test_periodic_finding_is_shown_against_its_phase():
+    """A residual periodic in q with period P, seen against the phase of P, is one clean cycle (its binned mean
+    recovers the sine), whatever the range of q."""
+    rng = np.random.default_rng(0)
+    period = 0.898
+    q = rng.uniform(-2.5, 2.5, 20000)
+    r = 0.4 * np.sin(2 * np.pi * q / period + 0.3) + 0.05 * rng.standard_normal(q.size)
+    u = Unexplained(False, np.ones(7), np.full(7, 0.05),
+                    [Finding(2, "periodic_q", 0.28, 100.0, f"period {period:.3g} rad (7 per turn)")], [],
+                    {2: ("periodic_q", q, r, np.array([0.05]))})
+    (v,) = finding_views(types.SimpleNamespace(unexplained=u))
+    assert v.joint == 2 and "phase" in v.xlabel and v.x.min() >= 0 and v.x.max() <= 360
+    xm, rm = binned_mean(v.x, v.r, bins=36)
+    expect = 0.4 * np.sin(np.radians(xm) + 0.3)
+    assert np.nanmax(np.abs(rm - expect)) < 0.06  # the bins' width smears a 0.4 Nm sine by at most ~0.01 Nm
+
+
+def test_envelope_keeps_peaks_and_order():
+    t = np.linspace(0, 30, 30000)
+    y = 0.01 * np.sin(t)
+    y[12345] = 5.0  # a one-sample spike
+    y[23456] = -3.0
+    tt, yy = envelope(t, y, 1600)
+    assert len(tt) <= 1600 and np.all(np.diff(tt) >= 0)
+    assert yy.max() == 5.0 and yy.min() == -3.0
+
+
+def test_units_from_parameter_names():
+    assert unit_of("viscous_Nms_per_rad") == ("viscous", "Nm s/rad")
+    assert unit_of("coulomb_vel_rad_per_s") == ("coulomb_vel", "rad/s")
+    assert unit_of("delta_gravity_m_per_s2") == ("delta_gravity", "m/s^2")
+    from franka_vs_gym.validation.report.content import ParamRow
+
+    row = ParamRow("viscous_friction", "viscous", "Nm s/rad", [0.1, 0.0, 0.3, None, 0, 0, 0],
+                   [[0.09, 0.11], None, [0.2, 0.4], None, None, None, None])
+    assert value_text(row) == "j0 0.1 [0.09, 0.11], j2 0.3 [0.2, 0.4] Nm s/rad"
+    assert value_text(ParamRow("gravity_tilt", "tilt", "deg", 0.31, [0.25, 0.37])) == "0.31 [0.25, 0.37] deg"
+    assert json.dumps(value_text(ParamRow("payload", "mass", "kg", 1.2)))  # plain value, no interval
