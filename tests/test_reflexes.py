@@ -221,7 +221,7 @@ def test_environment_ends_the_episode_with_the_reason():
 
     import franka_vs_gym.envs  # noqa: F401
 
-    env = gym.make("FrankaTorqueTracking-v0")
+    env = gym.make("FrankaTorqueTracking-v0", action_scale="physical")
     env.reset(seed=0)
     a = np.zeros(7, np.float32)
     a[6] = 12.0  # full wrist torque: the light joint passes its velocity limit

@@ -304,7 +304,12 @@ def test_every_environment_takes_the_robot(name):
         assert (q >= lim["q_min"]).all() and (q <= lim["q_max"]).all()
         hi = lim["tau_max"] if u.action_type == "torque" else lim["dq_max"]
         if u.action_type in ("torque", "joint_velocity"):
-            np.testing.assert_allclose(env.action_space.high, hi.astype(np.float32))
+            # the robot's limits bound the physical actions (the default space is normalized, its scale within them)
+            np.testing.assert_allclose(u.physical_action_bounds, hi)
+            assert (u.action_scale <= hi).all()
+            phys = gym.make(env_id, robot=name, action_scale="physical")
+            np.testing.assert_allclose(phys.action_space.high, hi.astype(np.float32))
+            phys.close()
         env.step(np.zeros(env.action_space.shape, dtype=np.float32))
         env.close()
 

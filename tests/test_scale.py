@@ -42,7 +42,7 @@ def test_distributed_evaluation_equals_the_serial_run(local_ray):
 
     from franka_vs_gym.envs.cli_evaluate import _policy_only, resolve_policy
 
-    kw_in = {"time_limit": 1.5, "link_mass_range": [0.8, 1.2], "friction_scale_range": [0.5, 1.5]}
+    kw_in = {"time_limit": 2.0, "link_mass_range": [0.8, 1.2], "friction_scale_range": [0.5, 1.5]}
     policy, env_id, kw = resolve_policy("ibvs", None, kw_in)
     serial = franka_vs_gym.evaluate(policy, env_id, 5, seed=3, env_kwargs=kw)
     dist = scale.evaluate_distributed(partial(_policy_only, "ibvs", None, kw_in), env_id, 5, seed=3,

@@ -116,7 +116,7 @@ class BatchedTask:
         sim = env.sim
         return (env.action_type in ("torque", "joint_velocity")
                 and type(env)._step_begin is _base_step_begin() and sim.batch_layout().reflex_record >= 0
-                and (sim.command_rates == "pass" or (sim.command_rates == "limit" and not sim._delay_steps))
+                and (sim.command_rates == "pass" or sim.limits_commands_in_plant)
                 and len(env.world.scene.robots) == 1
                 and set(env._pack.keys) == set(env.observation_space.spaces))
 

@@ -64,7 +64,7 @@ class CompiledStep:
         I[25] = -1
         # the rate limiter's target in the data's userdata (where set_force_torque leaves a rate-limited command)
         self._lim_index = lay.reflex_record + plant.L0 + 4 if lay.reflex_record >= 0 else -1
-        self._reflexes = sim._reflexes
+        self._sim = sim
         self.act_scale[:] = 1.0
         if env.action_type == "torque":
             self.act_lo[:], self.act_hi[:] = env._act_lo_tol, env._act_hi_tol
@@ -110,7 +110,7 @@ class CompiledStep:
     def command(self, env: Any, action: Any) -> bool:
         """The action into the controls and the period's physics; False (nothing done) when the action is not a
         plain vector inside the action space (the general path then checks it, clips it or names the problem)."""
-        self.I[25] = self._lim_index if self._reflexes._lim_native else -1
+        self.I[25] = self._lim_index if self._sim.rate_limiter_active else -1
         if plant.visual_pre(self.P, self.I, self.d_addr, action, self._tau_cmd, self._tau_applied) < 0:
             return False
         env._reflex = None

@@ -920,6 +920,20 @@ class FrankaSim:
                 and not self._delay_steps and self._meas_fifo is None and not w._active and not w._post_hooks
                 and len(w._checks) == 1 and self._state == RobotState(control_state))
 
+    @property
+    def limits_commands_in_plant(self) -> bool:
+        """Whether ``command_rates="limit"`` runs in the compiled plant for this robot (the plant is built, no
+        command delay): rate-limited commands are then written as the limiter's target in the robot's userdata
+        record (numbers ``plant.L0 + 4`` on, see :meth:`batch_layout`) and the plant writes the controls."""
+        r = self._reflexes
+        return r._mode == "limit" and r._native and not self._delay_steps
+
+    @property
+    def rate_limiter_active(self) -> bool:
+        """Whether the plant's rate limiter runs now (``limits_commands_in_plant`` and a torque or velocity
+        control state)."""
+        return self._reflexes._lim_native
+
     def commands_from_controls(self) -> None:
         """After the controls in the data were written from outside (see :meth:`runs_inside_mj_step`), make the
         robot's command state what ``set_force_torque`` (torque control) or ``set_velocity`` (velocity control)
