@@ -563,7 +563,8 @@ def format_params(params: dict[str, Any], ci: dict[str, Any] | None, joints: lis
     return ", ".join(parts)
 
 
-__all__ = ["Confidence", "Covariance", "covariance", "confidence", "covered", "ewc_dof", "format_params", "format_value",
+__all__ = ["Confidence", "Covariance", "covariance", "confidence", "covered", "ewc_dof", "format_params",
+           "format_value",
            "parameter_covariance"]
 
 
