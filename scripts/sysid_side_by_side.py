@@ -153,9 +153,8 @@ def compare_case(label: str, log, effects: list[str], truth: dict | None) -> dic
             "payload": ("mass_kg", "mass")}
     for e in effects:
         wk, sk = keys[e]
-        wv, wc = wp[e][wk], wci[e][wk]
-        wv, wc = (wv, wc) if isinstance(wv, list) else ([wv], [wc])
-        for i, (v, c) in enumerate(zip(wv, wc, strict=True)):
+        wc = wci[e][wk] if isinstance(wp[e][wk], list) else [wci[e][wk]]
+        for i, c in enumerate(wc):
             sv, sh = sp[f"{sk}[{i}]"], shalf[f"{sk}[{i}]"]
             if c is not None:
                 row["hw_w"].append((c[1] - c[0]) / 2)

@@ -227,3 +227,24 @@ def test_command_channel_delay_gets_an_interval_that_covers_it():
     f = fit_effects(data, ["delay"])
     lo, hi = f.params_ci95["delay"]["delay_s"]
     assert lo < f.params["delay"]["delay_s"] < hi
+
+
+def test_an_effect_the_log_does_not_move_gets_null_not_a_narrow_interval():
+    """A plug-in whose regressor is zero on this log (nothing it could explain): its number is null."""
+    import independent_logs as gen
+
+    from franka_vs_gym.validation.effects import Effect
+
+    class Silent(Effect):
+        name = "silent_test"
+
+        def design(self, ctx, shape):
+            return np.zeros((ctx.n, 7, 1))
+
+        def public(self, fit):
+            return {"gain": np.round(self.coef(fit)[:, 0], 6).tolist()}
+
+    log, _ = gen.make_log(["offset"], 0, duration=4.0)
+    ctx, effects, fits = _fit(log, [], [Silent()])
+    conf = confidence(ctx, effects, fits, ctx.residual, draws=50)
+    assert conf.params_ci95[0]["gain"] == [None] * 7

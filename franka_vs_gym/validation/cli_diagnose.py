@@ -7,7 +7,8 @@ effect alone, best first: ``effect``, ``joints``, ``params``, ``rmse_tau_after``
 ``selected`` (the set fitted together: ``effect``, ``joints``, ``params``, ``params_ci95`` (the same keys, each
 number replaced by its 95 % interval ``[low, high]``, ``null`` where the log cannot identify it), ``correlations``
 (parameter pairs with abs(r) > 0.9), ``unidentifiable`` (combinations the log cannot separate, in words),
-``contribution`` (Nm removed per joint in context), ``score``), ``rmse_tau_selected``, ``explained`` and ``unexplained`` (what the residual still follows),
+``contribution`` (Nm removed per joint in context), ``score``), ``rmse_tau_selected``, ``explained`` and
+``unexplained`` (what the residual still follows),
 ``assumptions`` (tool, gravity, rate, cleaning, warnings) and ``notes`` (why effects were rejected). Progress goes to
 stderr.
 """

@@ -620,7 +620,12 @@ def _attach_confidence(ctx: Context, y: np.ndarray, chosen: list[Term], cur: Set
     (:mod:`~franka_vs_gym.validation.uncertainty`)."""
     from franka_vs_gym.validation.uncertainty import confidence
 
-    conf = confidence(ctx, [t.effect for t in chosen], cur.fits, y)
+    try:
+        conf = confidence(ctx, [t.effect for t in chosen], cur.fits, y)
+    except Exception as exc:  # e.g. a plug-in whose contribution fails off its fitted values: keep the diagnosis
+        for s in selection:
+            s.unidentifiable = [f"intervals not computed: {type(exc).__name__}: {exc}"]
+        return
     for s, ci, corr, unid in zip(selection, conf.params_ci95, conf.correlations, conf.unidentifiable, strict=True):
         s.params_ci95, s.correlations, s.unidentifiable = ci, corr, unid
 
@@ -974,11 +979,15 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
         progress("95% intervals of the fitted parameters", verbose)
         # the jointly fitted effects that the model took (a command-channel delay is fitted on its own channel)
         k = len(members) - (command_fit is not None)
-        conf = confidence(ctx, members[:k], fits[:k], y)
-        for e, ci in zip(members[:k], conf.params_ci95, strict=True):
-            res.params_ci95[e.name] = {**ci, "joints": params[e.name]["joints"]}
-        res.correlations = [c for cs in conf.correlations for c in cs]
-        res.unidentifiable = list(dict.fromkeys(u for us in conf.unidentifiable for u in us))
+        try:
+            conf = confidence(ctx, members[:k], fits[:k], y)
+        except Exception as exc:  # e.g. a plug-in whose contribution fails off its fitted values: keep the fit
+            res.unidentifiable = [f"intervals not computed: {type(exc).__name__}: {exc}"]
+        else:
+            for e, ci in zip(members[:k], conf.params_ci95, strict=True):
+                res.params_ci95[e.name] = {**ci, "joints": params[e.name]["joints"]}
+            res.correlations = [c for cs in conf.correlations for c in cs]
+            res.unidentifiable = list(dict.fromkeys(u for us in conf.unidentifiable for u in us))
     if command_fit is not None:  # the delay on the command channel: its own fit, its own residual
         from franka_vs_gym.validation.uncertainty import confidence
 

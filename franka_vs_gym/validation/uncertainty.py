@@ -442,6 +442,11 @@ def confidence(ctx, effects: list, fits: list, y: np.ndarray, *, method: str = "
     ref = np.array([1.0 if p.key == "coef" else max(abs(p.value), 1e-3) for p in params])
     live = (np.linalg.norm(Jf, axis=1) * ref > 1e-7 * max(float(np.linalg.norm(y)), 1e-12)) & ~unfitted
     labels = [p.label for p in params]
+    if not live.any():  # nothing fitted (e.g. an effect without numeric parameters): every number unidentified
+        pubs = [_public(e, ctx, f) for e, f in zip(effects, fits, strict=True)]
+        return Confidence([_mirror(pb) for pb in pubs], [[] for _ in pubs], [[] for _ in pubs], labels,
+                          np.array([p.value for p in params]), Covariance(np.zeros((P, P)), math.inf,
+                                                                          np.zeros((P, 0)), np.ones(P), method))
     Jl = Jf[live]
     cv = covariance(Jt[live].transpose(1, 2, 0), resid, method=method, gram=Jl @ Jl.T)
     theta = np.array([p.value for p in params])
@@ -563,7 +568,8 @@ def format_params(params: dict[str, Any], ci: dict[str, Any] | None, joints: lis
     return ", ".join(parts)
 
 
-__all__ = ["Confidence", "Covariance", "covariance", "confidence", "covered", "ewc_dof", "format_params", "format_value",
+__all__ = ["Confidence", "Covariance", "covariance", "confidence", "covered", "ewc_dof", "format_params",
+           "format_value",
            "parameter_covariance"]
 
 
