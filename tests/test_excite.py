@@ -93,20 +93,22 @@ def test_design_keeps_limits_and_table_clearance_and_beats_generic():
     assert np.all(np.isfinite(d.widths))
 
 
-def _cli(*argv):
-    return subprocess.run([sys.executable, "-m", "franka_vs_gym.cli", *argv], capture_output=True, text=True,
-                          timeout=120)
+def _cli(capsys, *argv):
+    from franka_vs_gym.cli import main as cli_main
+
+    rc = cli_main(list(argv))
+    return rc, capsys.readouterr().err
 
 
-def test_cli_errors_are_one_line(tmp_path):
-    r = _cli("excite", "--effects", "no_such_effect", "-o", str(tmp_path / "x"))
-    assert r.returncode == 2 and "unknown effect 'no_such_effect'" in r.stderr and "Traceback" not in r.stderr
-    r = _cli("excite", "--separate", "payload", "-o", str(tmp_path / "x"))
-    assert r.returncode == 2 and "--separate needs two or more effects" in r.stderr
+def test_cli_errors_are_one_line(tmp_path, capsys):
+    rc, err = _cli(capsys, "excite", "--effects", "no_such_effect", "-o", str(tmp_path / "x"))
+    assert rc == 2 and "unknown effect 'no_such_effect'" in err and len(err.strip().splitlines()) == 1
+    rc, err = _cli(capsys, "excite", "--separate", "payload", "-o", str(tmp_path / "x"))
+    assert rc == 2 and "--separate needs two or more effects" in err
     diag = tmp_path / "d.json"
     diag.write_text(json.dumps({"selected": [], "verdict": "none"}))
-    r = _cli("excite", "--from", str(diag), "-o", str(tmp_path / "x"))
-    assert r.returncode == 2 and "names no ambiguous or selected effect" in r.stderr
+    rc, err = _cli(capsys, "excite", "--from", str(diag), "-o", str(tmp_path / "x"))
+    assert rc == 2 and "names no ambiguous or selected effect" in err
     assert not (tmp_path / "x").exists()
 
 
