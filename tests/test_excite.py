@@ -248,3 +248,22 @@ def test_sigmoid_question_is_its_three_parameters():
     assert np.allclose(cols.A[:, :, 0].sum(axis=1), expect[:, 0], atol=1e-6)  # joint 0's phi1 column
     F, _ = motion_information(m, cfg, [get_effect("sigmoid_friction")], np.full(7, 0.2))
     assert len(cols.names) == 21 and np.isfinite(predicted_widths(F, 100.0)).all()
+
+
+def test_reference_log_and_model_file_truth(tmp_path):
+    """--log: the design is compared with the log that raised the question, with that log's noise floor; a
+    calibrated model file is a truth as it stands."""
+    from franka_vs_gym.fci.truth import load_truth
+    from franka_vs_gym.validation.compare import as_processed
+    from franka_vs_gym.validation.hidden import make_hidden_effect_log
+
+    log, _ = make_hidden_effect_log("none", seed=3, duration=6.0)
+    data = as_processed(log)
+    d = design_excitation(["delay"], duration=6.0, rest=0.5, time_budget=2.0, reference=data)
+    assert d.reference.startswith("the log") and np.allclose(d.noise, data.noise)
+    w_ref = effect_widths(data, ["delay"], ModelConfig())["delay.delay_s"]
+    assert np.isclose(d.widths_reference[0], w_ref, rtol=1e-6)
+    p = tmp_path / "plant.json"
+    ModelConfig(armature=np.full(7, 0.2)).save(p)
+    t = load_truth(p, ModelConfig())
+    assert np.allclose(t.plant.armature, 0.2) and t.payload is None
