@@ -73,7 +73,8 @@ def test_unseen_direction_is_infinite_not_narrow():
 
 
 def test_design_keeps_limits_and_table_clearance_and_beats_generic():
-    d = design_excitation(["armature"], duration=14.0, time_budget=12.0, fraction=0.5, clearance=0.15, seed=1)
+    d = design_excitation(["armature"], duration=14.0, time_budget=120.0, max_evaluations=250, fraction=0.5,
+                          clearance=0.15, seed=1)
     model = FrankaModel()
     lim = model.limits()
     rows = trajectory_table(d.motion, 1000.0)
@@ -177,8 +178,8 @@ def test_end_to_end_designed_payload_on_serve_with_hidden_truth(tmp_path):
 
     duration = 8.0
     out = tmp_path / "excite"
-    assert cli_main(["excite", "--effects", "payload", "--duration", str(duration), "--time-budget", "20",
-                     "--rest", "0.5", "-o", str(out), "--quiet", "--json"]) == 0
+    assert cli_main(["excite", "--effects", "payload", "--duration", str(duration), "--time-budget", "300",
+                     "--evaluations", "400", "--rest", "0.5", "-o", str(out), "--quiet", "--json"]) == 0
     truth = {"effects": [{"effect": "payload", "mass_kg": 1.3, "com_flange_m": [0.02, -0.01, 0.07]}],
              "torque_noise_Nm": 0.1, "seed": 2}
     tf = tmp_path / "truth.json"
@@ -218,7 +219,8 @@ def test_franky_script_plays_the_design(tmp_path):
     from franka_vs_gym.validation.logs import load_log
 
     out = tmp_path / "excite"
-    assert cli_main(["excite", "--effects", "armature", "--duration", "6", "--time-budget", "3", "--rest", "0.5",
+    assert cli_main(["excite", "--effects", "armature", "--duration", "6", "--time-budget", "60", "--evaluations", "30",
+                     "--rest", "0.5",
                      "-o", str(out), "--quiet", "--json"]) == 0
     with FCIServer(loopback_host(NET + 2), lockstep=True, camera=False, verbose=False) as srv:
         r = subprocess.run([sys.executable, str(out / "play_excitation_franky.py"), srv.host], capture_output=True,
@@ -259,7 +261,7 @@ def test_reference_log_and_model_file_truth(tmp_path):
 
     log, _ = make_hidden_effect_log("none", seed=3, duration=6.0)
     data = as_processed(log)
-    d = design_excitation(["delay"], duration=6.0, rest=0.5, time_budget=2.0, reference=data)
+    d = design_excitation(["delay"], duration=6.0, rest=0.5, time_budget=60.0, max_evaluations=30, reference=data)
     assert d.reference.startswith("the log") and np.allclose(d.noise, data.noise)
     w_ref = effect_widths(data, ["delay"], ModelConfig())["delay.delay_s"]
     assert np.isclose(d.widths_reference[0], w_ref, rtol=1e-6)

@@ -476,10 +476,13 @@ def design_excitation(effects: list[str], *, separate: list[list[str]] | None = 
                       config: ModelConfig | None = None, criterion: str = "D", harmonics: int = 5,
                       rest: float = 1.0, fraction: float = 0.5, pos_margin: float = 0.2, clearance: float = 0.15,
                       noise: Any = None, neff_rate: float = NEFF_RATE, reference: Any = None, seed: int = 0,
-                      time_budget: float = 45.0, verbose: bool = False) -> Design:
+                      time_budget: float = 45.0, max_evaluations: int | None = None,
+                      verbose: bool = False) -> Design:
     """Design an excitation for ``effects`` (names; those of the ``separate`` groups are added). ``reference`` is a
-    ProcessedLog (the log that raised the question) or None (the generic excitation of the same duration).
-    Raises ValueError naming a bad input."""
+    ProcessedLog (the log that raised the question) or None (the generic excitation of the same duration). The
+    search stops after ``time_budget`` s of wall time or ``max_evaluations`` criterion evaluations, whichever comes
+    first (a number of evaluations makes the design the same on any machine). Raises ValueError naming a bad
+    input."""
     from scipy.optimize import minimize
 
     from franka_vs_gym.model.franka_model import FrankaModel
@@ -560,7 +563,8 @@ def design_excitation(effects: list[str], *, separate: list[list[str]] | None = 
     deadline = t0 + time_budget
 
     def objective(x: np.ndarray) -> float:
-        if time.perf_counter() > deadline and best["m"] is not None:
+        if best["m"] is not None and (time.perf_counter() > deadline
+                                      or (max_evaluations is not None and n_eval[0] >= max_evaluations)):
             raise _OutOfTime
         n_eval[0] += 1
         m = within(unpack(x))
