@@ -39,8 +39,25 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
+def version_line() -> str:
+    """``franka-vs X (mujoco Y, pinocchio Z, Python V)``: the package and the versions its results depend on."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    from franka_vs_gym import __version__
+
+    def ver(dist: str) -> str:
+        try:
+            return version(dist)
+        except PackageNotFoundError:
+            return "not installed"
+
+    py = ".".join(map(str, sys.version_info[:3]))
+    return f"franka-vs {__version__} (mujoco {ver('mujoco')}, pinocchio {ver('pin')}, Python {py})"
+
+
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="franka-vs", description=__doc__.splitlines()[0])
+    parser.add_argument("--version", action="version", version=version_line())
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, (module, help_) in COMMANDS.items():
         p = sub.add_parser(name, help=help_, description=help_)

@@ -7,6 +7,8 @@ is a bug and keeps its traceback.
 
 from __future__ import annotations
 
+import errno
+
 
 class UserError(ValueError):
     """A mistake in the user's input (file, option, value); the message names the input and what was expected."""
@@ -22,16 +24,25 @@ class Interrupted(KeyboardInterrupt):
 USER_ERRORS: tuple[type[BaseException], ...] = (UserError, ValueError, FileNotFoundError, FileExistsError)
 
 
+_FULL = (errno.ENOSPC, errno.EDQUOT)  # a full disk, a full quota
+
+
 def is_user_error(e: BaseException) -> bool:
     """Whether ``e`` is the user's to fix (one line, exit 2) rather than a bug (traceback)."""
     if isinstance(e, USER_ERRORS):
+        return True
+    if isinstance(e, OSError) and e.errno in _FULL:  # the disk or quota filled while writing: the user's to free
         return True
     return isinstance(e, OSError) and getattr(e, "filename", None) is not None
 
 
 def one_line(e: BaseException) -> str:
     """The message of ``e`` on one line (OSErrors as 'path: reason')."""
-    if isinstance(e, OSError) and e.filename is not None and e.strerror:
+    if isinstance(e, OSError) and e.errno in _FULL:
+        where = f" ({e.filename})" if e.filename is not None else ""
+        msg = (f"{e.strerror or 'no space left on device'}{where} while writing the outputs; nothing was replaced "
+               "(outputs are staged and renamed into place only when complete)")
+    elif isinstance(e, OSError) and e.filename is not None and e.strerror:
         msg = f"{e.filename}: {e.strerror}"
     else:
         msg = str(e) or type(e).__name__

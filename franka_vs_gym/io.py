@@ -186,6 +186,17 @@ def read_text(path: PathLike, what: str = "file", max_bytes: int = MAX_TEXT_BYTE
         raise UserError(f"{what} {path} is not UTF-8 text (byte {e.start})") from None
 
 
+def loads_json(text: str, where: str) -> Any:
+    """``json.loads``; JSON nested deeper than Python's parser can follow (a RecursionError) is a UserError naming
+    ``where``. Syntax errors stay ``json.JSONDecodeError`` for the caller to word."""
+    import json
+
+    try:
+        return json.loads(text)
+    except RecursionError:
+        raise UserError(f"{where}: JSON nested too deeply to read") from None
+
+
 def _npy_header(fh: IO[bytes], name: str, where: str) -> tuple[tuple[int, ...], bool, np.dtype]:
     fmt = np.lib.format
     try:
@@ -470,9 +481,19 @@ class OutputSet:
                 if os.path.lexists(target):
                     backup = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".old", dir=target.parent))
                     backup = backup / target.name
-                    os.rename(target, backup)
-                    pending = (target, backup)
-                    os.rename(stage, target)
+                    if not folder and not target.is_dir():
+                        # a file is replaced in one atomic rename: readers of the path never find it missing; the
+                        # old content stays reachable through a hard link (a copy where links are not supported)
+                        try:
+                            os.link(target, backup, follow_symlinks=False)
+                        except OSError:
+                            shutil.copy2(target, backup, follow_symlinks=False)
+                        pending = (target, backup)
+                        os.replace(stage, target)
+                    else:
+                        os.rename(target, backup)
+                        pending = (target, backup)
+                        os.rename(stage, target)
                 elif not folder:
                     _place(stage, target, False, what)
                 else:
@@ -485,6 +506,11 @@ class OutputSet:
                     os.rename(pending[1], pending[0])
                     os.rmdir(pending[1].parent)
             for target, backup in reversed(done):
+                if backup is not None and not backup.is_dir() and not target.is_dir():
+                    with contextlib.suppress(OSError):  # the old file back in one rename
+                        os.replace(backup, target)
+                        os.rmdir(backup.parent)
+                    continue
                 with contextlib.suppress(OSError):
                     if target.is_dir() and not target.is_symlink():
                         shutil.rmtree(target)

@@ -77,3 +77,16 @@ def test_demo_pbvs_ideal_features_no_video(tmp_path):
     m = json.loads((out / "metrics.json").read_text())
     assert m["converged"] and m["final_translation_error_m"] < 1e-3 and m["final_rotation_error_deg"] < 0.5
     assert not (out / "camera.mp4").exists()
+
+
+def test_version_names_the_package_and_its_engines():
+    from importlib.metadata import version
+
+    import franka_vs_gym
+
+    r = run("--version")
+    assert r.returncode == 0, r.stderr
+    line = r.stdout.strip()
+    assert line.startswith(f"franka-vs {franka_vs_gym.__version__} ")
+    assert f"mujoco {version('mujoco')}" in line and f"pinocchio {version('pin')}" in line
+    assert version("franka_vs_gym") == franka_vs_gym.__version__  # the package metadata and the module agree

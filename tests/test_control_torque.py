@@ -336,7 +336,8 @@ def test_torque_policies_succeed_on_the_tracking_env(policy_cls, control_period)
     import franka_vs_gym.envs  # noqa: F401  (registers the environments)
 
     env = gym.make("FrankaTorqueTracking-v0", control_period=control_period, time_limit=2.0)
-    policy = policy_cls(env.unwrapped.sim.model)
+    # the policy acts in the env's normalized action space (its torque divided by the env's torque scale)
+    policy = policy_cls(env.unwrapped.sim.model).with_action_scale(env.unwrapped.action_scale)
     obs, _ = env.reset(seed=1)
     start, done = True, False
     while not done:

@@ -47,7 +47,8 @@ def make(env_id, **kw):
 def test_all_ids_registered_on_import():
     for env_id in ENVS:
         assert env_id in gym.registry
-    assert set(ENVS) == {"FrankaIBVS-v0", "FrankaPBVS-v0", "FrankaTorqueTracking-v0", "FrankaVisualTorque-v0"}
+    assert set(ENVS) == {"FrankaIBVS-v0", "FrankaPBVS-v0", "FrankaTorqueTracking-v0", "FrankaVisualTorque-v0",
+                         "FrankaIBVSEyeToHand-v0", "FrankaPBVSEyeToHand-v0"}
     assert franka_vs_gym.evaluate is franka_vs_gym.envs.evaluate
 
 
@@ -241,7 +242,7 @@ def test_tracking_rejects_camera_observations():
 
 
 def test_divergence_ends_episode_with_reason():
-    env = make("FrankaTorqueTracking-v0")
+    env = make("FrankaTorqueTracking-v0", action_scale="physical")
     obs0, _ = env.reset(seed=0)
     u = env.unwrapped
     u.world.model.opt.timestep = 5.0  # sabotage the integrator: 5 s steps blow up
@@ -262,7 +263,7 @@ def test_divergence_ends_episode_with_reason():
 
 
 def test_joint_velocity_action_is_tracked():
-    env = make("FrankaIBVS-v0", action_type="joint_velocity", terminate_on_tag_lost=False)
+    env = make("FrankaIBVS-v0", action_type="joint_velocity", terminate_on_tag_lost=False, action_scale="physical")
     env.reset(seed=0)
     cmd = np.array([0.1, -0.1, 0.05, 0.1, -0.1, 0.1, 0.2], np.float32)
     for _ in range(3):
@@ -272,7 +273,7 @@ def test_joint_velocity_action_is_tracked():
 
 
 def test_cartesian_velocity_moves_camera_along_its_axis():
-    env = make("FrankaIBVS-v0", action_type="cartesian_velocity", observation_type="state")
+    env = make("FrankaIBVS-v0", action_type="cartesian_velocity", observation_type="state", action_scale="physical")
     obs, _ = env.reset(seed=0)
     u = env.unwrapped
     fMc0 = u.sim.get_fMc()
@@ -325,7 +326,8 @@ def test_model_file_is_used(tmp_path):
     path = cfg.save(tmp_path / "calibrated.json")
     env = gym.make("FrankaTorqueTracking-v0", model=str(path))
     u = env.unwrapped
-    np.testing.assert_allclose(u.world.model.dof_armature[u.sim.dof_slice], 0.123)
+    rotor = np.array(u.sim.model.config.robot.rotor_inertia)  # the plant adds the motors' effective armature
+    np.testing.assert_allclose(u.world.model.dof_armature[u.sim.dof_slice], 0.123 + rotor)
     np.testing.assert_allclose(u.sim.model.config.armature, 0.123)
     env.close()
 
@@ -357,16 +359,18 @@ def test_tag_lost_is_a_failure():
 
 def test_tracking_success_with_computed_torque_and_zero_fails():
     from franka_vs_gym.control import ComputedTorque
-    from franka_vs_gym.model import FrankaModel
+    from franka_vs_gym.model import FrankaModel, ModelConfig
+    from franka_vs_gym.model.description import FER
 
-    ct = ComputedTorque(FrankaModel())
+    # the controller knows the robot's motors: its model carries the plant's effective armature
+    ct = ComputedTorque(FrankaModel(ModelConfig(armature=np.array(FER.rotor_inertia))))
 
     def policy(o):
         tau = ct(float(o["time"][0]), *(o[k].astype(float) for k in ("q", "dq", "q_desired", "dq_desired",
                                                                      "ddq_desired")))
         return np.clip(tau, -env.unwrapped.tau_max, env.unwrapped.tau_max)
 
-    env = gym.make("FrankaTorqueTracking-v0", time_limit=1.0)
+    env = gym.make("FrankaTorqueTracking-v0", time_limit=1.0, action_scale="physical")
     policy.reset = ct.reset  # type: ignore[attr-defined]
     good = franka_vs_gym.evaluate(policy, env, 2, seed=0)
     bad = franka_vs_gym.evaluate(lambda o: np.zeros(7, np.float32), env, 2, seed=0)
@@ -401,7 +405,7 @@ def test_visual_torque_is_solvable_by_a_dynamic_visual_servo():
     from franka_vs_gym.model.geometry import inverse_pose
     from franka_vs_gym.sim import twist_transform
 
-    env = gym.make("FrankaVisualTorque-v0", observation_type="state")
+    env = gym.make("FrankaVisualTorque-v0", observation_type="state", action_scale="physical")
     u = env.unwrapped
     model = u.sim.model
     eMc = u.sim.get_eMc()
@@ -424,7 +428,7 @@ def test_visual_torque_is_solvable_by_a_dynamic_visual_servo():
 
 @pytest.mark.parametrize("env_id", ["FrankaIBVS-v0", "FrankaPBVS-v0"])
 def test_visual_servo_tasks_are_solvable_with_camera_twists(env_id):
-    env = gym.make(env_id, action_type="cartesian_velocity")
+    env = gym.make(env_id, action_type="cartesian_velocity", action_scale="physical")
     res = franka_vs_gym.evaluate(
         lambda o: np.clip(_ibvs_twist(o), [-0.5] * 3 + [-1] * 3, [0.5] * 3 + [1] * 3).astype(np.float32), env, 5,
         seed=0)
@@ -491,7 +495,7 @@ def test_declared_payload_is_compensated_like_set_load():
 
 
 def test_final_info_shares_nothing_with_the_reset_info():
-    """A reflex ends the episode on its first step (full torque): the final info repeats the episode's drawn
+    """A reflex ends the episode within its first steps (full torque): the final info repeats the episode's drawn
     dynamics, as fresh objects (the sharing check of Gymnasium's passive checker, written out here as Gymnasium 1.2
     lacks it), so a user who keeps or edits one info does not change the other."""
     def data_shares_objects(a, b):  # Gymnasium >= 1.3 has this check; 1.2 (with Ray) does not
@@ -501,9 +505,14 @@ def test_final_info_shares_nothing_with_the_reset_info():
             return np.shares_memory(a, b)
         return isinstance(a, (list, dict, np.ndarray)) and a is b
 
-    env = gym.make("FrankaTorqueTracking-v0", link_mass_range=(0.9, 1.1)).unwrapped
+    # (the robot's old interface: full torque at once, no rate limiter)
+    env = gym.make("FrankaTorqueTracking-v0", link_mass_range=(0.9, 1.1), action_scale="physical",
+                   limit_rate=False).unwrapped
     _, info0 = env.reset(seed=3)
-    _, _, term, _, info1 = env.step(env.action_space.high.copy())
+    for _ in range(5):  # the motors' inertia (effective armature) slows the wrist: a few 10 ms steps
+        _, _, term, _, info1 = env.step(env.action_space.high.copy())
+        if term:
+            break
     assert term and info1["failure"] == "joint_velocity_violation"
     np.testing.assert_array_equal(info0["link_mass_scale"], info1["link_mass_scale"])
     assert not data_shares_objects(info0, info1)

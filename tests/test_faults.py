@@ -465,6 +465,51 @@ def _mk_gaz_fifo_member(d, good):
     return g
 
 
+def _mk_blank_cell(d, good):
+    p = d / "run.csv"
+    rows = _rows()
+    rows[3][1 + 7 + 2] = ""  # dq[2] blank: the message names dq[2], not its neighbour
+    _write_csv(p, COLS, rows)
+    return p
+
+
+def _mk_binary_csv(d, good):
+    p = d / "run.csv"
+    p.write_bytes(bytes(range(256)) * 8)
+    return p
+
+
+def _mk_big_field(d, good):
+    p = d / "run.csv"
+    p.write_text(",".join(COLS) + ",note\n" + "".join(",".join(["0"] * 22) + ',"' + "x" * 20_000_000 + '"\n'
+                                                     for _ in range(3)))
+    return p
+
+
+def _mk_duplicate_alias(d, good):
+    p = d / "run.csv"
+    rows = _rows()
+    _write_csv(p, COLS + ["q_0"], [r + [r[1] + 0.5] for r in rows])  # q[0] and q_0 disagree
+    return p
+
+
+def _mk_q_outside_range(d, good):
+    p = d / "run.csv"
+    rows = _rows()
+    for r in rows[20:]:
+        r[1 + 3] = -3.6  # joint 3 (range about [-3.07, -0.07] rad)
+    _write_csv(p, COLS, rows)
+    return p
+
+
+def _mk_sidecar_nested(d, good):
+    return _sidecar(d, good, None, '{"controller": ' + "[" * 100_000 + "]" * 100_000 + "}")
+
+
+def _mk_sidecar_short_kp(d, good):
+    return _sidecar(d, good, {"controller": {"law": "computed_torque_eq2", "kp": [400, 400], "kd": 40}})
+
+
 LOG_CASES = {
     "empty": (_mk_empty, "empty"),
     "header_only": (_mk_header_only, "no data rows"),
@@ -519,6 +564,13 @@ LOG_CASES = {
     "gaz_text": (_mk_gaz_text, "'oops' is not a number"),
     "gaz_ambiguous_layout": (_mk_gaz_noise, "sample-major"),
     "gaz_fifo_member": (_mk_gaz_fifo_member, "FIFO"),
+    "blank_cell": (_mk_blank_cell, "line 5: '' is not a number (column dq[2])"),
+    "binary_csv": (_mk_binary_csv, "run.csv: not a log: byte 128 is not UTF-8"),
+    "big_field": (_mk_big_field, "a cell of over 128 KiB"),
+    "duplicate_alias_conflict": (_mk_duplicate_alias, "'q[0]' and 'q_0' are the same column written twice"),
+    "q_outside_range": (_mk_q_outside_range, "q[3] is -3.6 rad at row 20"),
+    "sidecar_nested": (_mk_sidecar_nested, "run.csv.json: JSON nested too deeply"),
+    "sidecar_short_kp": (_mk_sidecar_short_kp, "controller.kp in the log metadata must be a finite number or 7"),
 }
 
 
@@ -975,7 +1027,7 @@ def test_interrupt_stops_within_a_second_and_keeps_the_partial_run(sig, tmp_path
 # ----------------------------------------------------------------------------------------------- determinism
 _TRAJ = """
 import hashlib, numpy as np, gymnasium as gym, franka_vs_gym.envs
-env = gym.make("FrankaTorqueTracking-v0")
+env = gym.make("FrankaTorqueTracking-v0", action_scale="physical")
 obs, _ = env.reset(seed=7)
 rng = np.random.default_rng(7)
 h = hashlib.sha256()
@@ -1011,3 +1063,143 @@ def test_heavy_tool_is_warned_about_not_refused(good, tmp_path, capsys):
     d = json.loads(out)
     assert any("rated payload" in w for w in d["model_warnings"]), d["model_warnings"]
     assert "warning: tool + payload 5.73 kg" in err or "warning: tool + payload 5 kg" in err
+
+
+# ----------------------------------------------------------------------------------------------- issue 22, section 4
+def test_semicolon_csv_reads_the_same_as_comma(good, tmp_path):
+    text = good.read_text()
+    p = tmp_path / "semi.csv"
+    p.write_text(text.replace(",", ";"))
+    a, b = load_log(good), load_log(p)
+    np.testing.assert_array_equal(a.q, b.q)
+    np.testing.assert_array_equal(a.tau_J, b.tau_J)
+
+
+def test_csv_named_file_holding_an_npz_is_read_as_npz(good, tmp_path):
+    a = load_log(good)
+    p = tmp_path / "run.csv"
+    with open(p, "wb") as fh:
+        np.savez(fh, time=a.time, q=a.q, dq=a.dq, tau_J=a.tau_J)
+    b = load_log(p)
+    np.testing.assert_array_equal(a.q, b.q)
+    np.testing.assert_array_equal(a.time, b.time)
+
+
+def test_duplicate_aliases_with_equal_values_are_one_column(good, tmp_path):
+    p = tmp_path / "run.csv"
+    rows = _rows()
+    _write_csv(p, COLS + ["q_0"], [r + [r[1]] for r in rows])
+    np.testing.assert_array_equal(load_log(p).q[:, 0], [r[1] for r in rows])
+
+
+def test_nested_model_file_is_a_one_line_error(tmp_path):
+    p = tmp_path / "model.json"
+    p.write_text('{"friction": ' + "[" * 100_000 + "]" * 100_000 + "}")
+    with pytest.raises(ValueError, match="model file .*model.json: JSON nested too deeply"):
+        ModelConfig.load(p)
+
+
+@pytest.mark.parametrize("argv,match", [
+    (["--rate", "1e9"], "rate 1e+09 Hz is above 10000 Hz"),
+    (["--cutoff", "1e-6"], "cutoff 1e-06 Hz is below 0.1 Hz"),
+])
+def test_compare_extreme_cleaning_options(argv, match, good, tmp_path, capsys):
+    p = _copy_log(good, tmp_path)
+    run_cli_error(capsys, ["compare", str(p), "--quiet", "--no-replay"] + argv, tmp_path, match)
+
+
+def test_evaluate_negative_seed(tmp_path, capsys):
+    run_cli_error(capsys, ["evaluate", "zero", "--seed", "-3", "--episodes", "1"], tmp_path, "--seed must be >= 0")
+
+
+@pytest.mark.parametrize("kwargs,match", [
+    (dict(duration=1e9), "duration must be in"),
+    (dict(magnitude=1e6), "magnitude must be in"),
+    (dict(magnitude=float("nan")), "magnitude must be in"),
+    (dict(noise_scale=-1.0), "noise_scale must be a finite number >= 0"),
+    (dict(noise_scale=float("inf")), "noise_scale must be a finite number >= 0"),
+    (dict(seed=-1), "seed must be an integer >= 0"),
+    (dict(seed=1.5), "seed must be an integer >= 0"),
+])
+def test_hidden_effect_generator_ranges(kwargs, match):
+    from franka_vs_gym.validation.hidden import make_hidden_effect_log
+
+    with pytest.raises(ValueError, match=match):
+        make_hidden_effect_log("payload", **kwargs)
+
+
+def test_mass_matrix_of_a_list_equals_that_of_an_array():
+    m = FrankaModel()
+    q = [0.1, -0.6, 0.2, -2.2, 0.1, 1.6, 0.7]
+    np.testing.assert_array_equal(m.mass_matrix(q), m.mass_matrix(np.array(q)))
+    np.testing.assert_array_equal(m.gravity(q), m.gravity(np.array(q)))
+    np.testing.assert_array_equal(m.inverse_dynamics(q, [0] * 7, [0] * 7),
+                                  m.inverse_dynamics(np.array(q), np.zeros(7), np.zeros(7)))
+    with pytest.raises(UserError, match="q must be 7 joint values, got shape \\(2,\\)"):
+        m.mass_matrix([1.0, 2.0])
+
+
+@pytest.mark.parametrize("value", [float("nan"), -0.1, float("inf")])
+def test_torque_noise_must_be_finite_and_not_negative(value):
+    from franka_vs_gym.sim.robot import FrankaSim
+
+    with pytest.raises(ValueError, match="torque_noise must be a finite number >= 0 Nm"):
+        FrankaSim(camera=False, table=False, torque_noise=value)
+
+
+def test_experiment_negative_torque_noise_is_one_line(tmp_path, capsys):
+    run_cli_error(capsys, ["experiment", "tracking", "--duration", "0.5", "--out", str(tmp_path), "--no-video",
+                           "--quiet", "--torque-noise", "-1"], tmp_path, "--torque-noise must be a finite number >= 0")
+
+
+def test_disk_full_during_fit_keeps_the_old_model(good, tmp_path, capsys, monkeypatch):
+    """ENOSPC while the calibrated model is written: one line, exit 2, the old model file byte-identical."""
+    import errno
+
+    from franka_vs_gym.model.config import ModelConfig as MC
+
+    p = _copy_log(good, tmp_path)
+    out = tmp_path / "cal.json"
+    out.write_text("old model")
+
+    def full(self, path, overwrite=False):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(MC, "save", full)
+    line = run_cli_error(capsys, ["fit", str(p), "--add", "torque_offset", "-o", str(out), "--force", "--quiet"],
+                         tmp_path, "No space left on device while writing the outputs; nothing was replaced")
+    assert out.read_text() == "old model" and "Traceback" not in line
+
+
+def test_readers_never_see_a_log_missing_while_it_is_saved_again(good, tmp_path):
+    """One thread saves the same log path over and over (overwrite=True); the path must exist at every read."""
+    import threading
+
+    log = load_log(good)
+    p = tmp_path / "run.csv"
+    save_log(log, p)
+    stop = threading.Event()
+    errors: list[BaseException] = []
+
+    def writer():
+        try:
+            while not stop.is_set():
+                save_log(log, p, overwrite=True)
+        except BaseException as e:  # noqa: BLE001 - reported below
+            errors.append(e)
+
+    th = threading.Thread(target=writer)
+    th.start()
+    missing = 0
+    try:
+        deadline = time.monotonic() + 3.0
+        reads = 0
+        while time.monotonic() < deadline:
+            missing += not os.path.exists(p)
+            missing += not os.path.exists(str(p) + ".json")
+            reads += 1
+    finally:
+        stop.set()
+        th.join()
+    assert not errors, errors
+    assert reads > 100 and missing == 0, (missing, reads)

@@ -92,7 +92,9 @@ def test_fci_tau_J_is_the_applied_torque_in_every_mode(mode):
         tau_J = np.array(robot.fill_state().f["tau_J"], dtype=float)
         expected = model.inverse_dynamics(qa, va, (sim.dq - va) / DT)
         err = np.maximum(err, np.abs(tau_J - expected))
-        share = np.maximum(share, np.abs(tau_J - d.qfrc_actuator[dofs]))
+        # the actuators' torque minus what accelerated the motors (the effective armature) reaches the link
+        link_side = d.qfrc_actuator[dofs] - sim.rotor_inertia * (sim.dq - va) / DT
+        share = np.maximum(share, np.abs(tau_J - link_side))
     # float32 of torques up to ~50 Nm: 4e-6 Nm; the model (pinocchio) and the plant (MuJoCo) agree to ~1e-6
     assert err.max() < 1e-4, (mode, err)
     if mode in SERVO_MODES:  # the implicit servo share is material here: a reading without it would fail above
@@ -130,9 +132,17 @@ def test_sim_velocity_control_torque_reading_includes_the_servo_share():
             assert share > 0.05  # the servos' implicit share is material (Kv up to 120 Nm s/rad)
 
 
-def test_torque_control_reading_is_qfrc_actuator_bit_for_bit():
-    """In torque control (no servo gains) nothing is added: the reading is MuJoCo's actuator torque, as before."""
-    sim = FrankaSim(camera=False)
+def _plant(rotor: float, **kw) -> FrankaSim:
+    """A FER plant with its effective armature (rotor_inertia) scaled by ``rotor``."""
+    from franka_vs_gym.model.description import FER
+    return FrankaSim(ModelConfig(robot=FER.with_rotor_inertia(rotor)), camera=False, **kw)
+
+
+@pytest.mark.parametrize("rotor", [0.0, 1.0])
+def test_torque_control_reading_is_qfrc_actuator_bit_for_bit(rotor):
+    """In torque control (no servo gains) nothing is added: without an effective armature the reading is MuJoCo's
+    actuator torque bit for bit, as before; with one, the actuator torque minus rotor_inertia * ddq of the step."""
+    sim = _plant(rotor)
     from franka_vs_gym.sim import FORCE_TORQUE
 
     sim.set_robot_state(VELOCITY)
@@ -142,13 +152,20 @@ def test_torque_control_reading_is_qfrc_actuator_bit_for_bit():
     sim.set_robot_state(FORCE_TORQUE)
     for k in range(50):
         sim.set_force_torque(JOINT_STATE, np.full(7, 0.5 * math.sin(0.1 * k)))
+        dq0 = sim.dq
         sim.step()
-        assert np.array_equal(sim.get_force_torque(), sim.world.data.qfrc_actuator[sim.dof_slice])
+        if rotor == 0.0:
+            assert np.array_equal(sim.get_force_torque(), sim.world.data.qfrc_actuator[sim.dof_slice])
+        else:
+            motors = sim.rotor_inertia * (sim.dq - dq0) / DT
+            np.testing.assert_allclose(sim.get_force_torque(),
+                                       sim.world.data.qfrc_actuator[sim.dof_slice] - motors, atol=1e-9, rtol=0)
 
 
 def test_saturated_servo_reading_is_the_clamped_torque():
     """A velocity servo driving its joint into the torque limit: MuJoCo integrates the clamped torque explicitly (no
-    implicit share), and the reading is the limit, as the joint applied it."""
+    implicit share), and the reading is the limit, as the joint applied it (the motors' torque; the link side gets
+    it minus what accelerates the motors, rotor_inertia * ddq)."""
     sim = FrankaSim(camera=False, reflexes=False)
     model = FrankaModel()
     sim.set_robot_state(VELOCITY)
@@ -159,7 +176,8 @@ def test_saturated_servo_reading_is_the_clamped_torque():
         qa, va = sim.q, sim.dq
         sim.step()
         tau = sim.get_force_torque()
-        np.testing.assert_allclose(tau[[0, 4]], [87.0, 12.0], atol=1e-9)
+        motors = tau + sim.rotor_inertia * (sim.dq - va) / DT
+        np.testing.assert_allclose(motors[[0, 4]], [87.0, 12.0], atol=1e-9)
         np.testing.assert_allclose(tau, model.inverse_dynamics(qa, va, (sim.dq - va) / DT), atol=1e-6)
 
 

@@ -37,20 +37,27 @@ def test_zero_torque_holds_still_gravity_added_by_robot(sim):
     assert sim.time == pytest.approx(0.5)
 
 
-def test_measured_torque_follows_the_model_equation(rng):
+@pytest.mark.parametrize("rotor", [0.0, 1.0])
+def test_measured_torque_follows_the_model_equation(rng, rotor):
     """tau_J = B ddq + C dq + g + tau_f(dq) along a torque-driven motion with friction on (plant vs model).
-    The motion takes joint 4 past its velocity limit: the plant's physics, with the reflexes off."""
-    sim = FrankaSim(camera=False, reflexes=False)
+    The motion takes joint 4 past its velocity limit: the plant's physics, with the reflexes off. Without an
+    effective armature the sensor reads the command plus gravity; with one (the FER's default), the command plus
+    gravity minus what accelerates the motors, rotor_inertia * ddq, and the link-side equation still holds."""
+    from franka_vs_gym.model.config import ModelConfig
+    from franka_vs_gym.model.description import FER
+    sim = FrankaSim(ModelConfig(robot=FER.with_rotor_inertia(rotor)), camera=False, reflexes=False)
     sim.set_robot_state(FORCE_TORQUE)
     m = sim.model
+    rot = np.array(FER.rotor_inertia) * rotor
     for k in range(300):
         tau = 3.0 * np.sin(0.01 * k + np.arange(7)) * np.array([5, 5, 5, 5, 0.5, 0.3, 0.05])
         q, dq = sim.get_position(), sim.get_velocity()
         sim.set_force_torque(JOINT_STATE, tau)
         sim.step()
         ddq = sim.get_acceleration()
-        np.testing.assert_allclose(sim.get_force_torque(), tau + m.gravity(q), atol=1e-9)
-        np.testing.assert_allclose(m.inverse_dynamics(q, dq, ddq), tau + m.gravity(q), atol=1e-6)
+        np.testing.assert_allclose((sim.get_velocity() - dq) / sim.dt, ddq, atol=1e-6)
+        np.testing.assert_allclose(sim.get_force_torque(), tau + m.gravity(q) - rot * ddq, atol=1e-9)
+        np.testing.assert_allclose(m.inverse_dynamics(q, dq, ddq), sim.get_force_torque(), atol=1e-6)
     assert np.abs(sim.get_velocity()).max() > 0.05
 
 
@@ -119,12 +126,13 @@ def test_set_position_moves_there(sim):
 
 
 def test_torque_saturation(sim):
-    """Commands saturate at the FER limits; the total (command + gravity) is clamped too."""
+    """Commands saturate at the FER limits; the total (command + gravity) is clamped too. The motors' torque is
+    the link-side tau_J plus what accelerates the motors (the effective armature)."""
     sim.set_robot_state(FORCE_TORQUE)
     g = sim.get_gravity()
     sim.set_force_torque(JOINT_STATE, [500, 0, 0, 0, -100, 0, 0])
     sim.step()
-    tau = sim.get_force_torque()
+    tau = sim.get_force_torque() + sim.rotor_inertia * sim.get_acceleration()
     assert tau[0] == pytest.approx(min(87.0, 87.0 + g[0]))
     assert tau[4] == pytest.approx(max(-12.0, -12.0 + g[4]))
 
@@ -215,7 +223,8 @@ def test_calibrated_model_file_builds_plant_and_model(tmp_path):
     cfg = ModelConfig(armature=np.full(7, 0.2), torque_offset=np.full(7, 0.3))
     path = cfg.save(tmp_path / "m.json")
     sim = FrankaSim(model=str(path), camera=False)
-    assert sim._m.dof_armature[:7] == pytest.approx(np.full(7, 0.2))
+    # the plant's joint armature: the file's (link-side visible) armature plus the robot's effective rotor inertia
+    assert sim._m.dof_armature[:7] == pytest.approx(0.2 + np.array(sim.model.config.robot.rotor_inertia))
     np.testing.assert_allclose(sim.get_force_torque(), sim.get_gravity() + 0.3, atol=1e-9)
     assert isinstance(sim.model, FrankaModel)
 

@@ -103,7 +103,7 @@ def test_torque_cost_kernel_is_the_sequential_formula():
 
 # ---------------------------------------------------------------------------------------------------- env step
 def _rollout(env_id, kwargs, policy, steps, compiled, seed=3):
-    env = gym.make(env_id, **kwargs)
+    env = gym.make(env_id, **{"action_scale": "physical", **kwargs})  # (the policies speak Nm)
     u = env.unwrapped
     plan = u._plan
     plan.fast = plan.fast and compiled
@@ -191,6 +191,16 @@ def _tracker(u, obs, rng, t):
     return np.clip(tau, -u.tau_max, u.tau_max).astype(np.float32)
 
 
+def _uniform(u, obs, rng, t):
+    """A uniformly random action of the (normalized) action space."""
+    return rng.uniform(-1, 1, 7).astype(np.float32)
+
+
+def _tracker_normalized(u, obs, rng, t):
+    """_tracker through the normalized action space (its torque divided by the env's scale)."""
+    return u.to_action(_tracker(u, obs, rng, t))
+
+
 @pytest.mark.parametrize("env_id, kwargs, policy, steps, ends", [
     ("FrankaVisualTorque-v0", {"observation_type": "state"}, _servo, 600, {"success"}),
     ("FrankaVisualTorque-v0", {}, _servo, 600, {"success"}),
@@ -209,7 +219,14 @@ def _tracker(u, obs, rng, t):
     ("FrankaTorqueTracking-v0", {}, _tracker, 1100, {"success"}),
     ("FrankaTorqueTracking-v0", {"time_limit": 1.0}, _random(0.3), 300, {"joint_velocity_violation"}),
     ("FrankaTorqueTracking-v0", {"link_mass_range": (0.8, 1.2), "friction_scale_range": (0.5, 1.5),
-                                 "time_limit": 1.0}, _random(0.02), 300, {"time limit"}),
+                                 "time_limit": 1.0, "max_tracking_error": None}, _random(0.02), 300, {"time limit"}),
+    # the default interface: normalized actions through the rate limiter (uniformly random: no reflex), and the
+    # robot's old interface (physical actions, no limiter)
+    ("FrankaVisualTorque-v0", {"action_scale": "normalized"}, _uniform, 600, set()),
+    ("FrankaTorqueTracking-v0", {"action_scale": "normalized"}, _uniform, 300, {"tracking lost"}),
+    ("FrankaTorqueTracking-v0", {"action_scale": "normalized"}, _tracker_normalized, 600, {"success"}),
+    ("FrankaVisualTorque-v0", {"limit_rate": False}, _random(0.5), 300, {"joint_velocity_violation"}),
+    ("FrankaTorqueTracking-v0", {"limit_rate": False}, _tracker, 600, {"success"}),
 ])
 def test_compiled_step_gives_the_general_paths_bits(env_id, kwargs, policy, steps, ends):
     """Observations, rewards, ends and infos of the compiled step equal the general path's, bit for bit, across
@@ -227,8 +244,8 @@ def test_compiled_step_gives_the_general_paths_bits(env_id, kwargs, policy, step
 
 
 def test_compiled_step_leaves_other_actions_to_the_general_path():
-    env = gym.make("FrankaVisualTorque-v0")
-    ref = gym.make("FrankaVisualTorque-v0")
+    env = gym.make("FrankaVisualTorque-v0", action_scale="physical")
+    ref = gym.make("FrankaVisualTorque-v0", action_scale="physical")
     ref.unwrapped._plan.fast = False
     env.reset(seed=0), ref.reset(seed=0)
     a = [1.0, -2.0, 0.5, 0.0, 0.1, 0.0, -0.2]
@@ -245,7 +262,7 @@ def test_compiled_step_leaves_other_actions_to_the_general_path():
 
 
 def test_camera_mount_change_mid_episode_moves_the_truth():
-    env = gym.make("FrankaVisualTorque-v0")
+    env = gym.make("FrankaVisualTorque-v0", action_scale="physical")
     u = env.unwrapped
     env.reset(seed=0)
     env.step(np.zeros(7, np.float32))
@@ -282,7 +299,7 @@ def test_state_observation_of_a_reflex_stop_is_the_braked_state(compiled):
     """A step that a reflex ends reports the ground truth of the state the brakes hold (computed here from the
     joint positions with pinocchio and the numpy projection), also when a camera frame was taken at the end of the
     previous period."""
-    env = gym.make("FrankaVisualTorque-v0", observation_type="state")
+    env = gym.make("FrankaVisualTorque-v0", observation_type="state", action_scale="physical")
     u = env.unwrapped
     u._plan.fast = u._plan.fast and compiled
     rng = np.random.default_rng(5)
@@ -304,7 +321,7 @@ def test_state_observation_of_a_reflex_stop_is_the_braked_state(compiled):
 
 def test_kernels_refuse_wrong_buffers_with_an_error():
     """Wrong sizes or types give a Python error naming the argument, never a write outside a buffer."""
-    env = gym.make("FrankaVisualTorque-v0")
+    env = gym.make("FrankaVisualTorque-v0", action_scale="physical")
     u = env.unwrapped
     env.reset(seed=0)
     plan = u._plan
@@ -333,7 +350,7 @@ def test_kernels_refuse_wrong_buffers_with_an_error():
 def test_a_deep_copy_runs_the_compiled_step_on_its_own_physics():
     import copy
 
-    env = gym.make("FrankaVisualTorque-v0")
+    env = gym.make("FrankaVisualTorque-v0", action_scale="physical")
     u = env.unwrapped
     env.reset(seed=0)
     u.step(np.zeros(7, np.float32))

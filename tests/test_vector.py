@@ -49,6 +49,7 @@ def _compare_with_single_envs(env_id, kwargs, n_steps, *, n=3, seed=7, torque_sc
     observation, reward, flag and info must be equal, bit for bit. Returns (episode ends, failures, robot-steps
     taken in the batch by the task's logic)."""
     vkw = {} if autoreset_mode is None else {"autoreset_mode": autoreset_mode}
+    kwargs = {"action_scale": "physical", **kwargs}  # (the actions below are in physical units unless normalized)
     vec = gym.make_vec(env_id, num_envs=n, nthread=2, task_logic=True, **vkw, **kwargs)
     assert isinstance(vec, FrankaVectorEnv)
     ref = gym.make_vec(env_id, num_envs=n, vectorization_mode="sync", vector_kwargs=vkw, **kwargs)
@@ -57,6 +58,8 @@ def _compare_with_single_envs(env_id, kwargs, n_steps, *, n=3, seed=7, torque_sc
     _same_info(i1, i2, "reset")
     rng = np.random.default_rng(0)
     scale = 0.4 if vec.single_action_space.shape == (7,) and vec.envs[0].action_type != "torque" else torque_scale
+    if kwargs["action_scale"] != "physical":
+        scale = 1.0  # uniformly random over the normalized space
     ends, failures, in_batch = 0, set(), 0
     for t in range(n_steps):
         a = (rng.uniform(-1, 1, vec.action_space.shape) * scale).astype(np.float32)
@@ -108,6 +111,11 @@ def test_batched_vector_env_is_bit_identical_to_single_envs(env_id, kwargs, n_st
     ("FrankaTorqueTracking-v0", dict(friction_scale_range=(0.5, 1.5), time_limit=0.4, clip_actions=True,
                                      torque_scale=1.0), 300,
      AutoresetMode.SAME_STEP),
+    # the default interface (normalized actions, rate limiter) and the robot's old one (no limiter)
+    ("FrankaTorqueTracking-v0", dict(action_scale="normalized", time_limit=0.5), 300, None),
+    ("FrankaVisualTorque-v0", dict(action_scale="normalized", time_limit=0.3), 300, None),
+    ("FrankaIBVS-v0", dict(action_scale="normalized", time_limit=0.6), 200, None),
+    ("FrankaTorqueTracking-v0", dict(limit_rate=False, time_limit=0.4, torque_scale=1.0), 300, None),
 ])
 def test_task_logic_over_all_robots_is_bit_identical_to_single_envs(env_id, kwargs, n_steps, mode):
     """The configurations whose per-step logic runs once for all robots (franka_vs_gym.envs.batched): the same
@@ -212,8 +220,8 @@ def test_batched_env_reports_a_reflex_at_its_crossing_step_as_single_envs(task_l
     end their episodes at the same step as single envs, with the same reason and detail (the time, joint and value
     of the crossing step, inside the period)."""
     n, env_id = 2, "FrankaTorqueTracking-v0"
-    vec = gym.make_vec(env_id, num_envs=n, nthread=2, task_logic=task_logic)
-    singles = [gym.make(env_id) for _ in range(n)]
+    vec = gym.make_vec(env_id, num_envs=n, nthread=2, task_logic=task_logic, action_scale="physical")
+    singles = [gym.make(env_id, action_scale="physical") for _ in range(n)]
     vec.reset(seed=3)
     for i, s in enumerate(singles):
         s.reset(seed=3 + i)
@@ -243,8 +251,8 @@ def test_a_robot_diverging_in_the_batch_reports_it_as_a_single_env():
     before the step and its environment re-runs it alone, so it reports "diverged: ..." as a single env does (and
     the other robots, still in the batch, are unaffected), through the autoresets that follow."""
     n, env_id = 4, "FrankaTorqueTracking-v0"
-    vec = gym.make_vec(env_id, num_envs=n, nthread=2, task_logic=True, time_limit=0.3)
-    ref = gym.make_vec(env_id, num_envs=n, vectorization_mode="sync", time_limit=0.3)
+    vec = gym.make_vec(env_id, num_envs=n, nthread=2, task_logic=True, time_limit=0.3, action_scale="physical")
+    ref = gym.make_vec(env_id, num_envs=n, vectorization_mode="sync", time_limit=0.3, action_scale="physical")
     for v in (vec, ref):
         m = v.envs[1].unwrapped.world.model
         m.opt.timestep = 5.0

@@ -87,6 +87,26 @@ class TagSpec:
 
 
 @dataclass
+class CameraSpec:
+    """A camera fixed in the world (e.g. an eye-to-hand camera): MuJoCo camera frame (looking along -z, y up) at
+    ``pos`` (m) with orientation ``quat`` (w, x, y, z) in the world, vertical field of view ``fovy`` (degrees).
+    :meth:`from_visp` builds one from a ViSP-convention pose wMc (z forward, y down)."""
+
+    name: str = "fixed_camera"
+    pos: tuple[float, float, float] = (1.0, 0.0, 0.5)
+    quat: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
+    fovy: float = 60.0
+
+    @classmethod
+    def from_visp(cls, name: str, wMc: np.ndarray, fovy: float = 60.0) -> CameraSpec:
+        """The camera whose ViSP frame c (z forward, x right, y down) has pose ``wMc`` (4, 4) in the world."""
+        from franka_vs_gym.model.geometry import CAMERA_VISP_TO_MUJOCO
+
+        M = np.asarray(wMc, dtype=np.float64)
+        return cls(name, tuple(M[:3, 3]), tuple(mat2quat(M[:3, :3] @ CAMERA_VISP_TO_MUJOCO)), float(fovy))
+
+
+@dataclass
 class RobotSpec:
     """One robot arm in a scene (which arm: ``config.robot``).
 
@@ -111,6 +131,7 @@ class SceneSpec:
     robots: list[RobotSpec] = field(default_factory=lambda: [RobotSpec()])
     table: bool = True
     tags: list[TagSpec] = field(default_factory=list)
+    cameras: list[CameraSpec] = field(default_factory=list)  # cameras fixed in the world
     timestep: float = 0.001
     gravity: tuple[float, float, float] | None = None  # world gravity; default: robot 0's config gravity
     extra_assets: str = ""
@@ -134,7 +155,8 @@ def _robot_bodies(r: RobotSpec) -> tuple[str, str, str, str]:
         xml.append(f'<body name="{p}link{i + 1}" pos="{_fmt(M[:3, 3])}" quat="{_fmt(mat2quat(M[:3, :3]))}" '
                    f'gravcomp="1">')
         xml.append(_inertial(body))
-        xml.append(f'<joint name="{p}joint{i + 1}" range="{lo} {hi}" armature="{cfg.armature[i]:.12g}" '
+        armature = cfg.armature[i] + robot.rotor_inertia[i]  # link-side armature + the motors' effective armature
+        xml.append(f'<joint name="{p}joint{i + 1}" range="{lo} {hi}" armature="{armature:.12g}" '
                    f'actuatorfrcrange="{-tau} {tau}" actuatorgravcomp="true" {JOINT_STOP}/>')
         xml.append(f'<geom class="fer_visual" mesh="link{i + 1}"/><geom class="fer_collision" mesh="link{i + 1}"/>')
         closing.append("</body>")
@@ -228,6 +250,8 @@ def scene_xml(scene: SceneSpec) -> str:
         start = world.index(key)
         end = world.index(">", start) + 1
         world = world[:end] + "".join(items) + world[end:]
+    cams = "".join(f'<camera name="{c.name}" pos="{_fmt(c.pos)}" quat="{_fmt(c.quat)}" fovy="{c.fovy:.12g}"/>'
+                   for c in scene.cameras)
     table = ""
     if scene.table:
         # table top 1 mm below z = 0, so that objects lying "on" it at z = 0 (tags) are rendered above it
@@ -262,6 +286,7 @@ def scene_xml(scene: SceneSpec) -> str:
 {table}
 {world}
 {"".join(tag_bodies)}
+{cams}
 {scene.extra_worldbody}
 </worldbody>
 <actuator>

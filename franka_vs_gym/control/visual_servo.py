@@ -6,6 +6,15 @@ with the interaction matrix L chosen as CURRENT (at s, Z), DESIRED (at s*, Z*) o
 ViSP's adaptive gain ``lambda(x) = (l0 - linf) exp(-l0' x / (l0 - linf)) + linf``: large (l0) near convergence,
 small (linf) far from it, with slope l0' at zero. The camera twist v_c = [v; w] (in c) maps to joint velocities
 through ``dq = (cVe eJe)^+ v_c``.
+
+Eye-to-hand (a camera c fixed in the world, the target carried by the end effector e): the features move as
+``s_dot = -L cVe eJe dq`` (the target's motion seen from a fixed camera is the opposite of the camera moving with the
+same twist), and the law is ViSP's (vpServo, ``EYETOHAND_L_cVe_eJe`` / ``EYETOHAND_L_cVf_fVe_eJe`` /
+``EYETOHAND_L_cVf_fJe``): the task Jacobian ``J = -L cVa aJe`` with ``cVa aJe`` = ``cVe eJe``, ``cVf fVe eJe``
+or ``cVf fJe``, and ``dq = -lambda J^+ e``. Here cVe = V(cMf fMe) changes as the robot moves; cVf = V(cMf) is the
+camera's calibrated placement. The third form is exact only when fJe is the end effector's twist reduced at f's
+origin (``fVe eJe``); with the Jacobian of e's origin velocity in base axes (libfranka's zero Jacobian,
+FrankaModel.fJe) it leaves out the lever-arm term ``[f_t_e]x w`` (see :func:`spatial_jacobian`).
 """
 
 from __future__ import annotations
@@ -95,3 +104,82 @@ def camera_to_joint_velocity(v_c: np.ndarray, eJe: np.ndarray, eMc: np.ndarray, 
     """Joint velocities (7,) realising the camera twist v_c (6,): dq = (cVe eJe)^+ v_c."""
     cVe = twist_transform(np.linalg.inv(eMc))
     return np.linalg.pinv(cVe @ eJe, rcond=rcond) @ np.asarray(v_c, dtype=np.float64)
+
+
+# ---------------------------------------------------------------------------------------------------- eye-to-hand
+class EyeToHandForm(str, Enum):
+    """The eye-to-hand task Jacobians of ViSP's vpServo (the robot's twist mapped into the camera frame)."""
+
+    cVe_eJe = "EYETOHAND_L_cVe_eJe"
+    cVf_fVe_eJe = "EYETOHAND_L_cVf_fVe_eJe"
+    cVf_fJe = "EYETOHAND_L_cVf_fJe"
+
+
+def spatial_jacobian(fMe: np.ndarray, eJe: np.ndarray) -> np.ndarray:
+    """fVe eJe (6, 7): the end effector's twist reduced at the base origin, in base axes (the fJe that makes
+    ``cVf fJe`` equal to ``cVe eJe``)."""
+    return twist_transform(np.asarray(fMe, dtype=np.float64)) @ np.asarray(eJe, dtype=np.float64)
+
+
+def eye_to_hand_task_jacobian(L: np.ndarray, form: EyeToHandForm | str = EyeToHandForm.cVe_eJe, *,
+                              cVe: np.ndarray | None = None, eJe: np.ndarray | None = None,
+                              cVf: np.ndarray | None = None, fVe: np.ndarray | None = None,
+                              fJe: np.ndarray | None = None) -> np.ndarray:
+    """J = -L cVa aJe (k, 7) of an eye-to-hand task with interaction matrix L (k, 6): ``s_dot = J dq``.
+
+    ``form`` picks the product as ViSP does: cVe eJe (needs cVe, eJe), cVf fVe eJe (cVf, fVe, eJe) or cVf fJe
+    (cVf, fJe)."""
+    kind = EyeToHandForm(form)
+    need = {EyeToHandForm.cVe_eJe: ("cVe", "eJe"), EyeToHandForm.cVf_fVe_eJe: ("cVf", "fVe", "eJe"),
+            EyeToHandForm.cVf_fJe: ("cVf", "fJe")}[kind]
+    given = {"cVe": cVe, "eJe": eJe, "cVf": cVf, "fVe": fVe, "fJe": fJe}
+    missing = [n for n in need if given[n] is None]
+    if missing:
+        raise ValueError(f"{kind.value} needs {', '.join(need)}; missing {', '.join(missing)}")
+    if kind == EyeToHandForm.cVe_eJe:
+        cVa, aJe = np.asarray(cVe, dtype=np.float64), np.asarray(eJe, dtype=np.float64)
+    elif kind == EyeToHandForm.cVf_fVe_eJe:
+        cVa, aJe = np.asarray(cVf, dtype=np.float64) @ np.asarray(fVe, dtype=np.float64), np.asarray(eJe, float)
+    else:
+        cVa, aJe = np.asarray(cVf, dtype=np.float64), np.asarray(fJe, dtype=np.float64)
+    return -(np.asarray(L, dtype=np.float64) @ cVa @ aJe)
+
+
+def eye_to_hand_joint_velocity(e: np.ndarray, J: np.ndarray, lam: float, rcond: float = 1e-6) -> np.ndarray:
+    """dq = -lambda J^+ e (7,) for the task Jacobian J (k, 7) and error e (k,) (singular values below ``rcond``
+    times the largest are dropped, as ViSP's pseudo-inverse threshold)."""
+    return -lam * (np.linalg.pinv(J, rcond=rcond) @ np.asarray(e, dtype=np.float64))
+
+
+def ibvs_eye_to_hand(s: np.ndarray, s_star: np.ndarray, Z: np.ndarray, Z_star: np.ndarray,
+                     interaction: InteractionMatrixType | str = InteractionMatrixType.CURRENT,
+                     gain: AdaptiveGain | float = AdaptiveGain(), form: EyeToHandForm | str = EyeToHandForm.cVe_eJe,
+                     **frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eye-to-hand IBVS with point features: (joint velocities dq (7,), error e (2n,)). s, s_star, Z, Z_star as
+    :func:`ibvs_velocity`; ``frames`` the twists and Jacobians of ``form`` (see :func:`eye_to_hand_task_jacobian`)."""
+    s, s_star = np.asarray(s, dtype=np.float64), np.asarray(s_star, dtype=np.float64)
+    if s.shape != s_star.shape or s.ndim != 1 or len(s) % 2:
+        raise ValueError(f"s and s_star must be (2n,) arrays of the same shape, got {s.shape} and {s_star.shape}")
+    if not (np.isfinite(s).all() and np.isfinite(s_star).all()):
+        raise ValueError("features contain NaN or inf")
+    kind = InteractionMatrixType(interaction)
+    if kind == InteractionMatrixType.CURRENT:
+        L = points_interaction_matrix(s.reshape(-1, 2), Z)
+    elif kind == InteractionMatrixType.DESIRED:
+        L = points_interaction_matrix(s_star.reshape(-1, 2), Z_star)
+    else:
+        L = 0.5 * (points_interaction_matrix(s.reshape(-1, 2), Z)
+                   + points_interaction_matrix(s_star.reshape(-1, 2), Z_star))
+    e = s - s_star
+    J = eye_to_hand_task_jacobian(L, form, **frames)
+    return eye_to_hand_joint_velocity(e, J, _gain(gain)(float(np.abs(e).max()))), e
+
+
+def pbvs_eye_to_hand(cMo: np.ndarray, cdMo: np.ndarray, gain: AdaptiveGain | float = AdaptiveGain(),
+                     form: EyeToHandForm | str = EyeToHandForm.cVe_eJe, **frames: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """Eye-to-hand PBVS on (t, theta u) of cdMc = cdMo (cMo)^-1 (the target brought to cdMo in the fixed camera):
+    (joint velocities dq (7,), error e (6,))."""
+    e, L = pbvs_features(cMo, cdMo)
+    J = eye_to_hand_task_jacobian(L, form, **frames)
+    return eye_to_hand_joint_velocity(e, J, _gain(gain)(float(np.abs(e).max()))), e

@@ -28,7 +28,36 @@ ACTION_TYPES = ("torque", "joint_velocity", "cartesian_velocity")
 OBSERVATION_TYPES = ("features", "image", "features+image", "state")
 # Cartesian camera-twist bounds of the contract: +-0.5 m/s, +-1 rad/s.
 CARTESIAN_BOUNDS = np.array([0.5, 0.5, 0.5, 1.0, 1.0, 1.0])
+ACTION_SCALES = ("normalized", "physical")
 PAYLOAD_COM = (0.0, 0.0, 0.05)  # where a randomised payload is held, flange frame, m
+
+
+def torque_action_scale(model: Any, acceleration: float, velocity: float) -> np.ndarray:
+    """The torque (7,) Nm of a normalized torque action of +1: ``sum_k |M_jk(q_n)| a + |tau_f,j(v)|`` per joint j,
+    the torque that gives every joint the acceleration ``a`` (rad/s^2) at once, whatever the signs, at the robot's
+    neutral posture q_n (mass matrix of the robot's model ``model``, a FrankaModel, couplings included) on top of
+    the model's friction at the velocity ``v`` (rad/s), at most tau_max: the range a torque agent adds to the
+    robot's gravity compensation to move the arm at that acceleration and velocity, equally for heavy and light
+    joints."""
+    lim = model.limits()
+    M = model.mass_matrix(model.robot.neutral())
+    tau = np.abs(M).sum(axis=1) * float(acceleration) + np.abs(model.friction(np.full(7, float(velocity))))
+    return np.minimum(tau, lim["tau_max"])
+
+
+def default_action_scale(action_type: str, model: Any, torque: tuple[float, float] = (0.5, 0.5)) -> np.ndarray:
+    """The physical value of a normalized action of +1 per component, for ``action_type`` on the robot of
+    ``model`` (a FrankaModel): joint velocity, half the robot's rated joint velocities (rad/s: 1.09 rad/s on
+    joints 1-4 of the FER; the scripted servo laws stay within it); Cartesian velocity, the camera-twist bounds
+    (0.5 m/s, 1 rad/s); torque, :func:`torque_action_scale` at ``torque`` = (acceleration rad/s^2, velocity
+    rad/s), by default 0.5 rad/s^2 and 0.5 rad/s (a servoing motion: a joint at 0.5 rad/s within a second)."""
+    if action_type == "joint_velocity":
+        return 0.5 * model.limits()["dq_max"]
+    if action_type == "cartesian_velocity":
+        return CARTESIAN_BOUNDS.copy()
+    if action_type == "torque":
+        return torque_action_scale(model, *torque)
+    raise ValueError(f"action_type must be one of {ACTION_TYPES}, got {action_type!r}")
 
 
 def _positive(x: Any, name: str) -> float:
@@ -158,6 +187,19 @@ class FrankaEnv(gym.Env):
         velocity servo is proportional, makes velocity commands drift (0.2 kg already defeats classical IBVS).
     joint_noise, velocity_noise : float
         Standard deviation of white noise added to the observed q (rad) and dq (rad/s).
+    action_scale : "normalized" (default) | "physical" | number or array of physical units
+        "normalized": the action space is ``Box(-1, 1)`` and an action is multiplied by the task's documented scale
+        (:meth:`default_action_scale`: per joint, in the units of ``action_type``) before it reaches the robot.
+        "physical": the space is in the robot's units, bounds the robot's limits (+-tau_max Nm, +-dq_max rad/s,
+        the Cartesian bounds). A number or array: a ``Box(-1, 1)`` space with that scale (within those limits).
+        ``env.unwrapped.action_scale`` is the scale in use (None for "physical"); ``to_action(physical)`` and
+        ``to_physical(action)`` convert.
+    limit_rate : bool
+        True (default, as libfranka's ``limit_rate``): every command passes through the robot interface's rate
+        limiter (:mod:`franka_vs_gym.sim.rate_limit`, the robot's published velocity, acceleration, jerk and torque
+        rate limits, one 1 ms cycle per physics step) before the robot sees it. False: commands reach the robot as
+        given (a held command then jumps at each control period, as with libfranka's ``limit_rate=false`` and an
+        interpolating controller in between).
     clip_actions : bool
         False (default): an action outside the action space raises ValueError. True: it is clipped to the space.
         NaN or inf always raise ValueError.
@@ -177,10 +219,10 @@ class FrankaEnv(gym.Env):
                  control_period: float = 0.05, physics_step: float = 0.001, time_limit: float = 6.0,
                  model: Any = None, robot: Any = None, link_mass_range: Any = None, friction_scale_range: Any = None,
                  payload_mass_range: Any = None, payload_declared: bool = True, joint_noise: float = 0.0,
-                 velocity_noise: float = 0.0,
+                 velocity_noise: float = 0.0, action_scale: Any = "normalized", limit_rate: bool = True,
                  clip_actions: bool = False, render_mode: str | None = None, render_width: int = 320,
                  render_height: int = 240, camera: bool = True, tags: list | None = None,
-                 failure_penalty: float = 1.0) -> None:
+                 failure_penalty: float = 1.0, cameras: list | None = None) -> None:
         super().__init__()
         if action_type not in self.supported_action_types:
             raise ValueError(f"action_type must be one of {self.supported_action_types} for {type(self).__name__}, "
@@ -213,10 +255,14 @@ class FrankaEnv(gym.Env):
             raise ValueError(f"render size must be >= 1 pixel, got {render_width}x{render_height}")
         self.config: ModelConfig = resolve_config(model, robot)
         self.payload_declared = bool(payload_declared)
+        if not isinstance(limit_rate, (bool, np.bool_)):
+            raise ValueError(f"limit_rate must be True or False, got {limit_rate!r}")
+        self.limit_rate = bool(limit_rate)
         payload = (RigidBody(1.0, PAYLOAD_COM, np.full(3, 0.4 * 0.03**2))
                    if self.payload_mass_range is not None and not self.payload_declared else None)
         self.sim = FrankaSim(self.config, camera=camera, tags=tags, timestep=self.physics_step,
-                             undeclared_payload=payload)
+                             undeclared_payload=payload, command_rates="limit" if self.limit_rate else "pass",
+                             cameras=cameras)
         self.robot = self.sim  # the FrankaSim (vpRobotFranka-style API): env.unwrapped.robot.model is its FrankaModel
         self.world = self.sim.world
         self._m, self._d = self.world.model, self.world.data
@@ -231,7 +277,13 @@ class FrankaEnv(gym.Env):
             hi = self.dq_max
         else:
             hi = CARTESIAN_BOUNDS
-        self.action_space = spaces.Box(-hi.astype(np.float32), hi.astype(np.float32), dtype=np.float32)
+        #: the physical bounds of the action type (the robot's limits)
+        self.physical_action_bounds = hi.astype(np.float64)
+        self.action_scale: np.ndarray | None = self._resolve_action_scale(action_scale, hi)
+        if self.action_scale is None:
+            self.action_space = spaces.Box(-hi.astype(np.float32), hi.astype(np.float32), dtype=np.float32)
+        else:
+            self.action_space = spaces.Box(-1.0, 1.0, hi.shape, dtype=np.float32)
         self._act_lo = self.action_space.low.astype(np.float64)
         self._act_hi = self.action_space.high.astype(np.float64)
         self._act_tol = 1e-6 * np.maximum(1.0, self._act_hi)
@@ -270,6 +322,44 @@ class FrankaEnv(gym.Env):
         self._episode_params = info
 
     # ------------------------------------------------------------------ action handling
+    #: (acceleration rad/s^2, velocity rad/s) of the default torque scale (:func:`torque_action_scale`)
+    torque_scale_motion: tuple[float, float] = (0.5, 0.5)
+
+    def default_action_scale(self, action_type: str) -> np.ndarray:
+        """The physical value of a normalized action of +1 per component: :func:`default_action_scale` for this
+        env's robot model (torque: at the task's :attr:`torque_scale_motion`)."""
+        return default_action_scale(action_type, self.sim.model, self.torque_scale_motion)
+
+    def _resolve_action_scale(self, action_scale: Any, hi: np.ndarray) -> np.ndarray | None:
+        if isinstance(action_scale, str):
+            if action_scale not in ACTION_SCALES:
+                raise ValueError(f"action_scale must be one of {ACTION_SCALES} or a number / array of "
+                                 f"{hi.shape[0]} physical values, got {action_scale!r}")
+            if action_scale == "physical":
+                return None
+            s = np.asarray(self.default_action_scale(self.action_type), dtype=np.float64)
+        else:
+            try:
+                s = np.broadcast_to(np.asarray(action_scale, dtype=np.float64), hi.shape).copy()
+            except (TypeError, ValueError):
+                raise ValueError(f"action_scale must be one of {ACTION_SCALES} or a number / array of "
+                                 f"{hi.shape[0]} physical values, got {action_scale!r}") from None
+        if not (np.isfinite(s).all() and (s > 0).all() and (s <= hi * (1 + 1e-9)).all()):
+            raise ValueError(f"action_scale must be > 0 and within the robot's limits {np.round(hi, 4).tolist()} "
+                             f"for {self.action_type} actions, got {np.asarray(action_scale).tolist()!r}")
+        return s
+
+    def to_physical(self, action: Any) -> np.ndarray:
+        """The physical command (float64: Nm, rad/s or the camera twist) of an action of this env's space."""
+        a = np.asarray(action, dtype=np.float64)
+        return a if self.action_scale is None else a * self.action_scale
+
+    def to_action(self, physical: Any) -> np.ndarray:
+        """The action (float32, of this env's space) that commands a physical value, clipped to the space."""
+        p = np.asarray(physical, dtype=np.float64)
+        a = p if self.action_scale is None else p / self.action_scale
+        return np.clip(a, self.action_space.low, self.action_space.high).astype(np.float32)
+
     def _check_action(self, action: Any) -> np.ndarray:
         try:
             a = np.asarray(action, dtype=np.float64)
@@ -431,6 +521,8 @@ class FrankaEnv(gym.Env):
         if self._last_obs is None:
             raise RuntimeError("call reset() before step()")
         a = self._check_action(action)
+        if self.action_scale is not None:
+            a = a * self.action_scale  # (the physical command; the task evaluates it)
         self._reflex: ControlException | None = None
         try:
             self._apply_action(a)

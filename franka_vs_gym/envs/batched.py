@@ -46,6 +46,7 @@ from franka_vs_gym.envs.kernels import (
     torque_penalty,
     truth_records,
 )
+from franka_vs_gym.envs.torque_tracking import tracking_lost
 from franka_vs_gym.sim import FORCE_TORQUE, VELOCITY, plant
 from franka_vs_gym.sim.reflexes import ARMED
 from franka_vs_gym.sim.robot import VELOCITY_COMMAND_SCALE
@@ -83,6 +84,10 @@ class BatchedTask:
         self.q_lo_any, self.q_hi_any = np.maximum(self.q_min, self.q_lo_fail), np.minimum(self.q_max, self.q_hi_fail)
         self.act_lo, self.act_hi = e0._act_lo_tol, e0._act_hi_tol
         self.act_shape = e0._act_shape
+        self.act_scale = e0.action_scale  # (None: physical actions)
+        # rate-limited commands go to the limiter's target in the robot's record, not to the controls
+        self.limited = sim.command_rates == "limit"
+        self.target = lay.reflex_record + plant.L0 + 4 + np.arange(7)
         self.torque = e0.action_type == "torque"
         self.tau_max = sim.tau_max
         self.neg_tau_max = -self.tau_max
@@ -111,7 +116,8 @@ class BatchedTask:
         sim = env.sim
         return (env.action_type in ("torque", "joint_velocity")
                 and type(env)._step_begin is _base_step_begin() and sim.batch_layout().reflex_record >= 0
-                and sim.command_rates == "pass" and len(env.world.scene.robots) == 1
+                and (sim.command_rates == "pass" or (sim.command_rates == "limit" and not sim._delay_steps))
+                and len(env.world.scene.robots) == 1
                 and set(env._pack.keys) == set(env.observation_space.spaces))
 
     def eligible(self, env: Any) -> bool:
@@ -163,7 +169,12 @@ class BatchedTask:
         (scaled down uniformly within the servo's limit, with the model's friction as feed-forward) into the
         batch's controls."""
         r = self.rows(ids)
+        if self.act_scale is not None:
+            a = a * self.act_scale
         self.action[r] = a
+        if self.limited:
+            self._command_limited(ids, r, a)
+            return
         if self.torque:
             if isinstance(r, slice):  # straight into the batch's controls
                 tau = np.minimum(a, self.tau_max, out=self.ctrl[:, self.motor])
@@ -179,6 +190,25 @@ class BatchedTask:
         if over.any():
             dq[over] = a[over] / ratio[over, None]
         self.ctrl[ids, self.vel] = dq
+        ff = self.friction(dq)
+        ff[~self.friction_on[ids]] = 0.0
+        self.ctrl[ids, self.motor] = ff
+
+    def _command_limited(self, ids: np.ndarray, r: slice | np.ndarray, a: np.ndarray) -> None:
+        """The rate-limited command of the rows: the saturated torque or the scaled joint velocity (with its
+        friction feed-forward in the motors' controls) into the limiter's target (the plant's callback writes the
+        controls at every physics step)."""
+        if self.torque:
+            tau = np.minimum(a, self.tau_max)
+            np.maximum(tau, self.neg_tau_max, out=tau)
+            self.userdata[ids[:, None] if not isinstance(r, slice) else r, self.target] = tau
+            return
+        ratio = (np.abs(a) / self.dq_lim).max(axis=1)
+        over = ratio > 1.0
+        dq = a.copy()
+        if over.any():
+            dq[over] = a[over] / ratio[over, None]
+        self.userdata[ids[:, None] if not isinstance(r, slice) else r, self.target] = dq
         ff = self.friction(dq)
         ff[~self.friction_on[ids]] = 0.0
         self.ctrl[ids, self.motor] = ff
@@ -273,6 +303,7 @@ class TorqueTrackingBatch(BatchedTask):
         self.sq_err = np.zeros(n)
         e0 = envs[0]
         self.error_scale, self.success_threshold = e0.error_scale, e0.success_threshold
+        self.max_tracking_error = e0.max_tracking_error
         sl = e0._pack._slices
         self.keys = np.array([sl[k].start for k in ("q", "dq", "q_desired", "dq_desired", "ddq_desired", "time")],
                              dtype=np.int64)
@@ -314,7 +345,10 @@ class TorqueTrackingBatch(BatchedTask):
             out[ids] = o
             self.last_obs[ids] = o
             self.sq_err[ids] = sq
-        reward, term, trunc, info = self.finish(ids, reward.copy(), success != 0.0, None)  # (no failure: re-run alone)
+        failure = None  # (joint limits and contacts: re-run alone)
+        if self.max_tracking_error is not None and (err > self.max_tracking_error).any():
+            failure = np.array([tracking_lost(float(e), self.max_tracking_error) for e in err], dtype=object)
+        reward, term, trunc, info = self.finish(ids, reward.copy(), success != 0.0, failure)
         info["error"], info["rms_error"] = err.copy(), rms.copy()
         return reward, term, trunc, info
 

@@ -140,6 +140,8 @@ def main(args: argparse.Namespace) -> int:
     import franka_vs_gym
     from franka_vs_gym.io import atomic_write, check_output
 
+    if args.seed < 0:
+        raise UserError(f"--seed must be >= 0 (episode i uses seed + i), got {args.seed}")
     try:
         env_kwargs = json.loads(args.env_kwargs)
     except json.JSONDecodeError as e:

@@ -1,13 +1,13 @@
 """A single environment's control period in compiled code (``franka_vs_gym/sim/_task.c``), for torque actions.
 
 A step of the common configuration (joint-torque actions inside the action space, the compiled plant with the
-robot's reflexes armed and commands passed as given, no observation noise) is two compiled calls around
-``mujoco.mj_step``: the command (``visual_pre``: the action checked, saturated at tau_max and written where
-``FrankaSim.set_force_torque`` writes it) and the period's end (the reflex check of the state the period ends with,
-the task's quantities, the observation packed and clipped into a fresh float32 buffer, a joint at its failure
-bound or a contact flagged). Python then ends the step as the general path does (``FrankaEnv._finish_step``).
-Anything else (another action form, a diverging state, a reflex, noise, images, delays...) takes the general path;
-both give the same bits (``tests/test_task_kernels.py``).
+robot's reflexes armed, commands passed as given or through the plant's rate limiter, no observation noise) is two
+compiled calls around ``mujoco.mj_step``: the command (``visual_pre``: the action checked, multiplied by the action
+scale, saturated at tau_max and written where ``FrankaSim.set_force_torque`` writes it) and the period's end (the
+reflex check of the state the period ends with, the task's quantities, the observation packed and clipped into a
+fresh float32 buffer, a joint at its failure bound or a contact flagged). Python then ends the step as the general
+path does (``FrankaEnv._finish_step``). Anything else (another action form, a diverging state, a reflex, noise,
+images, delays...) takes the general path; both give the same bits (``tests/test_task_kernels.py``).
 
 The numbers both halves read and write live in one float64 block ``P`` and one int64 block ``I`` (layout in
 ``_task.c``): the task's block (the visual tasks' geometry, torque tracking's trajectory), records, the action
@@ -61,8 +61,15 @@ class CompiledStep:
             I[16 + j] = pack._slices[k].start if k in pack._slices else -1
         I[16 + len(self.KEYS):24] = -1
         I[24] = S
+        I[25] = -1
+        # the rate limiter's target in the data's userdata (where set_force_torque leaves a rate-limited command)
+        self._lim_index = lay.reflex_record + plant.L0 + 4 if lay.reflex_record >= 0 else -1
+        self._reflexes = sim._reflexes
+        self.act_scale[:] = 1.0
         if env.action_type == "torque":
             self.act_lo[:], self.act_hi[:] = env._act_lo_tol, env._act_hi_tol
+            if env.action_scale is not None:
+                self.act_scale[:] = env.action_scale
         self.tau_max[:] = sim.tau_max
         self.q_lo[:], self.q_hi[:] = env._q_lo_fail, env._q_hi_fail
         self.n_substeps = env.n_substeps
@@ -83,8 +90,9 @@ class CompiledStep:
         self.q_lo, self.q_hi = P[o + 28:o + 35], P[o + 35:o + 42]
         self.depth_d, self.pose_d, self.cost = P[o + 42:o + 46], P[o + 46:o + 52], P[o + 52:o + 53]
         self.cost_now = P[o + 53:o + 54]
+        self.act_scale = P[o + 54:o + 61]
         w0 = plant.TASK_P_FIXED
-        if o + 54 != w0:
+        if o + 61 != w0:
             raise RuntimeError("the step plan's layout differs from franka_vs_gym/sim/_task.c's")
         self.work, self.low, self.high = P[w0:w0 + S], P[w0 + S:w0 + 2 * S], P[w0 + 2 * S:w0 + 3 * S]
 
@@ -102,6 +110,7 @@ class CompiledStep:
     def command(self, env: Any, action: Any) -> bool:
         """The action into the controls and the period's physics; False (nothing done) when the action is not a
         plain vector inside the action space (the general path then checks it, clips it or names the problem)."""
+        self.I[25] = self._lim_index if self._reflexes._lim_native else -1
         if plant.visual_pre(self.P, self.I, self.d_addr, action, self._tau_cmd, self._tau_applied) < 0:
             return False
         env._reflex = None

@@ -91,8 +91,20 @@ def evaluate(policy: Any, env_id_or_env: Any, n_episodes: int = 20, seed: int = 
     return summarise(episodes)
 
 
+def bind_policy(policy: Any, env: gym.Env) -> Any:
+    """The policy acting in ``env``'s action space: a scripted policy or agent with physical outputs
+    (``action_scale`` None and a ``with_action_scale`` method: franka_vs_gym.policies, AgentPolicy) gets the
+    normalized outputs of the environment's ``action_scale``; anything else is returned as is."""
+    scale = getattr(env.unwrapped, "action_scale", None)
+    if scale is not None and hasattr(policy, "with_action_scale") and getattr(policy, "action_scale", 0) is None:
+        return policy.with_action_scale(scale)
+    return policy
+
+
 def run_episodes(policy: Any, env: gym.Env, seeds: list[int], progress: bool = False) -> list[dict[str, Any]]:
-    """One episode of ``policy`` per seed (``env.reset(seed=s)``); the per-episode dicts of :func:`evaluate`."""
+    """One episode of ``policy`` per seed (``env.reset(seed=s)``); the per-episode dicts of :func:`evaluate`.
+    Scripted policies and agents act in the environment's action space (:func:`bind_policy`)."""
+    policy = bind_policy(policy, env)
     act = _action_fn(policy)
     reset = getattr(policy, "reset", None)
     episodes: list[dict[str, Any]] = []

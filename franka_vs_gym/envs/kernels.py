@@ -220,9 +220,16 @@ def truth_records(geo: np.ndarray | None, q: np.ndarray, fMo: np.ndarray, out: n
     if geo is not None and plant.tag_truth is not None:
         plant.tag_truth(geo, q, fMo, out)
         return out
+    cMo = camera_tag_poses(np.asarray(fMe), eMc, np.asarray(fMo).reshape(-1, 4, 4))
+    return pose_records(cMo, out, tag_size=tag_size, intrinsics=intrinsics, features_desired=features_desired)
+
+
+def pose_records(cMo: np.ndarray, out: np.ndarray, *, tag_size: float, intrinsics, features_desired: np.ndarray
+                 ) -> np.ndarray:
+    """The truth records (N, REC) written into ``out`` for tag poses cMo (N, 4, 4) in the camera frame (numpy and
+    pinocchio; any camera placement, e.g. a camera fixed in the world seeing a tag on the hand)."""
     from franka_vs_gym.vision.tags import project_tag
 
-    cMo = camera_tag_poses(np.asarray(fMe), eMc, np.asarray(fMo).reshape(-1, 4, 4))
     _, xy, Z, vis = project_tag(cMo, tag_size, intrinsics)
     n = len(cMo)
     out[:, R_FEATURES] = xy.reshape(n, 8)
@@ -236,5 +243,6 @@ def truth_records(geo: np.ndarray | None, q: np.ndarray, fMo: np.ndarray, out: n
 
 __all__ = ["GEO", "REC", "R_CMO", "R_DEPTH", "R_ERROR", "R_FEATURES", "R_POSE", "R_VISIBLE", "TAG_LOST",
            "camera_geometry", "camera_tag_poses", "clip_observation", "feature_error", "feature_reward",
-           "inverse_poses", "pbvs_errors", "pose_reward", "pose_vectors", "row_norm", "row_sumsq", "success_bonus",
-           "torque_penalty", "tracking_desired", "tracking_reward", "tracking_rows", "truth_records"]
+           "inverse_poses", "pbvs_errors", "pose_records", "pose_reward", "pose_vectors", "row_norm", "row_sumsq",
+           "success_bonus", "torque_penalty", "tracking_desired", "tracking_reward", "tracking_rows",
+           "truth_records"]

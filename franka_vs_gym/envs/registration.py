@@ -16,6 +16,8 @@ ENVS: dict[str, str] = {
     "FrankaPBVS-v0": "franka_vs_gym.envs.pbvs:FrankaPBVSEnv",
     "FrankaTorqueTracking-v0": "franka_vs_gym.envs.torque_tracking:FrankaTorqueTrackingEnv",
     "FrankaVisualTorque-v0": "franka_vs_gym.envs.visual_torque:FrankaVisualTorqueEnv",
+    "FrankaIBVSEyeToHand-v0": "franka_vs_gym.envs.eye_to_hand:FrankaIBVSEyeToHandEnv",
+    "FrankaPBVSEyeToHand-v0": "franka_vs_gym.envs.eye_to_hand:FrankaPBVSEyeToHandEnv",
 }
 
 

@@ -119,6 +119,7 @@ def make_agent_vec_env(env_id: str, num_envs: int, action_scale: Any = 0.5, nthr
 
     env_kwargs.setdefault("observation_type", "features")
     env_kwargs.setdefault("action_type", "joint_velocity")
+    env_kwargs.setdefault("action_scale", "physical")  # (action_fn does the scaling)
     venv = FrankaVectorEnv(env_id, num_envs, nthread=nthread, autoreset_mode="SameStep", **env_kwargs)
     box = venv.single_action_space
     scale = np.broadcast_to(np.asarray(action_scale, dtype=np.float64), box.shape).copy()

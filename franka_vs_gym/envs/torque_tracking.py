@@ -22,9 +22,14 @@ class FrankaTorqueTrackingEnv(FrankaEnv):
     itself; friction, Coriolis and inertia are the policy's job.
 
     ## Action space
-    ``action_type="torque"`` (default): ``Box(-tau_max, tau_max, (7,), float32)``, Nm, gravity-free joint torques
-    (tau_max = 87, 87, 87, 87, 12, 12, 12 Nm). ``action_type="joint_velocity"``: ``Box(-dq_max, dq_max, (7,))``
-    rad/s, executed by the robot's joint velocity servo. Out-of-space actions raise ``ValueError`` unless
+    ``action_type="torque"`` (default): ``Box(-1, 1, (7,), float32)``, gravity-free joint torques normalized by
+    the task's torque scale (``env.unwrapped.action_scale``, Nm: the torque that gives every joint the fastest
+    desired trajectory's peak acceleration ``amplitude (2 pi f_max)^2`` at once at the neutral posture, plus
+    friction at its peak velocity; FER 3.5, 7.3, 4.9, 5.9, 0.9, 0.9, 0.35 Nm with the defaults; see
+    :func:`~franka_vs_gym.envs.base.torque_action_scale`); ``action_scale="physical"``: ``Box(-tau_max, tau_max)``
+    Nm (tau_max = 87, 87, 87, 87, 12, 12, 12 Nm). ``action_type="joint_velocity"``: ``Box(-1, 1)`` times half the
+    rated joint velocities (``Box(-dq_max, dq_max)`` rad/s with ``action_scale="physical"``), executed by the
+    robot's joint velocity servo. Commands pass through the robot interface's rate limiter (``limit_rate``). Out-of-space actions raise ``ValueError`` unless
     ``clip_actions=True``; NaN/inf always raise.
 
     ## Observation space
@@ -52,7 +57,7 @@ class FrankaTorqueTrackingEnv(FrankaEnv):
     ## Episode end
     | kind | condition | ``info`` |
     |---|---|---|
-    | termination (failure) | a joint limit reached, the arm touches the table, or the simulation diverges | ``failure``: the reason |
+    | termination (failure) | the tracking error ``||q - q_d||`` above ``max_tracking_error`` (0.3 rad; None: never), a joint limit reached, the arm touches the table, or the simulation diverges | ``failure``: the reason |
     | truncation | ``time_limit`` (5 s) elapsed | ``is_success``: RMS tracking error over the episode < ``success_threshold`` (0.02 rad) |
 
     ``info`` also holds ``error`` (current ||q - q_d||, rad), ``rms_error`` (so far), ``time`` (s).
@@ -72,9 +77,7 @@ class FrankaTorqueTrackingEnv(FrankaEnv):
     def __init__(self, *, action_type: str = "torque", observation_type: str = "state",
                  control_period: float = 0.01, time_limit: float = 5.0, amplitude: float = 0.3,
                  frequency_range: Any = (0.2, 0.5), error_scale: float = 0.1, success_threshold: float = 0.02,
-                 **kwargs: Any) -> None:
-        super().__init__(action_type=action_type, observation_type=observation_type, control_period=control_period,
-                         time_limit=time_limit, camera=False, **kwargs)
+                 max_tracking_error: float | None = 0.3, **kwargs: Any) -> None:
         self.amplitude = _positive(amplitude, "amplitude")
         if self.amplitude < 0.05 or self.amplitude > 0.6:
             raise ValueError(f"amplitude must be in [0.05, 0.6] rad, got {amplitude}")
@@ -83,6 +86,14 @@ class FrankaTorqueTrackingEnv(FrankaEnv):
             raise ValueError(f"frequency_range must be a (low, high) pair of Hz with 0 < low <= high, got "
                              f"{frequency_range!r}")
         self.frequency_range = (float(fr[0]), float(fr[1]))
+        self.max_tracking_error = None if max_tracking_error is None else _positive(max_tracking_error,
+                                                                                    "max_tracking_error")
+        # the default torque scale covers the fastest desired trajectory: its peak acceleration A (2 pi f)^2 for
+        # every joint at once, friction at its peak velocity A 2 pi f
+        w = 2 * np.pi * self.frequency_range[1]
+        self.torque_scale_motion = (self.amplitude * w * w, self.amplitude * w)
+        super().__init__(action_type=action_type, observation_type=observation_type, control_period=control_period,
+                         time_limit=time_limit, camera=False, **kwargs)
         self.error_scale = _positive(error_scale, "error_scale")
         self.success_threshold = _positive(success_threshold, "success_threshold")
         q_lo, q_hi = self.q_min - 0.2, self.q_max + 0.2
@@ -150,4 +161,12 @@ class FrankaTorqueTrackingEnv(FrankaEnv):
         rms = float(np.sqrt(self._sq_err / max(self._steps, 1)))
         success = self._steps >= self.max_steps and rms < self.success_threshold
         reward = tracking_reward(err, self.error_scale)
-        return reward, success, None, {"error": err, "rms_error": rms}
+        failure = tracking_lost(err, self.max_tracking_error)
+        return reward, success, failure, {"error": err, "rms_error": rms}
+
+
+def tracking_lost(err: float, max_error: float | None) -> str | None:
+    """The failure reason of a tracking error beyond ``max_error`` (rad; None: never)."""
+    if max_error is not None and err > max_error:
+        return f"tracking lost: error {err:.4f} rad > max_tracking_error {max_error} rad"
+    return None

@@ -71,12 +71,13 @@ class VisualServoEnv(FrankaEnv):
         self.terminate_on_tag_lost = bool(terminate_on_tag_lost)
         self.success_bonus = _nonneg(success_bonus, "success_bonus")
         tag = TagSpec(tag_id=self.tag_id, size=self.tag_size, pos=(0.55, 0.0, 0.0))
-        super().__init__(observation_type=observation_type, camera=True, tags=[tag], **kwargs)
+        kwargs.update(self._scene(tag, kwargs))
+        super().__init__(observation_type=observation_type, **kwargs)
         self.camera_period = _positive(camera_period, "camera_period")
         self.camera_substeps = substeps(self.camera_period, self.physics_step)
         m = self._m
         self._tag_body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, tag.name)
-        self._cam_name = self.sim.camera_name()
+        self._cam_name = self._camera_name()
         self._setup_camera()
         self.cdMo = desired_tag_pose(self.desired_distance)
         self.features_desired, self.depth_desired, ok = self._project(self.cdMo)
@@ -95,6 +96,15 @@ class VisualServoEnv(FrankaEnv):
         self._packed_frame_no = -1  # the frame whose keys the packer's work vector holds
         self._frame_image: np.ndarray | None = None
         self._fMo = self.get_fMo()
+
+    # ------------------------------------------------------------------ scene hooks (the eye-to-hand tasks override)
+    def _scene(self, tag: TagSpec, kwargs: dict[str, Any]) -> dict[str, Any]:
+        """FrankaEnv's scene arguments: the wrist camera and the tag on the table."""
+        return {"camera": True, "tags": [tag]}
+
+    def _camera_name(self) -> str:
+        """The MuJoCo camera that sees the tag."""
+        return self.sim.camera_name()
 
     # ------------------------------------------------------------------ camera (franka_vs_gym.vision)
     def _setup_camera(self) -> None:
@@ -116,9 +126,10 @@ class VisualServoEnv(FrankaEnv):
 
         if self.observation_type in ("image", "features+image"):
             self._image_camera = WristCamera(self.sim, self.intrinsics.scaled(self.image_width, self.image_height),
-                                             self.camera_period)
+                                             self.camera_period, camera=self._cam_name)
         if self.feature_source == "detection" and self.observation_type != "image":
-            self._detection_camera = WristCamera(self.sim, self.intrinsics, self.camera_period)
+            self._detection_camera = WristCamera(self.sim, self.intrinsics, self.camera_period,
+                                                 camera=self._cam_name)
             self._detector = TagDetector()
         self._cameras_ready = True
 

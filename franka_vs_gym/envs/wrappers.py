@@ -91,6 +91,7 @@ def make_agent_env(env_id: str = "FrankaIBVS-v0", action_scale: Any = 0.5, **env
 
     env_kwargs.setdefault("observation_type", "features")
     env_kwargs.setdefault("action_type", "joint_velocity")
+    env_kwargs.setdefault("action_scale", "physical")  # (ScaledAction does the scaling)
     env = gym.make(env_id, **env_kwargs)
     return ServoVectorObservation(ScaledAction(env, action_scale))
 
@@ -106,7 +107,10 @@ class AgentPolicy:
     def __init__(self, model: Any, action_scale: Any, env_id: str = "FrankaIBVS-v0",
                  env_kwargs: dict[str, Any] | None = None) -> None:
         self.model = model
-        self.action_scale = np.asarray(action_scale, dtype=np.float64)
+        self.training_scale = np.asarray(action_scale, dtype=np.float64)
+        #: the physical value of an output of 1 (None: physical outputs, the training scale times the agent's
+        #: [-1, 1] action); see with_action_scale
+        self.action_scale: np.ndarray | None = None
         self.env_id = env_id
         self.env_kwargs = dict(env_kwargs or {})
 
@@ -135,7 +139,18 @@ class AgentPolicy:
 
     def predict(self, observation: dict[str, Any], deterministic: bool = True) -> np.ndarray:
         a, _ = self.model.predict(servo_vector(observation), deterministic=deterministic)
-        return (np.clip(np.asarray(a, dtype=np.float64), -1.0, 1.0) * self.action_scale).astype(np.float32)
+        phys = np.clip(np.asarray(a, dtype=np.float64), -1.0, 1.0) * self.training_scale
+        if self.action_scale is not None:
+            phys = phys / self.action_scale
+        return phys.astype(np.float32)
+
+    def with_action_scale(self, scale: Any) -> AgentPolicy:
+        """A copy whose actions are normalized by ``scale`` (an env's ``action_scale``; None: physical units)."""
+        import copy
+
+        out = copy.copy(self)
+        out.action_scale = None if scale is None else np.array(scale, dtype=np.float64)
+        return out
 
     def reset(self) -> None:
         """Nothing to forget between episodes (the agent is memoryless)."""

@@ -12,8 +12,10 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 
+from franka_vs_gym.errors import UserError
 from franka_vs_gym.experiments.common import make_run_dir
 
 
@@ -65,6 +67,9 @@ def main(args: argparse.Namespace) -> int:
     if args.experiment == "tracking":
         from franka_vs_gym.experiments.tracking import run_tracking, write_tracking
 
+        if not (math.isfinite(args.torque_noise) and args.torque_noise >= 0):  # refused before a run folder exists
+            raise UserError(f"--torque-noise must be a finite number >= 0 Nm (standard deviation), got "
+                            f"{args.torque_noise}")
         folder = make_run_dir("tracking", root=args.out)
         print(f"tracking: writing into {folder}", file=sys.stderr)
         result = run_tracking(args.duration, model_error=args.model_error, torque_noise=args.torque_noise,

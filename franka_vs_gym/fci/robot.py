@@ -213,13 +213,16 @@ class FCIRobot:
         return J
 
     def _update_cartesian_controller(self) -> None:
-        """The Cartesian impedance acts on the stiffness frame K: its controller's model has K as end effector."""
+        """The Cartesian impedance acts on the stiffness frame K: its controller's model has K as end effector, and
+        it knows the motors (the plant's effective armature on the diagonal of its mass matrix: task inertia,
+        damping and null space as the joints really are)."""
         from franka_vs_gym.model import FrankaModel
         from franka_vs_gym.model.config import Tool
 
         cfg = self.model.config
         flMK = self.F_T_NE @ self.NE_T_EE @ self.EE_T_K
-        model = FrankaModel(cfg.copy(tool=Tool(cfg.tool.name, flMK, cfg.tool.body)))
+        model = FrankaModel(cfg.copy(tool=Tool(cfg.tool.name, flMK, cfg.tool.body),
+                                     armature=cfg.armature + self.sim.rotor_inertia))
         self.cart_ctrl = CartesianImpedance(model, k_translation=self.K_x[:3], k_rotation=self.K_x[3:])
 
     def _reset_desired(self) -> None:
@@ -466,19 +469,20 @@ class FCIRobot:
     def _joint_impedance(self, q: np.ndarray, dq: np.ndarray, q_d: np.ndarray, dq_d: np.ndarray,
                          ddq_d: np.ndarray | None) -> np.ndarray:
         """The internal joint impedance controller, the law of :class:`~franka_vs_gym.control.JointImpedance`
-        (stiffness ``K_theta``, critical damping on the diagonal of B(q), inertial, Coriolis and friction
-        feed-forward) with one evaluation of B per cycle. Its damping ``D (dq_d - dq)`` runs in the plant's joint
-        velocity servos, which MuJoCo integrates implicitly; the rest is the returned motor torque. The FER's joint
-        controllers run faster than the 1 kHz interface; an explicit 1 ms damping term would be unstable on the
+        (stiffness ``K_theta``, critical damping on the diagonal of B(q) plus the motors' effective armature,
+        inertial (motors included), Coriolis and friction feed-forward) with one evaluation of B per cycle. Its
+        damping ``D (dq_d - dq)`` runs in the plant's joint velocity servos, which MuJoCo integrates implicitly;
+        the rest is the returned motor torque. The FER's joint controllers run faster than the 1 kHz interface; an
+        explicit 1 ms damping term would be unstable on the
         light coupled modes of the arm (e.g. joints 1 and 3 turning against each other when aligned). The state's
         tau_J (``FrankaSim.get_force_torque``) includes the servos' force as applied, at the end-of-step velocity."""
-        m, ctrl = self.model, self.joint_ctrl
+        m, ctrl, rotor = self.model, self.joint_ctrl, self.sim.rotor_inertia
         B = m.mass_matrix(q)
-        D = 2.0 * ctrl.zeta * np.sqrt(ctrl.k * B.diagonal())
+        D = 2.0 * ctrl.zeta * np.sqrt(ctrl.k * (B.diagonal() + rotor))  # the robot's controllers know its motors
         self._set_servo(D, dq_d)
         tau = ctrl.k * (q_d - q) + m.coriolis(q, dq) + m.friction(dq_d)
         if ddq_d is not None:  # implicit damping acts on the end-of-step velocity: feed its share of ddq_d forward
-            tau += B @ ddq_d + self.dt * D * ddq_d
+            tau += B @ ddq_d + (rotor + self.dt * D) * ddq_d
         return tau
 
     def _set_servo(self, D: np.ndarray, dq_d: np.ndarray) -> None:

@@ -101,15 +101,36 @@ def check_gravity(g: np.ndarray, name: str = "gravity") -> None:
                          "another gravity")
 
 
+class NotDissipative(ValueError):
+    """A friction law that pushes a joint (``tau_f dq < 0`` somewhere); ``joint`` is the first such joint."""
+
+    def __init__(self, message: str, joint: int) -> None:
+        super().__init__(message)
+        self.joint = joint
+
+
+DISSIPATION_STEPS = np.linspace(-1.0, 1.0, 41)[np.linspace(-1.0, 1.0, 41) != 0]  # fractions of dq_max checked
+LOW_SPEED_STEPS = np.geomspace(1e-3, 0.05, 12)  # and, for a law with a Stribeck hump, these fractions of them
+
+
+def dissipation_grid(dq_max: np.ndarray, low_speed: bool = False) -> np.ndarray:
+    """The velocities (G, 7) rad/s at which :func:`check_dissipative` (and ``Friction.check_dissipative``) test a law:
+    ``s dq_max`` for 40 fractions s in [-1, 1], and with ``low_speed`` also those scaled by 1e-3..0.05."""
+    dq_max = np.asarray(dq_max, dtype=np.float64)
+    grid = DISSIPATION_STEPS[:, None] * dq_max
+    if low_speed:
+        grid = np.concatenate([grid] + [s * grid for s in LOW_SPEED_STEPS])
+    return grid
+
+
 def check_dissipative(tau_f, dq_max: np.ndarray, name: str = "friction") -> None:
     """Friction must dissipate energy: tau_f(dq) dq >= 0 on a grid of velocities up to the limits (7,).
-    ``tau_f`` maps (7,) rad/s to (7,) Nm."""
-    for s in np.linspace(-1.0, 1.0, 41):
-        if s == 0:
-            continue
+    ``tau_f`` maps (7,) rad/s to (7,) Nm. Raises :class:`NotDissipative` (a ValueError) naming the first joint."""
+    for s in DISSIPATION_STEPS:
         dq = s * dq_max
         p = tau_f(dq) * dq
         if (p < -1e-9).any():
             j = int(np.argmin(p))
-            raise ValueError(f"{name} of joint {j} is not dissipative: tau_f = {tau_f(dq)[j]:.4g} Nm at dq = "
-                             f"{dq[j]:.3g} rad/s (friction must oppose motion; check the signs of its parameters)")
+            raise NotDissipative(f"{name} of joint {j} is not dissipative: tau_f = {tau_f(dq)[j]:.4g} Nm at dq = "
+                                 f"{dq[j]:.3g} rad/s (friction must oppose motion; check the signs of its parameters)",
+                                 j)

@@ -449,12 +449,12 @@ class ModelConfig:
     def load(cls, path: str | os.PathLike, robot: RobotDescription | str | None = None) -> ModelConfig:
         """Read a calibrated-model file; ``robot`` (optional) is the robot the caller expects. ValueError naming
         the file and the problem if it is not one."""
-        from franka_vs_gym.io import read_text
+        from franka_vs_gym.io import loads_json, read_text
 
         p = Path(path)
         text = read_text(p, what="model file")
         try:
-            d = json.loads(text)
+            d = loads_json(text, f"model file {p}")
         except json.JSONDecodeError as e:
             raise ValueError(f"model file {p} is not valid JSON: {e}") from None
         try:

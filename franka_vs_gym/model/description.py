@@ -17,7 +17,7 @@ Denavit-Hartenberg kinematics.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -93,7 +93,13 @@ class RobotDescription:
         and to hold the robot. A design choice of this simulator, not a published number: per joint, the same
         bandwidth kv / B_ii on every robot, with kv dt / B_ii <= 1 at the 1 ms step for the lightest inertia the
         joint drives (with the Franka Hand); above that, a step command that saturates the joint torque sets the
-        implicitly integrated servo into a limit cycle.
+        implicitly integrated servo into a limit cycle. FrankaSim raises them by ``rotor_inertia`` times the same
+        bandwidth (the servo drives the motors too).
+    rotor_inertia : effective armature (7,) kg m^2: the reflected motor and gear inertia each joint's torque
+        controller feels through the robot's torque loop. The plant puts it between the commanded torque and the
+        link (MuJoCo joint armature); the measured ``tau_J`` stays the link-side torque the sensor reads, and the
+        robot's model (pinocchio, libfranka's ``Model``) stays link side. Zero: an ideal torque source at the link
+        (an easier plant than the robot). :meth:`with_rotor_inertia` scales it.
     sources : where each group of numbers comes from (for docs and reports).
     """
 
@@ -112,10 +118,11 @@ class RobotDescription:
     aliases: tuple[str, ...] = ()
     default_tool: str = "franka_hand"
     servo_gains: Vec7 = (120.0, 120.0, 80.0, 80.0, 15.0, 15.0, 6.0)
+    rotor_inertia: Vec7 = (0.0,) * 7
     sources: dict[str, str] = field(default_factory=dict, compare=False, hash=False)
 
     def __post_init__(self) -> None:
-        for attr in ("dh_a", "dh_d", "dh_alpha", "q_neutral", "joint_names"):
+        for attr in ("dh_a", "dh_d", "dh_alpha", "q_neutral", "joint_names", "rotor_inertia"):
             if len(getattr(self, attr)) != params.N_JOINTS:
                 raise ValueError(f"robot description {self.name!r}: {attr} must have 7 entries")
         if len(self.links) != params.N_JOINTS:
@@ -124,6 +131,18 @@ class RobotDescription:
         q0 = np.array(self.q_neutral)
         if not ((lo < hi).all() and (q0 >= lo).all() and (q0 <= hi).all()):
             raise ValueError(f"robot description {self.name!r}: q_neutral must lie within q_min < q_max")
+        rot = np.array(self.rotor_inertia, dtype=np.float64)
+        if not (np.isfinite(rot).all() and (rot >= 0).all() and (rot <= 10.0).all()):
+            raise ValueError(f"robot description {self.name!r}: rotor_inertia must lie in [0, 10] kg m^2, got "
+                             f"{rot.tolist()}")
+
+    def with_rotor_inertia(self, scale: float) -> RobotDescription:
+        """This robot with its effective armature multiplied by ``scale`` >= 0 (0: an ideal link-side torque source,
+        a looser plant than the robot; > 1: a stricter one). The name is kept, so model files still match."""
+        scale = float(scale)
+        if not (scale >= 0 and np.isfinite(scale)):
+            raise ValueError(f"rotor inertia scale must be a finite number >= 0, got {scale}")
+        return replace(self, rotor_inertia=tuple(float(x) * scale for x in self.rotor_inertia))
 
     # --- kinematics helpers (modified DH, Craig)
     def dh_placement(self, i: int) -> np.ndarray:
@@ -191,11 +210,14 @@ FER = RobotDescription(
     joint_names=tuple(f"fer_joint{i + 1}" for i in range(7)),
     aliases=("panda_joint", "joint"),
     default_tool="franka_hand",
+    rotor_inertia=params.FER_ROTOR_INERTIA,
     sources={
         "kinematics": "modified DH table of the FER (Franka Control Interface documentation)",
         "limits": "Franka Control Interface documentation, limits for the FER (Panda)",
         "inertials": "Gaz et al., IEEE RA-L 2019, identified feasible parameters",
         "friction": "Gaz et al., IEEE RA-L 2019, sigmoid friction model",
+        "rotor_inertia": "none published for the FER: the FR3's identified values (same drive sizes), uncertain "
+                         "within about a factor of 2",
     },
 )
 
@@ -215,6 +237,7 @@ FR3 = RobotDescription(
     # the FR3's link 7 is 3.5x lighter about its axis than the FER's (B_66 0.0019 vs 0.0067 kg m^2 with the hand):
     # the FER's wrist gain of 6 Nm s/rad would be 3.2x past the 1 ms stability bound; 1.7 keeps the FER's bandwidth
     servo_gains=(120.0, 120.0, 80.0, 80.0, 15.0, 15.0, 1.7),
+    rotor_inertia=params.FR3_ROTOR_INERTIA,
     sources={
         "kinematics": "Franka Control Interface documentation (same modified DH table as the FER); "
                       "franka_description robots/fr3/kinematics.yaml",
@@ -222,6 +245,8 @@ FR3 = RobotDescription(
                   "documentation, limits for Franka Research 3",
         "inertials": "franka_description robots/fr3/inertials.yaml (Apache-2.0)",
         "friction": "none published: identify it from your own logs with the workbench (franka-vs fit)",
+        "rotor_inertia": "MuJoCo Menagerie franka_fr3/fr3.xml armature, identified in torque control (pull request "
+                         "168, 2025)",
     },
 )
 

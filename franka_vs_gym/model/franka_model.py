@@ -15,6 +15,7 @@ import pinocchio as pin
 from franka_vs_gym.model.checks import as_vector
 from franka_vs_gym.model.config import ROBOT_DEFAULT, ModelConfig, RigidBody, Tool, resolve_config
 from franka_vs_gym.model.description import FER, RobotDescription
+from franka_vs_gym.errors import UserError
 
 _LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 _LOCAL = pin.ReferenceFrame.LOCAL
@@ -63,6 +64,17 @@ class _LimitsAccessor:
             (rad/s^3), tau_max (Nm), dtau_max (Nm/s)."""
             return robot.limits.as_arrays()
         return limits
+
+
+def _joint_vector(x: Any, name: str) -> np.ndarray:
+    """``x`` as 7 joint values (float64), or a UserError naming ``name`` and what it got."""
+    try:
+        a = np.asarray(x, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise UserError(f"{name} must be 7 numbers, got {type(x).__name__}") from None
+    if a.shape != (7,):
+        raise UserError(f"{name} must be 7 joint values, got shape {a.shape}")
+    return a
 
 
 class FrankaModel:
@@ -142,25 +154,40 @@ class FrankaModel:
     # ------------------------------------------------------------------ dynamics
     def mass_matrix(self, q: np.ndarray) -> np.ndarray:
         """Joint-space inertia matrix B(q), (7, 7), symmetric positive definite, kg m^2."""
-        M = pin.crba(self.model, self.data, q)
+        try:
+            M = pin.crba(self.model, self.data, q)
+        except TypeError:  # a list, ints, a wrong length: converted, or a named error
+            M = pin.crba(self.model, self.data, _joint_vector(q, "q"))
         M[self._il] = M.T[self._il]
         return M.copy()
 
     def coriolis_matrix(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
         """Full Coriolis/centrifugal matrix C(q, dq), (7, 7), with dB/dt - 2C skew-symmetric, Nm s/rad."""
-        return pin.computeCoriolisMatrix(self.model, self.data, q, dq).copy()
+        try:
+            return pin.computeCoriolisMatrix(self.model, self.data, q, dq).copy()
+        except TypeError:
+            return self.coriolis_matrix(_joint_vector(q, "q"), _joint_vector(dq, "dq"))
 
     def coriolis(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
         """Coriolis/centrifugal torques C(q, dq) dq, (7,), Nm."""
-        return pin.rnea(self.model, self.data, q, dq, np.zeros(7)) - self.gravity(q)
+        try:
+            return pin.rnea(self.model, self.data, q, dq, np.zeros(7)) - self.gravity(q)
+        except TypeError:
+            return self.coriolis(_joint_vector(q, "q"), _joint_vector(dq, "dq"))
 
     def gravity(self, q: np.ndarray) -> np.ndarray:
         """Gravity torques g(q), (7,), Nm."""
-        return pin.computeGeneralizedGravity(self.model, self.data, q).copy()
+        try:
+            return pin.computeGeneralizedGravity(self.model, self.data, q).copy()
+        except TypeError:
+            return pin.computeGeneralizedGravity(self.model, self.data, _joint_vector(q, "q")).copy()
 
     def bias(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
         """C(q, dq) dq + g(q), (7,), Nm (the non-linear effects, without friction)."""
-        return pin.nonLinearEffects(self.model, self.data, q, dq).copy()
+        try:
+            return pin.nonLinearEffects(self.model, self.data, q, dq).copy()
+        except TypeError:
+            return self.bias(_joint_vector(q, "q"), _joint_vector(dq, "dq"))
 
     def friction(self, dq: np.ndarray) -> np.ndarray:
         """Joint friction torques tau_f(dq), (7,), Nm: the torque the joint needs on top of B ddq + C dq + g."""
@@ -168,10 +195,16 @@ class FrankaModel:
 
     def rigid_body_inverse_dynamics(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:
         """B ddq + C dq + g, (7,), Nm: the rigid-body part (armature included, friction and offset excluded)."""
-        return pin.rnea(self.model, self.data, q, dq, ddq).copy()  # pinocchio's rnea includes the armature
+        try:
+            return pin.rnea(self.model, self.data, q, dq, ddq).copy()  # pinocchio's rnea includes the armature
+        except TypeError:
+            return self.rigid_body_inverse_dynamics(_joint_vector(q, "q"), _joint_vector(dq, "dq"),
+                                                    _joint_vector(ddq, "ddq"))
 
     def inverse_dynamics(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:
         """Predicted measured joint torque tau_J = B ddq + C dq + g + tau_f(dq) + offset, (7,), Nm."""
+        if type(dq) is not np.ndarray:
+            dq = _joint_vector(dq, "dq")
         tau = self.rigid_body_inverse_dynamics(q, dq, ddq) + self._friction(dq)
         return tau + self._offset if self._has_offset else tau
 

@@ -27,20 +27,21 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
+from scipy.special import expit  # 1 / (1 + exp(-x)) without overflow for large |x|
 
 ArrayLike = np.ndarray | float
 
 
 def gaz_sigmoid(dq: ArrayLike, phi1: ArrayLike, phi2: ArrayLike, phi3: ArrayLike) -> np.ndarray:
     """Gaz sigmoid friction, Nm: ``phi1 / (1 + exp(-phi2 (dq + phi3))) - phi1 / (1 + exp(-phi2 phi3))``."""
-    return phi1 / (1.0 + np.exp(-phi2 * (dq + phi3))) - phi1 / (1.0 + np.exp(-phi2 * phi3))
+    return phi1 * expit(np.multiply(phi2, np.add(dq, phi3))) - phi1 * expit(np.multiply(phi2, phi3))
 
 
 def sigmoid_levels(phi1: ArrayLike, phi2: ArrayLike, phi3: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     """The Gaz sigmoid's sliding levels, Nm: ``(L_plus, L_minus)`` with ``gaz_sigmoid -> L_plus`` for dq -> +inf and
     ``-> -L_minus`` for dq -> -inf (``L_plus = phi1 (1 - s0)``, ``L_minus = phi1 s0``, ``s0 = 1 / (1 + exp(-phi2
     phi3))``)."""
-    s0 = 1.0 / (1.0 + np.exp(-np.multiply(phi2, phi3)))
+    s0 = expit(np.multiply(phi2, phi3))
     return np.multiply(phi1, 1.0 - s0), np.multiply(phi1, s0)
 
 
@@ -94,18 +95,18 @@ def compile_friction(phi1: np.ndarray, phi2: np.ndarray, phi3: np.ndarray, visco
     strb = None if stribeck is None or not np.any(stribeck) else np.array(stribeck, dtype=np.float64)
     inv_vs = 1.0 / np.asarray(stribeck_vel, dtype=np.float64)
     cv = float(coulomb_vel)
-    p2p3 = p2 * p3  # the sigmoid as phi1 / (1 + exp(-(phi2 dq + phi2 phi3))): one product fewer per call
-    off = p1 / (1.0 + np.exp(-p2p3))
+    p2p3 = p2 * p3  # the sigmoid as phi1 expit(phi2 dq + phi2 phi3): one product fewer per call, no overflow
+    off = p1 * expit(p2p3)
     has_sig = bool(p1.any())
     exp = np.exp
 
     if has_sig and visc is None and coul is None and strb is None:
         def sigmoid_only(dq: np.ndarray) -> np.ndarray:
-            return p1 / (1.0 + exp(-(p2 * dq + p2p3))) - off
+            return p1 * expit(p2 * dq + p2p3) - off
         return sigmoid_only
 
     def general(dq: np.ndarray) -> np.ndarray:
-        out = p1 / (1.0 + exp(-(p2 * dq + p2p3))) - off if has_sig else np.zeros(np.shape(dq))
+        out = p1 * expit(p2 * dq + p2p3) - off if has_sig else np.zeros(np.shape(dq))
         if visc is not None:
             out = out + visc * dq
         if coul is not None:

@@ -34,6 +34,20 @@ FR3 (the ``FR3_*`` names below; typed by hand from the published description, no
 - Friction: none is published for the FR3. Its users identify it from their own logs with the workbench
   (``franka-vs fit``).
 
+Effective armature (``*_ROTOR_INERTIA``): the reflected inertia of each joint's motor and gear as a torque
+controller feels it through the robot's internal torque loop (kg m^2, link side), the inertia between the commanded
+torque and the link-side torque sensor. It is not part of the link-side dynamics (the Gaz et al. identification and
+libfranka's model describe the links only).
+
+- FR3: MuJoCo Menagerie's ``franka_fr3/fr3.xml`` since 2025-04-25 (pull request 168, "armature, damping, friction
+  parameters, identified in torque control", contributed for Franka Robotics): 0.195 kg m^2 on joints 1-4 and
+  0.074 kg m^2 on joints 5-7. An identification on one robot, one value per drive size; no error bars are given.
+- FER: nothing identified is published. Its drives have the FR3's sizes and torque limits (87 Nm on joints 1-4,
+  12 Nm on 5-7), so the FR3's values are used; treat them as known to within a factor of about 2 (Menagerie's
+  ``franka_emika_panda`` model carries a uniform 0.1 kg m^2, a modelling choice rather than an identification).
+  ``franka-vs fit`` / the workbench's ``armature`` effect identify the value of a given robot from a log with
+  ``tau_J_d`` (see :class:`franka_vs_gym.validation.effects.Armature`).
+
 Conventions: SI units; joint index 0..6 in code; link ``i`` (1..7 in prose) is ``LINKS[i-1]``.
 """
 
@@ -117,6 +131,9 @@ FR3_DDQ_MAX = (10.0,) * 7
 FR3_DDDQ_MAX = (5000.0,) * 7
 FR3_TAU_MAX = (87.0, 87.0, 87.0, 87.0, 12.0, 12.0, 12.0)
 FR3_DTAU_MAX = (1000.0,) * 7
+# Effective armature (reflected motor and gear inertia as the torque controller feels it), kg m^2, joints 1..7.
+FR3_ROTOR_INERTIA = (0.195, 0.195, 0.195, 0.195, 0.074, 0.074, 0.074)  # Menagerie fr3.xml (PR 168)
+FER_ROTOR_INERTIA = FR3_ROTOR_INERTIA  # none published for the FER: the FR3's drives (see the module docstring)
 FR3_CARTESIAN_LIMITS = (3.0, 9.0, 4500.0, 2.5, 17.0, 8500.0, 2.62, 10.0, 5000.0)
 FR3_LINKS = (
     LinkInertial(2.9274653454, (0.0000004128, -0.0181251324, -0.0386035970),

@@ -14,7 +14,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from franka_vs_gym.policies.servo import IBVSPolicy, PBVSPolicy
+from franka_vs_gym.policies.servo import IBVSEyeToHandPolicy, IBVSPolicy, PBVSEyeToHandPolicy, PBVSPolicy
 from franka_vs_gym.policies.torque import ComputedTorquePolicy, JointImpedancePolicy
 
 AGENTS_DIR = Path(__file__).resolve().parent / "agents"
@@ -51,5 +51,5 @@ def __getattr__(name: str) -> Any:
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-__all__ = ["AGENTS_DIR", "AgentPolicy", "ComputedTorquePolicy", "IBVSPolicy", "JointImpedancePolicy", "PBVSPolicy",
-           "agent_path", "load_agent", "shipped_agents"]
+__all__ = ["AGENTS_DIR", "AgentPolicy", "ComputedTorquePolicy", "IBVSEyeToHandPolicy", "IBVSPolicy",
+           "JointImpedancePolicy", "PBVSEyeToHandPolicy", "PBVSPolicy", "agent_path", "load_agent", "shipped_agents"]

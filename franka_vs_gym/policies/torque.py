@@ -58,6 +58,15 @@ class _TorquePolicy:
     observation's time going backwards)."""
 
     controller: Any
+    #: the torque (7,) Nm of an output of 1 (None: outputs in Nm); see with_action_scale
+    action_scale: np.ndarray | None = None
+
+    def with_action_scale(self, scale: Any) -> _TorquePolicy:
+        """A copy whose actions are normalized by ``scale`` (an env's ``action_scale``, Nm; None: Nm): the torque
+        clipped at the scale (with ``clip``) and divided by it."""
+        from franka_vs_gym.policies.servo import _with_scale
+
+        return _with_scale(self, scale)
 
     def __init__(self, clip: bool) -> None:
         self.clip = bool(clip)
@@ -88,8 +97,12 @@ class _TorquePolicy:
             self.reset()
         self._last_time = t
         tau = self._torque(o)
+        scale = self.action_scale
         if self.clip:
-            tau = np.clip(tau, -self.tau_max, self.tau_max)
+            hi = self.tau_max if scale is None else np.minimum(self.tau_max, scale)
+            tau = np.clip(tau, -hi, hi)
+        if scale is not None:
+            tau = tau / scale
         return tau.astype(np.float32), None
 
 

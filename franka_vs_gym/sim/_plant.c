@@ -34,6 +34,22 @@
  * back at the held position with zero velocity and its joint actuators' controls are zeroed at every step, as the
  * Python brakes do before every step. Python reads the record after the call and raises the ControlException.
  *
+ * The same callback runs the robot interface's rate limiter (franka_vs_gym.sim.rate_limit, libfranka's limitRate)
+ * at every physics step, one 1 ms cycle per step, when the record's limiter mode (number FVS_L0) is set:
+ *
+ *   jnt_user[j][17..25] = [torque rate (Nm/s), acceleration (rad/s^2), jerk (rad/s^3), velocity cap (rad/s),
+ *                          offset (rad/s), k (1/s^2), q_upper (rad), q_lower (rad), tolerance (rad/s)]
+ *   record[13..65] = [mode (0 off, 1 torque, 2 joint velocity), first motor actuator, first velocity actuator,
+ *                     t (s: the time of the last cycle), target (7), before the last cycle: command (7),
+ *                     acceleration (7), commanded position (7); after it: command (7), acceleration (7),
+ *                     commanded position (7)]
+ *
+ * A cycle at a new time moves "after" to "before" and computes the next command from it and the target; a second
+ * call at the same time (an mj_forward between steps, then a new target) recomputes it from "before", so that only
+ * the physics steps advance the limiter. The command is written into the robot's motor (torque) or velocity servo
+ * (joint velocity) controls, with the arithmetic of rate_limit.py in the same order (the same bits). A robot whose
+ * brakes hold it is not limited.
+ *
  * The callback reads and writes only its arguments: it is thread-safe and never takes the GIL.
  */
 #define PY_SSIZE_T_CLEAN
@@ -48,8 +64,10 @@
 #define FVS_TAG 1179013959.0 /* "FVSG" as an integer, exactly representable */
 #define FVS_RTAG 1179013960.0 /* a robot whose reflexes the plant watches */
 #define FVS_RCOL 9 /* first reflex column (after the friction law's) */
-#define FVS_NUSER 17
-#define FVS_RSLOT 13
+#define FVS_NUSER 26
+#define FVS_RSLOT 66
+#define FVS_LCOL 17 /* first rate-limiter column (after the reflexes') */
+#define FVS_L0 13 /* the rate limiter's part of a robot's record */
 #define FVS_ARMED -1.0 /* record status of a robot whose reflexes the plant checks */
 
 static void fvs_brake(const mjModel* m, mjData* d, int j0, const mjtNum* s) {
@@ -153,6 +171,48 @@ int fvs_reflex_check(const mjModel* m, mjData* d, int j0, mjtNum* s) {
   return fvs_check(m, d, j0, s);
 }
 
+/* One rate-limiter cycle of the robot (joints j0.., record s); see the header comment. */
+static void fvs_limit(const mjModel* m, mjData* d, int j0, mjtNum* s) {
+  const mjtSize nu = m->nuser_jnt;
+  const int mode = (int)s[FVS_L0];
+  mjtNum* target = s + FVS_L0 + 4;
+  mjtNum *prev = target + 7, *prev_acc = target + 14, *prev_qd = target + 21;
+  mjtNum *now = target + 28, *now_acc = target + 35, *now_qd = target + 42;
+  if (d->time != s[FVS_L0 + 3]) {
+    for (int k = 0; k < 7; k++) {
+      prev[k] = now[k], prev_acc[k] = now_acc[k], prev_qd[k] = now_qd[k];
+    }
+    s[FVS_L0 + 3] = d->time;
+  }
+  const mjtNum dt = m->opt.timestep;
+  const int a0 = (int)s[mode == 1 ? FVS_L0 + 1 : FVS_L0 + 2];
+  if (a0 < 0 || a0 + 7 > m->nu) {
+    return;
+  }
+  for (int k = 0; k < 7; k++) {
+    const mjtNum* L = m->jnt_user + (j0 + k) * nu + FVS_LCOL;
+    mjtNum out;
+    if (mode == 1) {
+      const mjtNum r = (target[k] - prev[k]) / dt;
+      out = prev[k] + fmin(fmax(r, -L[0]), L[0]) * dt;
+      now_acc[k] = 0.0, now_qd[k] = prev_qd[k];
+    } else {
+      const mjtNum A = L[1], J = L[2], cap = L[3], off = L[4], kk = L[5], tol = L[8];
+      const mjtNum v = prev[k], a = prev_acc[k], qd = prev_qd[k];
+      const mjtNum up = fmin(cap, fmax(0.0, off + sqrt(fmax(0.0, kk * (L[6] - qd))))) - tol;
+      const mjtNum lo = fmax(-cap, fmin(0.0, -off - sqrt(fmax(0.0, kk * (qd - L[7]))))) + tol;
+      const mjtNum jerk = ((target[k] - v) / dt - a) / dt;
+      const mjtNum acc = a + fmin(fmax(jerk, -J), J) * dt;
+      const mjtNum hi_a = fmin((J / A) * (up - v), A), lo_a = fmax((J / A) * (lo - v), -A);
+      out = v + fmax(fmin(acc, hi_a), lo_a) * dt;
+      now_acc[k] = (out - v) / dt;
+      now_qd[k] = qd + out * dt;
+    }
+    now[k] = out;
+    d->ctrl[a0 + k] = out;
+  }
+}
+
 static void fvs_reflexes(const mjModel* m, mjData* d) {
   for (int j0 = 0; j0 + 7 <= m->njnt; j0++) {
     mjtNum* s = fvs_record(m, d, j0);
@@ -163,6 +223,9 @@ static void fvs_reflexes(const mjModel* m, mjData* d) {
       fvs_brake(m, d, j0, s);
     } else if (s[0] == FVS_ARMED && d->time > s[1]) {
       fvs_check(m, d, j0, s);
+    }
+    if (s[FVS_L0] != 0.0 && !(s[0] > 0.0)) {
+      fvs_limit(m, d, j0, s);
     }
   }
 }
@@ -283,6 +346,8 @@ PyMODINIT_FUNC PyInit__plant(void) {
       PyModule_AddIntConstant(mod, "RCOL", FVS_RCOL) < 0 ||
       PyModule_AddObject(mod, "RTAG", PyFloat_FromDouble(FVS_RTAG)) < 0 ||
       PyModule_AddIntConstant(mod, "RSLOT", FVS_RSLOT) < 0 ||
+      PyModule_AddIntConstant(mod, "LCOL", FVS_LCOL) < 0 ||
+      PyModule_AddIntConstant(mod, "L0", FVS_L0) < 0 ||
       PyModule_AddIntConstant(mod, "TASK_REC", fvs_plan_sizes(&p_fixed, &i_size)) < 0 ||
       PyModule_AddIntConstant(mod, "TASK_P_FIXED", p_fixed) < 0 ||
       PyModule_AddIntConstant(mod, "TASK_I_SIZE", i_size) < 0) {

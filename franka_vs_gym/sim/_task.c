@@ -284,7 +284,8 @@ enum {
   P_POSE_D = P_DEPTH_D + 4, /* desired pose vector (6) */
   P_COST = P_POSE_D + 6,    /* torque cost coefficient */
   P_COST_NOW = P_COST + 1,  /* this step's torque cost */
-  P_WORK = P_COST_NOW + 1,  /* work (S), low (S), high (S) */
+  P_ACT_SCALE = P_COST_NOW + 1, /* physical value of an action of 1 (7; ones for physical actions) */
+  P_WORK = P_ACT_SCALE + 7, /* work (S), low (S), high (S) */
 };
 enum {
   I_J0 = 0,    /* first joint (reflex record) */
@@ -294,7 +295,8 @@ enum {
   I_KEYS = 16, /* offsets in work of q, dq, features, features_desired, feature_depth, tag_pose, tag_pose_desired,
                   visible (-1 when absent) */
   I_S = 24,    /* work size S */
-  I_SIZE = 25,
+  I_LIM = 25,  /* userdata index of the rate limiter's target (7; -1: the command goes to the controls) */
+  I_SIZE = 26,
 };
 
 int fvs_plan_sizes(int* p_fixed, int* i_size) {
@@ -304,8 +306,10 @@ int fvs_plan_sizes(int* p_fixed, int* i_size) {
 }
 
 /* visual_pre(P, I, data_address, action, tau_cmd, tau_applied) -> 0: the action (a float32 or float64 vector of 7
- * inside the bounds) is copied to P's action, saturated at tau_max into the torque actuators' controls, tau_cmd
- * and tau_applied, and its torque cost computed; -1: nothing was done (the caller takes the general path). */
+ * inside the bounds) times the action scale is copied to P's action (the physical torque), saturated at tau_max
+ * into tau_cmd and either the torque actuators' controls and tau_applied or, rate-limited (I_LIM >= 0), the
+ * limiter's target in userdata (the plant's callback then writes the controls at every physics step), and its
+ * torque cost computed; -1: nothing was done (the caller takes the general path). */
 PyObject* fvs_visual_pre(PyObject* self, PyObject* const* args, Py_ssize_t nargs) {
   (void)self;
   if (nargs != 6) {
@@ -382,12 +386,17 @@ PyObject* fvs_visual_pre(PyObject* self, PyObject* const* args, Py_ssize_t nargs
   double* tau_applied = (double*)ta.buf;
   for (int k = 0; k < 7; k++) {
     const double hi = P[P_TAU_MAX + k];
-    double tau = v[k] < hi ? v[k] : hi; /* np.minimum then np.maximum with -tau_max */
+    const double u = v[k] * P[P_ACT_SCALE + k];
+    double tau = u < hi ? u : hi; /* np.minimum then np.maximum with -tau_max */
     tau = tau > -hi ? tau : -hi;
-    P[P_ACTION + k] = v[k];
+    P[P_ACTION + k] = u;
     tau_cmd[k] = tau;
-    tau_applied[k] = tau;
-    d->ctrl[I[I_CTRL] + k] = tau;
+    if (I[I_LIM] >= 0) {
+      d->userdata[I[I_LIM] + k] = tau;
+    } else {
+      tau_applied[k] = tau;
+      d->ctrl[I[I_CTRL] + k] = tau;
+    }
   }
   P[P_COST_NOW] = torque_cost_row(P + P_ACTION, P + P_TAU_MAX, P[P_COST]);
   PyBuffer_Release(&pb), PyBuffer_Release(&ib), PyBuffer_Release(&tc), PyBuffer_Release(&ta);

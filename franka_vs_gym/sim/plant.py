@@ -6,8 +6,8 @@ environment step's substeps are one call into MuJoCo and ``mujoco.batch`` can st
 
 MuJoCo's callbacks are global to a process, so the parameters live in each model: every joint of a robot carries
 its friction parameters in its user numbers (``jnt_user``, :data:`NUSER` per joint, the scene declares
-``<size nuser_jnt="17"/>``; columns 0-8 (:data:`FRICTION_COLS` of them) the friction law, 9-16 (from
-:data:`RCOL`) the reflexes'):
+``<size nuser_jnt="26"/>``; columns 0-8 (:data:`FRICTION_COLS` of them) the friction law, 9-16 (from
+:data:`RCOL`) the reflexes', 17-25 (from :data:`LCOL`) the rate limiter's limits):
 
 ====  =====================  =========
  col   meaning                 unit
@@ -41,11 +41,17 @@ position, velocity and tau_J range) at every physics step; a watched robot's joi
 ====  =====================  =========
 
 and each robot has a record of :data:`RSLOT` numbers in ``mjData.userdata`` (the scene declares
-``<size nuserdata="13 x robots"/>``; it is part of MuJoCo's integration state, so ``mj_getState``/``mujoco.batch``
+``<size nuserdata="66 x robots"/>``; it is part of MuJoCo's integration state, so ``mj_getState``/``mujoco.batch``
 carry it): status (-1 armed, 0 off, 1/2/3 the first violation: position, velocity, tau_J), the time after which
 states are checked (s), whether tau_J is checked, then the violation's time (s), joint, value, and the held joint
 positions (7, rad). From the violating step on the callback holds the robot (joints put back at the held position
 with zero velocity, its joint actuators' controls zeroed, at every step); Python reads the record after the call.
+
+From number :data:`L0` of the record on, the robot interface's rate limiter (``command_rates="limit"``,
+:mod:`franka_vs_gym.sim.rate_limit`) keeps its state: mode (0 off, 1 torque, 2 joint velocity), the first motor and
+velocity-servo actuator, the time of its last cycle, the target command, and the last command, acceleration and
+commanded position before and after that cycle; the callback runs one limiter cycle per physics step and writes the
+limited command into the controls, so a rate-limited control period stays one ``mj_step(m, d, n)`` call.
 
 Two robots in one scene, the dual-arm scene, or a batch of robots with randomised friction (one model each, see
 ``mujoco.batch.Batch.set_models``) each get their own law. Joints of other models never carry the tag, so the
@@ -66,15 +72,17 @@ from typing import Any
 import mujoco
 import numpy as np
 
-NUSER = 17  # user numbers per joint
+NUSER = 26  # user numbers per joint
 FRICTION_COLS = 9  # columns 0-8: the friction law
 RCOL = FRICTION_COLS  # columns RCOL..RCOL+7 (9-16): the reflexes
+LCOL = 17  # columns LCOL..LCOL+8 (17-25): the rate limiter's limits (RateLimits.plant_columns)
 TAG = 1179013959.0  # jnt_user[:, 0] of a joint whose friction the plant applies
 RTAG = 1179013960.0  # jnt_user[:, RCOL] of a joint whose robot's reflexes the plant checks
-RSLOT = 13  # userdata numbers per robot (its reflex record)
+RSLOT = 66  # userdata numbers per robot (its reflex record, then its rate limiter's state from L0)
+L0 = 13  # the rate limiter's part of a robot's record (see _plant.c)
 TASK_REC = 36  # numbers in a truth record of the visual tasks' kernels (franka_vs_gym/sim/_task.c)
-TASK_P_FIXED = 264  # numbers of a visual env's step plan before its observation work vectors (_task.c)
-TASK_I_SIZE = 25  # integers of a visual env's step plan (_task.c)
+TASK_P_FIXED = 271  # numbers of a visual env's step plan before its observation work vectors (_task.c)
+TASK_I_SIZE = 26  # integers of a visual env's step plan (_task.c)
 
 _native: Any = None
 _reason: str | None = None
@@ -98,6 +106,7 @@ else:
             _native = None
         elif _native.TAG != TAG or _native.NUSER != NUSER or getattr(_native, "RTAG", None) != RTAG \
                 or getattr(_native, "RSLOT", None) != RSLOT or getattr(_native, "RCOL", None) != RCOL \
+                or getattr(_native, "LCOL", None) != LCOL or getattr(_native, "L0", None) != L0 \
                 or getattr(_native, "TASK_REC", None) != TASK_REC \
                 or getattr(_native, "TASK_P_FIXED", None) != TASK_P_FIXED or not hasattr(_native, "tracking_post"):
             _reason = ("the compiled plant is older than its sources (franka_vs_gym/sim/_plant.c); rebuild it "
@@ -192,6 +201,6 @@ def plant_friction_torque(model: mujoco.MjModel, data: mujoco.MjData, dofs: Any)
     return -(with_cb - d.qfrc_passive)[np.asarray(dofs)]
 
 
-__all__ = ["FRICTION_COLS", "check", "NATIVE", "NUSER", "RCOL", "RSLOT", "RTAG", "TAG", "TASK_I_SIZE", "TASK_P_FIXED",
-           "TASK_REC", "friction_rows", "install", "plant_friction_torque", "tag_truth", "torque_cost", "tracking",
-           "tracking_batch", "tracking_post", "unavailable_reason", "visual_post", "visual_pre"]
+__all__ = ["FRICTION_COLS", "L0", "LCOL", "check", "NATIVE", "NUSER", "RCOL", "RSLOT", "RTAG", "TAG", "TASK_I_SIZE",
+           "TASK_P_FIXED", "TASK_REC", "friction_rows", "install", "plant_friction_torque", "tag_truth", "torque_cost",
+           "tracking", "tracking_batch", "tracking_post", "unavailable_reason", "visual_post", "visual_pre"]

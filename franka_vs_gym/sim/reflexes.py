@@ -43,8 +43,10 @@ The last three are limits on what a controller sends (libfranka's motion-generat
   are ViSP-level (vpRobotFranka smooths velocity commands with its own generator) and the environments hold an
   action for a whole control period (10-50 ms), which on the real robot would need an interpolating controller in
   between; the measured-state reflexes above still apply.
-- ``"limit"``: commands are rate-limited at every physics step to respect the limits, as libfranka's
-  ``franka::limitRate`` does (torque rate; velocity acceleration and jerk, without overshoot); nothing trips.
+- ``"limit"``: commands pass through the robot interface's rate limiter at every physics step (one 1 ms cycle per
+  step), as libfranka's ``franka::limitRate`` does by default (:mod:`franka_vs_gym.sim.rate_limit`: torque rate;
+  joint velocity, acceleration and jerk, and the FR3's position-based velocity limits); nothing trips. With the
+  compiled plant the limiter runs inside MuJoCo's step (``_plant.c``), so a control period stays one call.
 - ``"check"``: libfranka's own semantics with ``limit_rate = false``: a command that jumps by more than the limit
   allows within one 1 ms cycle raises the named ControlException.
 """
@@ -114,7 +116,10 @@ class Reflexes:
     command_rates : "pass", "limit" or "check" (see the module docstring).
     """
 
-    def __init__(self, sim: Any, limits: Any, *, enabled: bool = True, command_rates: str = "pass") -> None:
+    def __init__(self, sim: Any, limits: Any, *, enabled: bool = True, command_rates: str = "pass",
+                 rate_limits: Any = None) -> None:
+        from franka_vs_gym.sim.rate_limit import FER_LIMITS, JointRateLimiter
+
         self.sim = sim
         self.q_min, self.q_max = _limit(limits, "q_min"), _limit(limits, "q_max")
         self.dq_max, self.ddq_max = _limit(limits, "dq_max"), _limit(limits, "ddq_max")
@@ -139,7 +144,11 @@ class Reflexes:
         self._t_command = -1.0
         # the plant's record of this robot (franka_vs_gym.sim.plant); a record the plant never writes until install
         self._native = False
-        self._ud = np.zeros(13)
+        self._ud = np.zeros(66)
+        # the rate limiter of command_rates="limit" (its state lives in the plant's record when _lim_native)
+        self.rate_limits = FER_LIMITS if rate_limits is None else rate_limits
+        self._limiter = JointRateLimiter(self.rate_limits, self.dt)
+        self._lim_native = False
         self._t_from = -math.inf  # states at or before this time are not checked before a step (reset, recovery)
 
     @property
@@ -150,7 +159,11 @@ class Reflexes:
     def command_rates(self, mode: str) -> None:
         if mode not in COMMAND_RATE_MODES:
             raise ValueError(f"command_rates must be one of {COMMAND_RATE_MODES}, got {mode!r}")
+        changed = getattr(self, "_mode", mode) != mode
         self._mode = mode
+        if changed and hasattr(self, "_limiter"):  # the limiter starts afresh from the current state
+            self._reset_limiter(self._tau_applied.copy() if self._limiter_mode() == 1 else None)
+            self._update_mode()
 
     @property
     def limit_rate(self) -> bool:
@@ -187,12 +200,54 @@ class Reflexes:
         self._v_target[:] = 0.0
         self._v_ref[:] = 0.0
         self._a_ref[:] = 0.0
-        self._ramp_tau = bool(self.limit_rate and self._tau_applied.any())
-        self._ramp_vel = False
+        self._ramp_tau = self._ramp_vel = False
         self._check_tau = bool(np.any(self.sim._offset)) or bool(self.sim._torque_noise)
         if self._native:
             self._ud[2] = float(self._check_tau)
+        self._reset_limiter(torque_from)
         self._update_mode()
+
+    def _limiter_mode(self) -> int:
+        """The rate limiter's mode for the current control state: 1 torque, 2 joint velocity, 0 off."""
+        if self._mode != "limit":
+            return 0
+        from franka_vs_gym.sim.robot import RobotState
+
+        state = getattr(self.sim, "_state", None)
+        return {RobotState.STATE_FORCE_TORQUE_CONTROL: 1, RobotState.STATE_VELOCITY_CONTROL: 2}.get(state, 0)
+
+    def _reset_limiter(self, torque_from: np.ndarray | None = None) -> None:
+        """Start the rate limiter from rest at the current position (torque control: from ``torque_from``); in
+        the plant's record when it runs there (compiled plant, no command delay), else in Python at every step."""
+        mode = self._limiter_mode()
+        q = self.sim._qpos
+        self._limiter.reset(q, torque_from if mode == 1 else None)
+        from franka_vs_gym.sim import plant
+
+        self._lim_native = bool(mode and self._native and not self.sim._delay_steps)
+        if self._native:
+            L = self._ud[plant.L0:]
+            L[0] = float(mode) if self._lim_native else 0.0
+            L[3] = -1.0
+            L[4:] = 0.0
+            # (a reset of the data zeroes userdata: the actuators are written with every start)
+            L[1], L[2] = self.sim._motor.start, self.sim._vel.start
+            if self._lim_native:
+                for i in (0, 1, 4):  # target, then the last command before and after a cycle
+                    L[4 + 7 * i:11 + 7 * i] = self._limiter.last
+                L[25:32] = q
+                L[46:53] = q
+        self._ramp_tau = mode == 1 and not self._lim_native
+        self._ramp_vel = mode == 2 and not self._lim_native
+
+    def limiter_target(self) -> np.ndarray | None:
+        """The rate limiter's target command (7,) in the plant's record (a view), or None when the limiter does not
+        run in the plant."""
+        if not self._lim_native:
+            return None
+        from franka_vs_gym.sim import plant
+
+        return self._ud[plant.L0 + 4:plant.L0 + 11]
 
     # ------------------------------------------------------------------ commands
     def command_torque(self, tau: np.ndarray) -> None:
@@ -200,8 +255,8 @@ class Reflexes:
         beyond dtau_max per 1 ms cycle is a torque discontinuity."""
         self.raise_if_error()
         if self._mode == "limit":
-            self._ramp_tau = bool((tau != self._tau_applied).any())
-            self._update_mode()
+            if self._lim_native:
+                self.limiter_target()[:] = tau
             return
         if self.enabled and self._mode == "check":
             rate = np.abs(tau - self._tau_applied) / CYCLE
@@ -219,8 +274,8 @@ class Reflexes:
         self.raise_if_error()
         self._v_target[:] = dq
         if self._mode == "limit":
-            self._ramp_vel = bool((dq != self._v_ref).any() or self._a_ref.any())
-            self._update_mode()
+            if self._lim_native:
+                self.limiter_target()[:] = dq
             return
         if self.enabled and self._mode == "check":
             if self.sim.time - self._t_command > 1.5 * CYCLE:  # held since: no acceleration any more
@@ -268,7 +323,10 @@ class Reflexes:
                 u[jids, c + 2] = np.arange(7)
                 u[jids, c + 3], u[jids, c + 4], u[jids, c + 5] = self.q_min, self.q_max, self.dq_max
                 u[jids, c + 6], u[jids, c + 7] = self.tau_max, sim._offset
+                u[jids, plant.LCOL:plant.LCOL + 9] = self.rate_limits.plant_columns()
                 self._ud = world.data.userdata[off:off + plant.RSLOT]
+                self._ud[plant.L0 + 1] = sim._motor.start
+                self._ud[plant.L0 + 2] = sim._vel.start
                 self._native = True
                 self._clear_record()
         self._hook = no_op
@@ -382,7 +440,7 @@ class Reflexes:
             self._t_from = world.data.time
         if self._native:
             ud = self._ud
-            ud[:] = 0.0
+            ud[:13] = 0.0
             ud[1] = self._t_from
             ud[2] = float(self._check_tau)
             self._arm()
@@ -473,43 +531,19 @@ class Reflexes:
             self._update_mode()
 
     def _ramp_torque(self) -> None:
+        """One rate-limiter cycle of the torque command in Python (without the compiled plant, or with a command
+        delay: the delayed command is the target)."""
         sim = self.sim
         target = sim._ctrl_tau if sim._delay_steps else sim._tau_cmd
-        step = self.dtau_max * self.dt
-        d = np.clip(target - self._tau_applied, -step, step)
-        self._tau_applied += d
-        sim._ctrl_tau[:] = self._tau_applied
-        if not sim._delay_steps and not d.any():
-            self._ramp_tau = False
-            self._update_mode()
+        sim._ctrl_tau[:] = self._limiter.torque(target)
+        self._tau_applied[:] = sim._ctrl_tau
 
     def _ramp_velocity(self) -> None:
-        """Jerk- and acceleration-limited tracking of the velocity target, per joint, without overshoot: the
-        acceleration heads for the most that can still be ramped back to zero at the jerk limit before the target
-        is reached (at most ddq_max) and moves there at the jerk limit; the reference lands on the target (a
-        discrete stop may overshoot it by at most dddq_max dt^2, 0.01 rad/s, and comes back)."""
-        dt, J, A = self.dt, self.dddq_max, self.ddq_max
-        v, a, vt = self._v_ref, self._a_ref, self._v_target
-        e = vt - v
-        # the most acceleration from which the jerk limit still brings it to zero (one step at a time) in |e|:
-        # a^2 / (2 J) + a dt / 2 = |e|
-        a_des = np.sign(e) * np.minimum(A, J * (np.sqrt(0.25 * dt * dt + 2.0 * np.abs(e) / J) - 0.5 * dt))
-        a_new = np.clip(np.clip(a_des, a - J * dt, a + J * dt), -A, A)
-        v_new = v + a_new * dt
-        past = (vt - v_new) * e <= 0.0  # would reach or cross the target: land on it if the jerk limit allows
-        if past.any():
-            a_land = np.clip(e / dt, a - J * dt, a + J * dt)
-            a_new[past] = a_land[past]
-            v_new[past] = v[past] + a_land[past] * dt
-        done = (np.abs(vt - v_new) < 1e-12) & (np.abs(a_new) <= J * dt)
-        v_new[done] = vt[done]
-        v[:] = v_new
-        a[:] = a_new
+        """One rate-limiter cycle of the joint velocity command in Python (without the compiled plant)."""
+        v = self._limiter.velocity(self._v_target)
+        self._a_ref[:] = self._limiter.last_acc
+        self._v_ref[:] = v
         self.sim._ctrl_vel[:] = v
-        if done.all():
-            a[:] = 0.0
-            self._ramp_vel = False
-            self._update_mode()
 
     # ------------------------------------------------------------------ tripping
     def _trip(self, reasons: tuple[str, ...], detail: str, hold: np.ndarray | None = None) -> None:
@@ -528,6 +562,12 @@ class Reflexes:
         self._v_ref[:] = 0.0
         self._a_ref[:] = 0.0
         self._ramp_tau = self._ramp_vel = False
+        self._limiter.reset(self._hold)
+        if self._lim_native:
+            from franka_vs_gym.sim import plant
+
+            self._ud[plant.L0 + 4:] = 0.0
+            self._ud[plant.L0 + 3] = -1.0
         self._update_mode()
         raise ControlException(reasons, detail)
 

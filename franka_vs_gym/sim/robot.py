@@ -16,7 +16,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from franka_vs_gym.assets.mjcf import RobotSpec, SceneSpec, TagSpec, mat2quat
+from franka_vs_gym.assets.mjcf import CameraSpec, RobotSpec, SceneSpec, TagSpec, mat2quat
 from franka_vs_gym.model.checks import as_pose, as_vector
 from franka_vs_gym.model.config import ModelConfig, RigidBody, Tool, resolve_config
 from franka_vs_gym.model.description import FER, RobotDescription
@@ -30,6 +30,7 @@ from franka_vs_gym.model.geometry import (
     twist_transform,
 )
 from franka_vs_gym.sim import plant
+from franka_vs_gym.sim.rate_limit import rate_limits
 from franka_vs_gym.sim.reflexes import ARMED, ControlException, Reflexes, position_profile_time
 from franka_vs_gym.sim.world import SimulationDiverged, SimWorld
 from franka_vs_gym.sim.world import no_op as _no_op
@@ -119,6 +120,8 @@ class FrankaSim:
         Apply the configured joint friction in the plant (default True). The model's friction is unaffected.
     camera : bool
         Add the wrist camera.
+    cameras : list of CameraSpec
+        Cameras fixed in the world (e.g. an eye-to-hand camera).
     tags : list of TagSpec
         AprilTags in the scene (e.g. ``[TagSpec()]``: an 8 cm tag id 0 on the table).
     world, prefix :
@@ -131,10 +134,11 @@ class FrankaSim:
         velocity or torque beyond its limit holds the joints (brakes) and raises
         :class:`~franka_vs_gym.sim.reflexes.ControlException` with libfranka's reason name; ``current_errors``
         lists them and ``automatic_error_recovery()`` clears them. See :mod:`franka_vs_gym.sim.reflexes`.
-    command_rates : "pass" (default: commands reach the joints as given), "limit" (rate-limited to the torque-rate,
-        acceleration and jerk limits, as libfranka's ``limitRate``) or "check" (a command that jumps beyond those
-        limits within one 1 ms cycle trips ``controller_torque_discontinuity`` or the joint motion generator's
-        discontinuity reflexes, as a raw libfranka loop does).
+    command_rates : "pass" (default: commands reach the joints as given), "limit" (through the robot interface's
+        rate limiter, libfranka's ``limitRate`` with the robot's published limits: franka_vs_gym.sim.rate_limit)
+        or "check" (a command that jumps beyond those limits within one 1 ms cycle trips
+        ``controller_torque_discontinuity`` or the joint motion generator's discontinuity reflexes, as a raw
+        libfranka loop does).
     """
 
     def __init__(self, model: Any = None, *, robot: RobotDescription | str | None = None, friction: bool = True,
@@ -142,8 +146,9 @@ class FrankaSim:
                  world: SimWorld | None = None, prefix: str = "r0_", q0: Any = None, ft_sensor: bool = False,
                  undeclared_payload: RigidBody | None = None, torque_noise: float = 0.0, seed: int | None = None,
                  extra_worldbody: str = "", extra_assets: str = "", reflexes: bool = True,
-                 command_rates: str = "pass") -> None:
+                 command_rates: str = "pass", cameras: list[CameraSpec] | None = None) -> None:
         world, spec, cfg = self._make_world(model, robot, world, prefix, camera=camera, tags=tags, table=table,
+                                            cameras=cameras,
                                             timestep=timestep, ft_sensor=ft_sensor,
                                             undeclared_payload=undeclared_payload, extra_worldbody=extra_worldbody,
                                             extra_assets=extra_assets)
@@ -159,8 +164,11 @@ class FrankaSim:
         self._setup_delay(cfg)
         self._tau_cmd = np.zeros(7)
         self._offset = cfg.torque_offset.copy()
-        self.servo_gains = np.array(cfg.robot.servo_gains, dtype=np.float64)  # joint velocity servo, Nm s/rad
+        self.rotor_inertia = np.array(cfg.robot.rotor_inertia, dtype=np.float64)  # effective armature, kg m^2
+        self.servo_gains = self._servo_gains(cfg)  # joint velocity servo, Nm s/rad
         self._torque_noise = float(torque_noise)
+        if not (math.isfinite(self._torque_noise) and self._torque_noise >= 0):
+            raise ValueError(f"torque_noise must be a finite number >= 0 Nm (standard deviation), got {torque_noise}")
         self._rng = np.random.default_rng(seed)
         self._state = RobotState.STATE_STOP
         self._eMc = DEFAULT_eMc.copy()
@@ -168,7 +176,8 @@ class FrankaSim:
         self._hook = self._make_pre_step()
         world.add_pre_step(self._hook)
         # the reflexes' limits come from the robot description (config.robot)
-        self._reflexes = Reflexes(self, cfg.robot.limits, enabled=reflexes, command_rates=command_rates)
+        self._reflexes = Reflexes(self, cfg.robot.limits, enabled=reflexes, command_rates=command_rates,
+                                  rate_limits=rate_limits(cfg.robot))
         self._reflexes.install(world)
         if self._cam >= 0:
             self.set_eMc(self._eMc)
@@ -187,6 +196,7 @@ class FrankaSim:
             if not (timestep > 0 and math.isfinite(timestep)):
                 raise ValueError(f"timestep must be > 0 s, got {timestep}")
             world = SimWorld(SceneSpec(robots=[spec], table=scene["table"], tags=list(scene["tags"] or []),
+                                       cameras=list(scene["cameras"] or []),
                                        timestep=timestep, extra_worldbody=scene["extra_worldbody"],
                                        extra_assets=scene["extra_assets"]))
             return world, spec, cfg
@@ -195,6 +205,17 @@ class FrankaSim:
             raise ValueError(f"no robot with prefix {prefix!r} in the world "
                              f"(have {[r.prefix for r in world.scene.robots]})")
         return world, specs[0], specs[0].config
+
+    def _servo_gains(self, cfg: ModelConfig) -> np.ndarray:
+        """The joint velocity servo's gains (7,) Nm s/rad: the description's ``servo_gains`` (bandwidth
+        ``kv / B_ii`` at the neutral pose) plus the motors' effective armature at the same bandwidth, so the servo
+        keeps its bandwidth on the heavier joint (at most 0.5 / dt, so ``kv dt / (B_ii + rotor)`` stays below 1)."""
+        kv = np.array(cfg.robot.servo_gains, dtype=np.float64)
+        if not self.rotor_inertia.any():
+            return kv
+        b = np.diag(self.model.mass_matrix(cfg.robot.neutral()))
+        bandwidth = np.minimum(kv / b, 0.5 / self.dt)  # rad/s; at most half the implicit step's bound
+        return kv + bandwidth * self.rotor_inertia
 
     def _use_mounting_gravity(self, cfg: ModelConfig) -> None:
         """Gravity as the robot sees it: the world's gravity expressed in this robot's base frame (mounting)."""
@@ -257,6 +278,9 @@ class FrankaSim:
         damping = m.dof_damping[self._vs].copy()
         self._joint_damping = damping if damping.any() else None
         self._implicit_actuators = int(m.opt.integrator) == _IMPLICITFAST
+        rot = m.dof_armature[self._vs] - self.spec.config.armature
+        self._rotor = rot if np.abs(rot).max() > 0 else None  # the plant's effective armature (motor side)
+        self._rotor_per_dt = None if self._rotor is None else self._rotor / m.opt.timestep
 
     def _applied_torque(self) -> np.ndarray:
         """The joint actuators' torque over the last physics step (7,), Nm: gravity compensation, torque motors and
@@ -268,14 +292,21 @@ class FrankaSim:
         servos apply their force at the end-of-step velocity dq1 (``Kv (dq_set - dq1)``) and the joints applied
         ``qfrc_actuator + (qDeriv + damping) (dq1 - dq0)`` (``qDeriv``'s diagonal at these dofs is ``-Kv -
         damping``; it is the step's own, whatever the gains are now). Without servo gains (torque control) nothing
-        is added. A call right after a step sees that step; after ``reset`` (dq1 = dq0) nothing is added."""
+        is added. A call right after a step sees that step; after ``reset`` (dq1 = dq0) nothing is added.
+
+        With an effective armature (``RobotDescription.rotor_inertia``) the actuators drive the motors, and the
+        link side (the torque sensor) receives their torque minus what accelerates the motors over the step:
+        ``rotor (dq1 - dq0) / dt`` is subtracted, so tau_J stays the link-side torque."""
         tau = self._qfrc_actuator
+        rot = self._rotor_per_dt
         if not self._implicit_actuators:
-            return tau
+            return tau if rot is None else tau - rot * (self._qvel - self._servo_velocity)
         k = self._deriv_diag if self._deriv_idx is None else self._d.qDeriv[self._deriv_idx]
         if self._joint_damping is not None:
             k = k + self._joint_damping
-        if not np.count_nonzero(k):
+        if rot is not None:
+            k = k - rot
+        elif not np.count_nonzero(k):
             return tau
         dv = self._qvel - self._servo_velocity
         dv *= k
@@ -883,7 +914,8 @@ class FrankaSim:
         steps such a robot's data elsewhere (``mujoco.batch``) writes its controls as ``set_force_torque`` /
         ``set_velocity`` would and then calls :meth:`commands_from_controls`."""
         r, w = self._reflexes, self.world
-        return (self._native and r._native and r._enabled and r._mode == "pass" and r._hold is None
+        return (self._native and r._native and r._enabled and (r._mode == "pass" or r._lim_native)
+                and r._hold is None
                 and not r._relaxed and not r._check_tau and not r.errors and r._ud[0] == ARMED
                 and not self._delay_steps and self._meas_fifo is None and not w._active and not w._post_hooks
                 and len(w._checks) == 1 and self._state == RobotState(control_state))
@@ -893,6 +925,13 @@ class FrankaSim:
         robot's command state what ``set_force_torque`` (torque control) or ``set_velocity`` (velocity control)
         leaves behind with ``command_rates="pass"`` for those controls."""
         r = self._reflexes
+        target = r.limiter_target()
+        if target is not None:  # rate-limited: the command is the limiter's target (the controls its output)
+            if self._state == RobotState.STATE_FORCE_TORQUE_CONTROL:
+                self._tau_cmd[:] = target
+            else:
+                r._v_target[:] = target
+            return
         if self._state == RobotState.STATE_FORCE_TORQUE_CONTROL:
             self._tau_cmd[:] = self._ctrl_tau
             r._tau_applied[:] = self._ctrl_tau

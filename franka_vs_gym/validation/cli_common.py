@@ -37,9 +37,15 @@ def add_common(parser: argparse.ArgumentParser) -> None:
                         help=f"longest gap bridged by interpolation, s (default {GAP_FACTOR:g} median sample periods "
                              "of the log, at least 0.05)")
     parser.add_argument("--report", metavar="DIR", default=None,
-                        help="write a Markdown report with figures into DIR")
+                        help="write the report into DIR: report.html (one interactive file, opens offline), "
+                             "report.md and PNG figures")
+    parser.add_argument("--mcap", metavar="FILE", default=None,
+                        help="write the run as an MCAP log (measurement, model, residual, each effect's torque, "
+                             "findings) for Foxglove or PlotJuggler")
     parser.add_argument("--force", action="store_true", help="overwrite existing output files")
-    parser.add_argument("--quiet", action="store_true", help="no progress messages on stderr")
+    parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    parser.add_argument("--verbose", "-v", action="store_true",
+                        help="every stage on its own line, and the details (assumptions, ranking, notes)")
 
 
 def settings_from(args: argparse.Namespace) -> CleanSettings:
@@ -51,6 +57,38 @@ def load_from(args: argparse.Namespace):
     from franka_vs_gym.validation.logs import load_log
 
     return load_log(args.log, topic=args.topic, progress=not getattr(args, "quiet", False))
+
+
+def stage_views(args: argparse.Namespace, outputs) -> tuple[Path | None, Path | None]:
+    """The staged report folder and MCAP file (refused before any work when they exist or are inputs)."""
+    report = outputs.folder(args.report, what="report folder") if args.report else None
+    mcap = outputs.file(args.mcap, what="MCAP log") if getattr(args, "mcap", None) else None
+    return report, mcap
+
+
+def write_views(res, report_dir: Path | None, mcap_file: Path | None, *, diagnosis=None, fit=None,
+                model_file: str | None = None, summary: dict | None = None, verbose: bool = True) -> None:
+    """The report (report.html, report.md and figures) and the MCAP log of one run, from its results."""
+    from franka_vs_gym.validation import report
+    from franka_vs_gym.validation.compare import progress
+
+    if report_dir is not None:
+        progress("writing the report: report.html, report.md and figures", verbose)
+        report.markdown_report(res, report_dir, diagnosis=diagnosis, fit=fit, overwrite=True)
+        report.html_report(res, report_dir, diagnosis=diagnosis, fit=fit, model_file=model_file, overwrite=True)
+    if mcap_file is not None:
+        progress("writing the MCAP log", verbose)
+        report.write_mcap(mcap_file, res, diagnosis=diagnosis, fit=fit, summary=summary)
+
+
+def say_outputs(args: argparse.Namespace) -> list[str]:
+    """Where the outputs went, for the terminal."""
+    out = []
+    if args.report:
+        out.append(f"report: {Path(args.report) / 'report.html'} (open in a browser)")
+    if getattr(args, "mcap", None):
+        out.append(f"MCAP log: {args.mcap} (Foxglove, PlotJuggler)")
+    return out
 
 
 def input_paths(args: argparse.Namespace) -> list[Path]:

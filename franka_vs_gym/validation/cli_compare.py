@@ -5,10 +5,17 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from pathlib import Path
 
-from franka_vs_gym.validation.cli_common import add_common, input_paths, load_from, settings_from
-from franka_vs_gym.validation.compare import compare, format_compare, progress
+from franka_vs_gym.validation.cli_common import (
+    add_common,
+    input_paths,
+    load_from,
+    say_outputs,
+    settings_from,
+    stage_views,
+    write_views,
+)
+from franka_vs_gym.validation.compare import compare, format_compare, progress_line
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -24,20 +31,15 @@ def main(args: argparse.Namespace) -> int:
     from franka_vs_gym.io import OutputSet
 
     verbose = not args.quiet
-    # the report folder is refused (exists without --force, is an input...) before the comparison runs, and
-    # appears complete or not at all
+    # the report folder and the MCAP file are refused (exist without --force, are inputs...) before the comparison
+    # runs, and appear complete or not at all
     with OutputSet(force=args.force, inputs=input_paths(args)) as outputs:
-        report_tmp = outputs.folder(args.report, what="report folder") if args.report else None
-        res = compare(load_from(args), args.model, tool=args.tool, robot=args.robot, rigid_body=args.rigid_body,
-                      settings=settings_from(args),
-                      do_replay=not args.no_replay, replay_mode=args.replay_mode, verbose=verbose)
-        if report_tmp is not None:
-            from franka_vs_gym.validation.report import markdown_report
-
-            progress("writing the report and figures", verbose)
-            markdown_report(res, report_tmp, overwrite=True)
-    if args.report:
-        progress(f"report: {Path(args.report) / 'report.md'}", verbose)
+        report_tmp, mcap_tmp = stage_views(args, outputs)
+        with progress_line(args.verbose):
+            res = compare(load_from(args), args.model, tool=args.tool, robot=args.robot, rigid_body=args.rigid_body,
+                          settings=settings_from(args),
+                          do_replay=not args.no_replay, replay_mode=args.replay_mode, verbose=verbose)
+            write_views(res, report_tmp, mcap_tmp, model_file=args.model, verbose=verbose)
     # values a user may mean but outside the FER's specification (e.g. a 5 kg tool): said, not refused
     model_warnings = res.config.plausibility_warnings()
     for w in model_warnings:
@@ -46,4 +48,6 @@ def main(args: argparse.Namespace) -> int:
         print(json.dumps({**res.to_dict(), "model_warnings": model_warnings}))
     else:
         print(format_compare(res))
+        for line in say_outputs(args):
+            print(line)
     return 0

@@ -4,8 +4,10 @@ the model lack, and is anything left that the library cannot name?
 ``--json`` prints one JSON object: ``rmse_tau`` (7, Nm), ``rmse_tau_total``, ``noise_floor`` (7), ``ranking`` (each
 effect alone, best first: ``effect``, ``joints``, ``params``, ``rmse_tau_after``, ``score``, ``significant``,
 ``plausible``, ``removed_rms``, ``problems``), ``verdict`` (the strongest selected effect or ``"none"``),
-``selected`` (the set fitted together: ``effect``, ``joints``, ``params``, ``contribution`` (Nm removed per joint in
-context), ``score``), ``rmse_tau_selected``, ``explained`` and ``unexplained`` (what the residual still follows),
+``selected`` (the set fitted together: ``effect``, ``joints``, ``params``, ``params_ci95`` (the same keys, each
+number replaced by its 95 % interval ``[low, high]``, ``null`` where the log cannot identify it), ``correlations``
+(parameter pairs with abs(r) > 0.9), ``unidentifiable`` (combinations the log cannot separate, in words),
+``contribution`` (Nm removed per joint in context), ``score``), ``rmse_tau_selected``, ``explained`` and ``unexplained`` (what the residual still follows),
 ``assumptions`` (tool, gravity, rate, cleaning, warnings) and ``notes`` (why effects were rejected). Progress goes to
 stderr.
 """
@@ -18,8 +20,16 @@ import sys
 
 import numpy as np
 
-from franka_vs_gym.validation.cli_common import add_common, input_paths, load_from, settings_from
-from franka_vs_gym.validation.compare import progress
+from franka_vs_gym.validation.cli_common import (
+    add_common,
+    input_paths,
+    load_from,
+    say_outputs,
+    settings_from,
+    stage_views,
+    write_views,
+)
+from franka_vs_gym.validation.compare import progress_line
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -31,57 +41,63 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    from franka_vs_gym.io import OutputSet
     from franka_vs_gym.validation.diagnose import diagnose
+    from franka_vs_gym.validation.report.content import correlation_lines, next_command, verdict_lines
 
     verbose = not args.quiet
     effects = None if args.effects is None else [e for e in args.effects.split(",") if e.strip()]
-    from franka_vs_gym.io import OutputSet
-
     with OutputSet(force=args.force, inputs=input_paths(args)) as outputs:
-        report_tmp = outputs.folder(args.report, what="report folder") if args.report else None
-        d = diagnose(load_from(args), args.model, rigid_body=args.rigid_body, effects=effects,
-                     settings=settings_from(args), verbose=verbose, tool=args.tool, robot=args.robot)
-        if report_tmp is not None:
-            from franka_vs_gym.validation.compare import compare
-            from franka_vs_gym.validation.report import markdown_report
+        report_tmp, mcap_tmp = stage_views(args, outputs)
+        with progress_line(args.verbose):
+            d = diagnose(load_from(args), args.model, rigid_body=args.rigid_body, effects=effects,
+                         settings=settings_from(args), verbose=verbose, tool=args.tool, robot=args.robot)
+            model_warnings = d.config.plausibility_warnings()
+            if report_tmp is not None or mcap_tmp is not None:
+                from franka_vs_gym.validation.compare import compare
 
-            progress("writing the report and figures", verbose)
-            res = compare(d.data, d.config, do_replay=False)
-            markdown_report(res, report_tmp, diagnosis=d, overwrite=True)
-    if args.report:
-        progress(f"report: {args.report}/report.md", verbose)
+                res = compare(d.data, d.config, do_replay=False)
+                write_views(res, report_tmp, mcap_tmp, diagnosis=d, model_file=args.model,
+                            summary={**d.to_dict(), "model_warnings": model_warnings}, verbose=verbose)
     # values a user may mean but outside the FER's specification (e.g. a 5 kg tool): said, not refused
-    model_warnings = d.config.plausibility_warnings()
     for w in model_warnings:
         print(f"franka-vs diagnose: warning: {w}", file=sys.stderr)
     if args.json:
         print(json.dumps({**d.to_dict(), "model_warnings": model_warnings}))
         return 0
+    # the verdict with its fitted values first; details with --verbose
+    for line in verdict_lines(d):
+        print(line)
+    for s in d.selection:
+        for line in correlation_lines(getattr(s, "correlations", None), verbose=args.verbose):
+            print(line)
+    after = (f" -> {np.round(d.rmse_tau_selected, 3).tolist()} with the selected set (held out)"
+             if d.rmse_tau_selected is not None and d.selection else "")
+    print(f"torque RMSE (Nm): {np.round(d.rmse_tau, 3).tolist()}{after}")
+    print(f"noise floor (Nm): {np.round(d.noise_floor, 3).tolist()}")
     a = d.assumptions
-    print(f"assumptions: tool {a['tool']} ({a['tool_source']}), gravity {a['gravity_m_per_s2']} m/s^2, log rate "
-          f"{a['log_rate_hz']} Hz, processed at {a['resampled_to_hz']:g} Hz, low-pass {a['cleaning']['lowpass_hz']:g} "
-          f"Hz, {a['cleaning']['stale_rows_dropped']} stale rows dropped")
-    if a.get("log_read_as"):
-        print(f"log read as: {a['log_read_as']}")
     for w in a["warnings"]:
         print(f"warning: {w}")
-    print(f"baseline RMSE (Nm): {np.round(d.rmse_tau, 3).tolist()}  total {d.rmse_tau_total:.3f}")
-    print(f"noise floor   (Nm): {np.round(d.noise_floor, 3).tolist()}")
-    print("each effect alone:")
-    print("rank  effect                               score  sig  plaus  joints                 RMSE after (Nm)")
-    for i, c in enumerate(d.ranking):
-        print(f"{i + 1:4d}  {c.effect:34s} {c.score:8.1f}  {'yes' if c.significant else 'no ':3s}  "
-              f"{'yes' if c.plausible else 'no ':5s}  {str(c.joints):22s} {np.round(c.rmse_tau_after, 3).tolist()}")
-    print(f"verdict: {d.verdict}")
-    for s in d.selection:
-        print(f"selected: {s.effect:26s} joints {s.joints}  removes (Nm) {np.round(s.contribution, 3).tolist()}")
-    if d.rmse_tau_selected is not None and d.selection:
-        print(f"held-out RMSE with the selected set (Nm): {np.round(d.rmse_tau_selected, 3).tolist()}")
-    for n in d.notes:
-        print(f"note: {n}")
-    if d.unexplained is not None:
-        print(f"explained: {'yes' if d.unexplained.explained else 'NO'} - {' '.join(d.unexplained.text)}")
-    if d.selected:
-        names = [s.effect for s in d.selection]
-        print(f"add together: franka-vs fit {args.log} --add {','.join(names)} -o calibrated.json")
+    if args.verbose:
+        print(f"assumptions: tool {a['tool']} ({a['tool_source']}), gravity {a['gravity_m_per_s2']} m/s^2, log rate "
+              f"{a['log_rate_hz']} Hz, processed at {a['resampled_to_hz']:g} Hz, low-pass "
+              f"{a['cleaning']['lowpass_hz']:g} Hz, {a['cleaning']['stale_rows_dropped']} stale rows dropped")
+        if a.get("log_read_as"):
+            print(f"log read as: {a['log_read_as']}")
+        print("each effect alone:")
+        print("rank  effect                               score  sig  plaus  joints                 RMSE after (Nm)")
+        for i, c in enumerate(d.ranking):
+            print(f"{i + 1:4d}  {c.effect:34s} {c.score:8.1f}  {'yes' if c.significant else 'no ':3s}  "
+                  f"{'yes' if c.plausible else 'no ':5s}  {str(c.joints):22s} "
+                  f"{np.round(c.rmse_tau_after, 3).tolist()}")
+        for s in d.selection:
+            print(f"selected: {s.effect:26s} joints {s.joints}  removes (Nm) {np.round(s.contribution, 3).tolist()}")
+        for n in d.notes:
+            print(f"note: {n}")
+    else:
+        print(f"tool {a['tool']} ({a['tool_source']}); {len(d.ranking)} effects ranked, {len(d.notes)} notes "
+              "(--verbose shows the ranking, the notes and the assumptions)")
+    for line in say_outputs(args):
+        print(line)
+    print(f"next: {next_command(args.log, d)}")
     return 0

@@ -10,8 +10,16 @@ from pathlib import Path
 
 import numpy as np
 
-from franka_vs_gym.validation.cli_common import add_common, input_paths, load_from, settings_from
-from franka_vs_gym.validation.compare import progress
+from franka_vs_gym.validation.cli_common import (
+    add_common,
+    input_paths,
+    load_from,
+    say_outputs,
+    settings_from,
+    stage_views,
+    write_views,
+)
+from franka_vs_gym.validation.compare import progress_line
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -37,47 +45,58 @@ def main(args: argparse.Namespace) -> int:
     verbose = not args.quiet
     if not 0 <= args.holdout < 0.9:
         raise ValueError(f"--holdout must be in [0, 0.9), got {args.holdout}")
-    # the model and the report appear together or not at all; outputs are refused before the fit runs, and no
-    # output may be one of the inputs (the log, its sidecar, --model), whatever --force says
+    # the model, the report and the MCAP log appear together or not at all; outputs are refused before the fit
+    # runs, and no output may be one of the inputs (the log, its sidecar, --model), whatever --force says
     with OutputSet(force=args.force, inputs=input_paths(args)) as outputs:
         model_tmp = outputs.file(out, what="calibrated model file")
-        report_tmp = outputs.folder(args.report, what="report folder") if args.report else None
-        res = fit_effects(load_from(args), effects, args.model, rigid_body=args.rigid_body,
-                          settings=settings_from(args), verbose=verbose, holdout=args.holdout or None,
-                          tool=args.tool, robot=args.robot)
-        res.after.save(model_tmp, overwrite=True)
-        if report_tmp is not None:
-            from franka_vs_gym.validation.compare import compare
-            from franka_vs_gym.validation.report import markdown_report
+        report_tmp, mcap_tmp = stage_views(args, outputs)
+        with progress_line(args.verbose):
+            res = fit_effects(load_from(args), effects, args.model, rigid_body=args.rigid_body,
+                              settings=settings_from(args), verbose=verbose, holdout=args.holdout or None,
+                              tool=args.tool, robot=args.robot)
+            res.after.save(model_tmp, overwrite=True)
+            model_warnings = res.after.plausibility_warnings()  # values outside the FER's specification
+            if report_tmp is not None or mcap_tmp is not None:
+                from franka_vs_gym.validation.compare import compare
 
-            progress("writing the report and figures", verbose)
-            cmp_after = compare(res.data, res.after, do_replay=False)
-            markdown_report(cmp_after, report_tmp, fit=res, overwrite=True)
-    progress(f"calibrated model written to {out}", verbose)
-    if args.report:
-        progress(f"report: {Path(args.report) / 'report.md'}", verbose)
-    model_warnings = res.after.plausibility_warnings()  # values a user may mean but outside the FER's specification
+                cmp_after = compare(res.data, res.after, do_replay=False)  # what remains with the calibrated model
+                write_views(cmp_after, report_tmp, mcap_tmp, fit=res, model_file=str(out), verbose=verbose,
+                            summary={**res.to_dict(), "model_file": str(out), "model_warnings": model_warnings})
     for w in model_warnings:
         print(f"franka-vs fit: warning: {w}", file=sys.stderr)
     if args.json:
         print(json.dumps({**res.to_dict(), "model_file": str(out), "model_warnings": model_warnings}))
         return 0
-    a = res.assumptions
-    print(f"assumptions: tool {a['tool']} ({a['tool_source']}), gravity {a['gravity_m_per_s2']} m/s^2, log rate "
-          f"{a['log_rate_hz']} Hz, processed at {a['resampled_to_hz']:g} Hz")
-    if a.get("log_read_as"):
-        print(f"log read as: {a['log_read_as']}")
-    for w in a["warnings"]:
-        print(f"warning: {w}")
+    from franka_vs_gym.validation.report.content import correlation_lines, fit_lines, next_command
+
+    # the fitted values first (one line per effect), then the error before and after
+    tb, ta = float(np.sqrt(np.mean(res.rmse_before ** 2))), float(np.sqrt(np.mean(res.rmse_after ** 2)))
+    print(f"fitted: {', '.join(res.effects) or 'nothing'}; total torque RMSE {tb:.3f} -> {ta:.3f} Nm")
+    for line in fit_lines(res):
+        print(line)
     if res.holdout is not None:
         h = res.holdout
         print(f"held-out check ({h['split']}): total RMSE {h['rmse_tau_total_before']:.3f} -> "
               f"{h['rmse_tau_total_after']:.3f} Nm" + (f"; dropped {h['dropped']}" if h["dropped"] else ""))
-    print("joint   before   after   noise floor  (torque RMSE on the whole log, Nm)")
-    for j in range(7):
-        print(f"{j:5d}  {res.rmse_before[j]:7.3f}  {res.rmse_after[j]:6.3f}  {res.noise_floor[j]:8.3f}")
-    tb, ta = float(np.sqrt(np.mean(res.rmse_before ** 2))), float(np.sqrt(np.mean(res.rmse_after ** 2)))
-    print(f"total  {tb:7.3f}  {ta:6.3f}")
-    print(f"effects: {', '.join(res.effects) or 'none'}; parameters: {json.dumps(res.params)}")
+    for name, why in res.notes.items():
+        print(f"{name}: {why}")
+    for line in correlation_lines(res.correlations, res.unidentifiable, verbose=args.verbose):
+        print(line)
+    a = res.assumptions
+    for w in a["warnings"]:
+        print(f"warning: {w}")
+    print("joint            " + " ".join(f"{j:>6d}" for j in range(7)))
+    print("before (Nm)      " + " ".join(f"{x:6.3f}" for x in res.rmse_before))
+    print("after (Nm)       " + " ".join(f"{x:6.3f}" for x in res.rmse_after))
+    print("noise floor (Nm) " + " ".join(f"{x:6.3f}" for x in res.noise_floor))
+    if args.verbose:
+        print(f"assumptions: tool {a['tool']} ({a['tool_source']}), gravity {a['gravity_m_per_s2']} m/s^2, log "
+              f"rate {a['log_rate_hz']} Hz, processed at {a['resampled_to_hz']:g} Hz")
+        if a.get("log_read_as"):
+            print(f"log read as: {a['log_read_as']}")
+        print(f"parameters: {json.dumps(res.params)}")
     print(f"calibrated model: {out}")
+    for line in say_outputs(args):
+        print(line)
+    print(f"next: {next_command(args.log, fit=res, model_file=str(out))}")
     return 0

@@ -18,7 +18,10 @@ bring the residual RMSE below it.
 from __future__ import annotations
 
 import math
+import re
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -35,10 +38,50 @@ VELOCITY_REGIMES = ((0.0, 0.05, "abs(dq) < 0.05 rad/s (near rest: stiction, offs
                     (0.5, math.inf, "abs(dq) >= 0.5 rad/s (viscous regime)"))
 
 
+class _Progress:
+    """The workbench's progress on stderr: one updating line (tqdm), or one line per stage when verbose."""
+
+    bar: Any = None
+    verbose: bool = False
+
+
 def progress(msg: str, enabled: bool = True) -> None:
-    """Print a progress stage on stderr (never on stdout, which may carry JSON)."""
-    if enabled:
-        print(f"[franka-vs] {msg}", file=sys.stderr, flush=True)
+    """Show a progress stage on stderr (never on stdout, which may carry JSON): on one updating line, or as its own
+    line under :func:`progress_line` with ``verbose`` (warnings always get their own line)."""
+    if not enabled:
+        return
+    text = f"[franka-vs] {msg}"
+    if _Progress.verbose or msg.startswith("warning"):
+        if _Progress.bar is not None:
+            _Progress.bar.write(text, file=sys.stderr)
+        else:
+            print(text, file=sys.stderr, flush=True)
+        return
+    if _Progress.bar is None:
+        from tqdm import tqdm
+
+        _Progress.bar = tqdm(total=None, bar_format="{desc} [{elapsed}]", file=sys.stderr, leave=False,
+                             dynamic_ncols=True, mininterval=0)
+    _Progress.bar.set_description_str(text)
+
+
+def end_progress() -> None:
+    """Clear the progress line (before results are printed)."""
+    if _Progress.bar is not None:
+        _Progress.bar.close()
+        _Progress.bar = None
+
+
+@contextmanager
+def progress_line(verbose: bool = False) -> Iterator[None]:
+    """Within: progress on one updating line (``verbose``: one line per stage); cleared on exit."""
+    old = _Progress.verbose
+    _Progress.verbose = verbose
+    try:
+        yield
+    finally:
+        end_progress()
+        _Progress.verbose = old
 
 
 def tool_from_log(log: MeasurementLog) -> Tool:
@@ -54,19 +97,57 @@ def tool_from_log(log: MeasurementLog) -> Tool:
 TOOLS = ("franka_hand", "none", "unknown")
 
 
+def estimate_tool(data: ProcessedLog, cfg: ModelConfig) -> tuple[Tool, str]:
+    """For a log that declares no tool: whether the Franka Hand (or another mass) is on the flange, from the torques.
+
+    The torque the hand adds (gravity and inertia, the model with the hand minus the model without) is regressed on
+    the residual of the model without a tool over up to 4000 samples: the factor ``a`` (the hand-equivalent load,
+    1 = the hand's 0.73 kg at its centre of mass) and the RMS residual on joints 1, 3 and 5 (the gravity-loaded
+    ones) with and without the hand are the evidence. ``a < 0.5``: no tool; otherwise the hand; outside [0.5, 1.5]
+    another mass is likely and said. Returns the tool and one line stating the evidence."""
+    idx = np.unique(np.linspace(0, data.n - 1, min(data.n, 4000)).astype(int))
+    sub = data.subset(idx)
+    bare = cfg.copy(tool=Tool.none())
+    hand = cfg.copy(tool=Tool.franka_hand())
+    p0 = evaluate(bare, sub).predicted
+    p1 = evaluate(hand, sub).predicted
+    r0 = sub.tau - p0
+    h = p1 - p0
+    a = float(np.sum(r0 * h) / max(float(np.sum(h * h)), 1e-12))
+    js = [1, 3, 5]
+    e0 = float(np.sqrt(np.mean(r0[:, js] ** 2)))
+    e1 = float(np.sqrt(np.mean((sub.tau - p1)[:, js] ** 2)))
+    mass = hand.tool.body.mass
+    evidence = (f"the torques fit a flange load of {a:.2f} x the Franka Hand's ({a * mass:.2f} kg at its centre of "
+                f"mass); RMS residual on joints 1, 3, 5: {e0:.3f} Nm without a tool, {e1:.3f} Nm with the hand")
+    if a < 0.5:
+        chosen, text = Tool.none(), "no tool"
+    else:
+        chosen, text = Tool.franka_hand(), "the Franka Hand"
+    note = (f"not declared by the log: {text} estimated from the data ({evidence})")
+    if not 0.5 <= a <= 1.5 and a >= 0.25:
+        note += "; another mass is likely on the flange: 'diagnose' names a payload, or use --tool unknown"
+    return chosen, note + "; use --tool to say which"
+
+
 def baseline_config(log: MeasurementLog, model: Any = None, rigid_body: bool = False,
-                    tool: str | None = None, robot: Any = None) -> ModelConfig:
+                    tool: str | None = None, robot: Any = None, data: ProcessedLog | None = None) -> ModelConfig:
     """The model to start from: ``model`` (a ModelConfig or a calibrated-model file) if given, else the library's
     default FER with the log's declared tool and gravity. ``rigid_body`` removes all friction. ``tool`` overrides
     the tool: "franka_hand", "none", or "unknown" (no tool in the model; ``diagnose`` and ``fit`` then fit the
     tool's mass, centre of mass and inertia as a payload). ``robot`` (a registered name such as "fer" or "fr3", or a
-    RobotDescription) chooses the robot (default the FER; a model file for another robot is an error)."""
+    RobotDescription) chooses the robot (default the FER; a model file for another robot is an error). A log that
+    declares no tool, given with its processed ``data``, gets the tool :func:`estimate_tool` finds (the evidence in
+    the configuration's ``notes["tool_estimate"]``, stated in every output's assumptions)."""
     if tool is not None and tool not in TOOLS:
         raise ValueError(f"unknown --tool {tool!r}: choose from {', '.join(TOOLS)}")
     if model is not None:
         cfg = resolve_config(model, robot)
     else:
         cfg = ModelConfig(robot=robot_description(robot), tool=tool_from_log(log), gravity=log.gravity)
+        if tool is None and not log.tool_declared and data is not None:
+            est, note = estimate_tool(data, cfg)
+            cfg = cfg.copy(tool=est, notes={**cfg.notes, "tool_estimate": note})
     if tool is not None:
         cfg = cfg.copy(tool=Tool.franka_hand() if tool == "franka_hand" else Tool.none())
     if rigid_body:
@@ -99,6 +180,10 @@ class ReplayResult:
     q: np.ndarray
     tau: np.ndarray
     diverged: str | None = None
+    #: how this replay stopped early (mode, time, joint, reason), or None when it ran to the end of the log
+    stop: dict[str, Any] | None = None
+    #: the replays tried before this one that could not run (each a ``stop`` record); this one is the fallback
+    fallback_from: list[dict[str, Any]] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         def clean_list(a: np.ndarray, nd: int) -> list:
@@ -107,7 +192,22 @@ class ReplayResult:
         tot_q, tot_tau = float(rmse(self.rmse_q)), float(rmse(self.rmse_tau))
         return {"mode": self.mode, "rmse_q": clean_list(self.rmse_q, 6), "rmse_tau": clean_list(self.rmse_tau, 4),
                 "rmse_q_total": tot_q if np.isfinite(tot_q) else None,
-                "rmse_tau_total": tot_tau if np.isfinite(tot_tau) else None, "diverged": self.diverged}
+                "rmse_tau_total": tot_tau if np.isfinite(tot_tau) else None, "diverged": self.diverged,
+                "stop": self.stop, "fallback_from": self.fallback_from, "status": self.status()}
+
+    def status(self) -> str:
+        """One line: what was replayed, and which replays could not run and why."""
+        out = [f"{s['mode']} replay stopped at t = {s['time_s']:.3f} s"
+               + (f" (joint {s['joint']})" if s.get("joint") is not None else "") + f": {s['reason']}"
+               for s in self.fallback_from]
+        if out:
+            out.append(f"fell back to the {self.mode} replay")
+        if self.stop is not None:
+            s = self.stop
+            out.append(f"{s['mode']} replay stopped at t = {s['time_s']:.3f} s"
+                       + (f" (joint {s['joint']})" if s.get("joint") is not None else "") + f": {s['reason']}; "
+                       "its RMSE covers the samples before")
+        return "; ".join(out) if out else f"{self.mode} replay ran to the end of the log"
 
 
 @dataclass
@@ -195,6 +295,7 @@ def replay(data: ProcessedLog, config: ModelConfig, mode: str | None = None) -> 
     """Re-run the logged experiment in the MuJoCo plant built from ``config`` (see the module docstring)."""
     from franka_vs_gym.control.computed_torque import ComputedTorque
     from franka_vs_gym.model.franka_model import FrankaModel
+    from franka_vs_gym.sim.reflexes import ControlException
     from franka_vs_gym.sim.robot import FORCE_TORQUE, JOINT_STATE, FrankaSim, SimulationDiverged
 
     log = data.log
@@ -248,7 +349,9 @@ def replay(data: ProcessedLog, config: ModelConfig, mode: str | None = None) -> 
         law = _SteadyEq2(FrankaModel(config), ref.kp, ref.kd, ref.ki, True)
         qd, dqd, ddqd = data.q, data.dq, data.ddq
     diverged = None
+    stop: dict[str, Any] | None = None
     t = data.time
+    k = start
     try:
         for k in range(start, n):
             q, dq = sim.get_position(), sim.get_velocity()
@@ -260,19 +363,37 @@ def replay(data: ProcessedLog, config: ModelConfig, mode: str | None = None) -> 
             sim.set_force_torque(JOINT_STATE, cmd)
             sim.step()
             tau_sim[k] = sim.get_force_torque()
-    except SimulationDiverged as e:
-        diverged = f"diverged at t = {t[k]:.3f} s: {e}"
-        q_sim[k:] = np.nan
-        tau_sim[k:] = np.nan
-    except ValueError as e:  # the plant refused a state or command (e.g. outside the joint limits)
-        diverged = f"stopped at t = {t[k]:.3f} s: {e}"
+    except (SimulationDiverged, ControlException, ValueError) as e:
+        # diverged, a reflex aborted the motion (as libfranka would), or the plant refused a state or command (e.g.
+        # outside the joint limits): reported with the mode, time and joint, the samples before kept
+        what = ("diverged" if isinstance(e, SimulationDiverged) else
+                "reflex" if isinstance(e, ControlException) else "refused")
+        diverged = f"{'diverged' if what == 'diverged' else 'stopped'} at t = {t[k]:.3f} s: {e}"
+        m = re.search(r"joint (\d)", str(e))
+        stop = {"mode": mode, "time_s": round(float(t[k]), 4), "joint": int(m.group(1)) if m else None,
+                "kind": what, "reason": " ".join(str(e).split())}
         q_sim[k:] = np.nan
         tau_sim[k:] = np.nan
     if measured_lag > 0:
         tau_sim[start:] = shift(tau_sim[start:], t[start:], measured_lag)
     ok = np.isfinite(q_sim[:, 0]) & np.isfinite(tau_sim[:, 0])
+    if not ok.any():  # stopped at its first sample: nothing to compare
+        return ReplayResult(mode, np.full(7, np.nan), np.full(7, np.nan), q_sim, tau_sim, diverged, stop)
     return ReplayResult(mode, rmse(q_sim[ok] - data.q[ok]), rmse(tau_sim[ok] - data.tau[ok]), q_sim, tau_sim,
-                        diverged)
+                        diverged, stop)
+
+
+def replay_with_fallback(data: ProcessedLog, config: ModelConfig, mode: str | None = None) -> ReplayResult:
+    """:func:`replay`; when that replay stops before the end of the log (a reflex, a divergence, a refused state) in
+    a mode other than tracking, the log is replayed again in ``tracking`` mode (eq. (2) following the measured
+    motion, which can run on any log), and the result says which replay stopped where and why
+    (``fallback_from``, :meth:`ReplayResult.status`)."""
+    first = replay(data, config, mode)
+    if first.stop is None or first.mode == "tracking":
+        return first
+    second = replay(data, config, "tracking")
+    second.fallback_from = [first.stop]
+    return second
 
 
 def compare(log: MeasurementLog | ProcessedLog | str, model: Any = None, *, rigid_body: bool = False,
@@ -281,7 +402,7 @@ def compare(log: MeasurementLog | ProcessedLog | str, model: Any = None, *, rigi
     """Compare ``model`` (default: the baseline for the log, see :func:`baseline_config`) with a log."""
     progress("cleaning the log", verbose)
     data = as_processed(log, settings)
-    cfg = baseline_config(data.log, model, rigid_body, tool=tool, robot=robot)
+    cfg = baseline_config(data.log, model, rigid_body, tool=tool, robot=robot, data=data)
     progress(f"inverse dynamics on {data.n} samples", verbose)
     ev = evaluate(cfg, data)
     r = data.tau - ev.predicted
@@ -289,7 +410,9 @@ def compare(log: MeasurementLog | ProcessedLog | str, model: Any = None, *, rigi
                         np.abs(r).max(axis=0), data.noise.copy(), concentration_table(data, r))
     if do_replay:
         progress("simulation replay in the MuJoCo plant", verbose)
-        res.replay = replay(data, cfg, replay_mode)
+        res.replay = replay_with_fallback(data, cfg, replay_mode)
+        if res.replay.fallback_from or res.replay.stop:
+            progress(f"replay: {res.replay.status()}", verbose)
     return res
 
 
@@ -313,10 +436,12 @@ def format_compare(res: CompareResult) -> str:
     if res.replay is not None:
         rp = res.replay
         lines.append(f"replay ({rp.mode}): RMSE_q = {np.round(rp.rmse_q, 4).tolist()} rad")
-        lines.append(f"                   RMSE_tau = {np.round(rp.rmse_tau, 3).tolist()} Nm"
-                     + (f"  [{rp.diverged}]" if rp.diverged else ""))
+        lines.append(f"                   RMSE_tau = {np.round(rp.rmse_tau, 3).tolist()} Nm")
+        if rp.fallback_from or rp.stop:
+            lines.append(f"replay status: {rp.status()}")
     return "\n".join(lines)
 
 
 __all__ = ["CompareResult", "ReplayResult", "as_processed", "baseline_config", "compare", "concentration_table",
-           "format_compare", "progress", "replay", "rmse", "tool_from_log"]
+           "end_progress", "format_compare", "progress", "progress_line", "replay", "replay_with_fallback", "rmse",
+           "tool_from_log"]

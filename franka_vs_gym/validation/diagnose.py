@@ -120,9 +120,16 @@ class Selected:
     score: float
     channel: str = "inverse_dynamics"
     lack_of_fit: list[Any] = field(default_factory=list)  # failed lack-of-fit tests (lackfit.LackOfFit)
+    # 95 % intervals (same structure as params, [low, high] or None where not identifiable), strongly correlated
+    # parameter pairs and unidentifiable combinations in words (validation.uncertainty)
+    params_ci95: dict[str, Any] = field(default_factory=dict)
+    correlations: list[dict[str, Any]] = field(default_factory=list)
+    unidentifiable: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         d = {"effect": self.effect, "joints": list(map(int, self.joints)), "params": self.params,
+             "params_ci95": self.params_ci95, "correlations": self.correlations,
+             "unidentifiable": self.unidentifiable,
              "contribution": np.round(self.contribution, 4).tolist(), "score": round(float(self.score), 2),
              "channel": self.channel}
         if self.lack_of_fit:
@@ -153,6 +160,8 @@ class Diagnosis:
     notes: list[str] = field(default_factory=list)
     residual: np.ndarray | None = None
     data: ProcessedLog | None = None  # the whole processed log (the context may hold a decimated copy)
+    # each selected effect's torque (N, 7) Nm on the analysed samples (context.data.time), fitted with the set
+    contributions: dict[str, np.ndarray] = field(default_factory=dict)
 
     @property
     def selected(self) -> list[str]:
@@ -548,7 +557,7 @@ def diagnose(log: MeasurementLog | ProcessedLog | str, model: Any = None, *, rig
 
     progress("cleaning the log", verbose)
     data = as_processed(log, settings)
-    cfg = baseline_config(data.log, model, rigid_body, tool=tool, robot=robot)
+    cfg = baseline_config(data.log, model, rigid_body, tool=tool, robot=robot, data=data)
     fx = decimated(data)
     progress(f"evaluating the baseline model and regressors on {fx.n} samples"
              + (f" (the log decimated to {fx.settings.rate:g} Hz)" if fx is not data else ""), verbose)
@@ -566,6 +575,9 @@ def diagnose(log: MeasurementLog | ProcessedLog | str, model: Any = None, *, rig
     ranking, chosen, cur = sel.run(select, forced=forced)
     notes = [f"{n} not selected: {why}" for n, why in sel.rejections.items()]
     selection = sel.describe(chosen, cur) if chosen else []
+    if chosen and select:
+        progress("95% intervals of the selected set's parameters", verbose)
+        _attach_confidence(ctx, y, chosen, cur, selection)
     # the delay may be on the command channel instead (commands reach the joints late)
     if any(e.name == "delay" for e in cands):
         meas = next((c for c in ranking if c.effect == "delay"), None)
@@ -575,6 +587,7 @@ def diagnose(log: MeasurementLog | ProcessedLog | str, model: Any = None, *, rig
                 ranking = sorted([c for c in ranking if c.effect != "delay"] + [cmd], key=_order)
                 if select:
                     selection.append(Selected("delay", [], cmd.params, np.zeros(7), cmd.score, "command"))
+                    _attach_command_confidence(ctx, cmd.fits[0], selection[-1])
     if not select:
         selection = []
     if select:
@@ -596,7 +609,29 @@ def diagnose(log: MeasurementLog | ProcessedLog | str, model: Any = None, *, rig
                   rmse_sel, unexplained, assumptions_of(data, cfg, tool), notes, residual, data)
     if fx is not data:
         d.assumptions["effects_analysed_at_hz"] = fx.settings.rate
+    if select and chosen:
+        d.contributions = {t.effect.name: c for t, c in zip(chosen, eng.contributions(cur), strict=True)}
     return d
+
+
+def _attach_confidence(ctx: Context, y: np.ndarray, chosen: list[Term], cur: SetFit,
+                       selection: list[Selected]) -> None:
+    """Intervals, correlations and unidentifiable combinations of the jointly fitted selection
+    (:mod:`~franka_vs_gym.validation.uncertainty`)."""
+    from franka_vs_gym.validation.uncertainty import confidence
+
+    conf = confidence(ctx, [t.effect for t in chosen], cur.fits, y)
+    for s, ci, corr, unid in zip(selection, conf.params_ci95, conf.correlations, conf.unidentifiable, strict=True):
+        s.params_ci95, s.correlations, s.unidentifiable = ci, corr, unid
+
+
+def _attach_command_confidence(ctx: Context, fit: Fit, s: Selected) -> None:
+    """The interval of a delay fitted on the command channel (measured torque vs logged command)."""
+    from franka_vs_gym.validation.uncertainty import confidence
+
+    conf = confidence(ctx, [COMMAND_DELAY], [fit], ctx.cmd_residual)
+    s.params_ci95, s.correlations, s.unidentifiable = (conf.params_ci95[0], conf.correlations[0],
+                                                       conf.unidentifiable[0])
 
 
 def _lack_of_fit(ctx: Context, eng: Engine, chosen: list[Term], cur: SetFit, residual: np.ndarray,
@@ -641,9 +676,19 @@ class FitResult:
     residual_after: np.ndarray
     holdout: dict[str, Any] | None = None
     assumptions: dict[str, Any] = field(default_factory=dict)
+    #: effect -> what was constrained, left out or not applied, and why (one line each)
+    notes: dict[str, str] = field(default_factory=dict)
+    # 95 % intervals per effect (same structure as params), correlated pairs, unidentifiable combinations
+    params_ci95: dict[str, Any] = field(default_factory=dict)
+    correlations: list[dict[str, Any]] = field(default_factory=list)
+    unidentifiable: list[str] = field(default_factory=list)
+    # each fitted effect's torque (N, 7) Nm on contribution_time (the fitting samples; the log may be decimated)
+    contributions: dict[str, np.ndarray] = field(default_factory=dict)
+    contribution_time: np.ndarray | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        return {"effects": self.effects, "params": self.params,
+        return {"effects": self.effects, "params": self.params, "notes": self.notes, "params_ci95": self.params_ci95,
+                "correlations": self.correlations, "unidentifiable": self.unidentifiable,
                 "rmse_tau_before": np.round(self.rmse_before, 4).tolist(),
                 "rmse_tau_after": np.round(self.rmse_after, 4).tolist(),
                 "rmse_tau_total_before": round(float(rmse(self.rmse_before)), 4),
@@ -683,6 +728,45 @@ def _alternate(ctx: Context, spec, y: np.ndarray, idx: np.ndarray, refine: bool)
     return fits  # type: ignore[return-value]
 
 
+def _apply_fits(cfg: ModelConfig, ctx: Context, members: list[Effect],
+                fits: list[Fit]) -> tuple[ModelConfig, list[Fit | None], dict[str, str]]:
+    """Write fitted effects into ``cfg`` as the model can take them: each fit first constrained
+    (:meth:`Effect.constrain`: e.g. friction kept dissipative, link inertials physically consistent), then applied;
+    a joint whose friction law would still push it is left out, and an effect the model cannot take is not applied.
+    Returns the configuration, the fits as applied (None: not applied) and what was constrained or left out, by
+    effect (one line each). Effects that constrain themselves are applied last, against the law the others made."""
+    from franka_vs_gym.model.checks import NotDissipative
+
+    notes: dict[str, str] = {}
+    applied: list[Fit | None] = list(fits)
+    order = sorted(range(len(members)), key=lambda i: type(members[i]).constrain is not Effect.constrain)
+    new = cfg
+    for i in order:
+        e, f = members[i], fits[i]
+        f, said = e.constrain(ctx, new, f)
+        msgs = [said] if said else []
+        out = None
+        while out is None:
+            try:
+                out = e.apply(new, f)
+            except NotDissipative as err:
+                if err.joint in f.joints and len(f.joints) > 1:
+                    msgs.append(f"joint {err.joint} left out: {err}")
+                    f = Fit(f.effect, f.theta, [j for j in f.joints if j != err.joint])
+                    continue
+                msgs.append(f"not applied: {err}")
+                break
+            except NotApplicable as err:
+                msgs.append(f"not applied: {err}")
+                break
+        applied[i] = f if out is not None else None
+        if out is not None:
+            new = out
+        if msgs:
+            notes[e.name] = "; ".join(msgs)
+    return new, applied, notes
+
+
 def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], model: Any = None, *,
                 rigid_body: bool = False, settings: CleanSettings | None = None, verbose: bool = False,
                 holdout: float | None = HOLDOUT, tool: str | None = None, robot: Any = None) -> FitResult:
@@ -696,8 +780,9 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
     from franka_vs_gym.validation.structure import assumptions_of
 
     data = as_processed(log, settings)
-    cfg = baseline_config(data.log, model, rigid_body, tool=tool, robot=robot)
+    cfg = baseline_config(data.log, model, rigid_body, tool=tool, robot=robot, data=data)
     joints_of: dict[str, list[int]] = {}
+    fit_notes: dict[str, str] = {}  # effect -> what was constrained, left out or not applied, and why
     auto = [e.strip() for e in effects] == ["auto"]
     if auto:
         d = diagnose(data, cfg, verbose=verbose)
@@ -705,6 +790,12 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
         ctx = d.context
         joints_of = {s.effect: s.joints for s in d.selection if s.channel != "command"}
         progress(f"auto: selected {names or 'nothing (verdict none)'}", verbose)
+        for n in names:  # named by the diagnosis but not writable into a model: said, not handed to the fit
+            e = get_effect(n)
+            if type(e).apply is Effect.apply:
+                fit_notes[n] = f"diagnosed but not fitted: {e.not_applicable}"
+                progress(f"auto: {n} {fit_notes[n]}", verbose)
+        names = [n for n in names if n not in fit_notes]
     else:
         names = []
         for e in (part for item in effects for part in item.split("+")):
@@ -753,13 +844,10 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
         def heldout_rmse(sp) -> np.ndarray:
             new = cfg
             if sp:
-                for (e, _), f in zip(sp, _alternate(ctx, sp, y, train, refine=False), strict=True):
-                    if any(e.problems(ctx, f).values()):
-                        continue  # not applied with implausible values
-                    try:
-                        new = e.apply(new, f)
-                    except NotApplicable:
-                        pass
+                ok = [(e, f) for (e, _), f in zip(sp, _alternate(ctx, sp, y, train, refine=False), strict=True)
+                      if not any(e.problems(ctx, f).values())]  # not applied with implausible values
+                if ok:
+                    new = _apply_fits(cfg, ctx, [e for e, _ in ok], [f for _, f in ok])[0]
             return rmse(sub.tau - evaluate(new, sub).predicted)
 
         progress(f"held-out check: fitting on the first {100 * (1 - holdout):.0f}% of the log, validating on the "
@@ -841,14 +929,31 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
         names = [e.name for e in members]
     progress(f"fitting {names} on all samples", verbose)
     fits = _alternate(ctx, spec, y, np.arange(ctx.n), refine=True) if spec else []
-    new = cfg
     implausible: dict[str, list[str]] = {}
-    for e, f in zip(members, fits, strict=True):
-        probs = e.problems(ctx, f)  # also prepares what apply needs (e.g. consistent link inertials)
-        if probs:
-            implausible[e.name] = [m for _, m in sorted(probs.items())]
-            progress(f"warning: {e.name} fits with implausible values: {'; '.join(implausible[e.name])}", verbose)
-        new = e.apply(new, f)
+    for attempt in range(2):
+        implausible = {}
+        for e, f in zip(members, fits, strict=True):
+            probs = e.problems(ctx, f)  # also prepares what apply needs (e.g. consistent link inertials)
+            if probs:
+                implausible[e.name] = [m for _, m in sorted(probs.items())]
+                progress(f"warning: {e.name} fits with implausible values: {'; '.join(implausible[e.name])}",
+                         verbose)
+        new, applied, notes = _apply_fits(cfg, ctx, members, fits)
+        fit_notes.update(notes)
+        for n, why in notes.items():
+            progress(f"{n}: {why}", verbose)
+        if all(f is not None for f in applied):
+            break
+        # an effect the model cannot take is dropped and the others are fitted again without it
+        keep = [i for i, f in enumerate(applied) if f is not None]
+        spec = [spec[i] for i in keep]
+        members, names = [members[i] for i in keep], [names[i] for i in keep]
+        fits = _alternate(ctx, spec, y, np.arange(ctx.n), refine=True) if spec else []
+    else:
+        new, applied, notes = _apply_fits(cfg, ctx, members, fits)
+        keep = [i for i, f in enumerate(applied) if f is not None]
+        members, names = [members[i] for i in keep], [names[i] for i in keep]
+    fits = [f for f in applied if f is not None]
     if command_fit is not None:
         new = COMMAND_DELAY.apply(new, command_fit)
         members, fits, names = members + [COMMAND_DELAY], fits + [command_fit], names + ["delay"]
@@ -859,9 +964,30 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
     y_full = y if ctx.data is data else data.tau - evaluate(cfg, data).predicted
     params = {e.name: {**e.public(f), "joints": list(map(int, f.joints))} for e, f in zip(members, fits, strict=True)}
     for name, probs in implausible.items():
-        params[name]["problems"] = probs
-    return FitResult(cfg, new, names, fits, params, rmse(y_full), rmse(r_after), noise.copy(), data, y_full, r_after,
-                     holdout_info, assumptions_of(data, cfg, tool))
+        if name in params:
+            params[name]["problems"] = probs
+    res = FitResult(cfg, new, names, fits, params, rmse(y_full), rmse(r_after), noise.copy(), data, y_full, r_after,
+                    holdout_info, assumptions_of(data, cfg, tool), fit_notes)
+    if len(members) > (command_fit is not None):
+        from franka_vs_gym.validation.uncertainty import confidence
+
+        progress("95% intervals of the fitted parameters", verbose)
+        # the jointly fitted effects that the model took (a command-channel delay is fitted on its own channel)
+        k = len(members) - (command_fit is not None)
+        conf = confidence(ctx, members[:k], fits[:k], y)
+        for e, ci in zip(members[:k], conf.params_ci95, strict=True):
+            res.params_ci95[e.name] = {**ci, "joints": params[e.name]["joints"]}
+        res.correlations = [c for cs in conf.correlations for c in cs]
+        res.unidentifiable = list(dict.fromkeys(u for us in conf.unidentifiable for u in us))
+    if command_fit is not None:  # the delay on the command channel: its own fit, its own residual
+        from franka_vs_gym.validation.uncertainty import confidence
+
+        conf = confidence(ctx, [COMMAND_DELAY], [command_fit], ctx.cmd_residual)
+        res.params_ci95["delay"] = {**conf.params_ci95[0], "joints": params["delay"]["joints"]}
+    res.contributions = {e.name: e.contribution(ctx, f) for e, f in zip(members, fits, strict=True)
+                         if f is not command_fit}
+    res.contribution_time = ctx.data.time
+    return res
 
 
 __all__ = ["Candidate", "Diagnosis", "FitResult", "Selected", "diagnose", "fit_effects", "n_eff",

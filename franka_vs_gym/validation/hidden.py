@@ -108,6 +108,10 @@ def _draw(effect: str, magnitude: float, rng: np.random.Generator):
     return plant, ans
 
 
+MAX_DURATION = 3600.0  # s: the longest generated log (an hour at 1 kHz is 3.6 M samples)
+MAX_MAGNITUDE = 10.0  # the largest effect size, in multiples of its typical size
+
+
 def make_hidden_effect_log(effect: str, seed: int = 0, *, duration: float = 20.0, magnitude: float = 1.0,
                            noise_scale: float = 1.0) -> tuple[MeasurementLog, dict[str, Any]]:
     """Simulate the FER with one hidden effect (or "none", or "random": effect and magnitude drawn from the seed,
@@ -121,10 +125,14 @@ def make_hidden_effect_log(effect: str, seed: int = 0, *, duration: float = 20.0
     from franka_vs_gym.model.franka_model import FrankaModel
     from franka_vs_gym.sim.robot import FORCE_TORQUE, JOINT_STATE, FrankaSim
 
-    if not duration > 2.0:
-        raise ValueError(f"duration must be > 2 s, got {duration}")
-    if not magnitude > 0:
-        raise ValueError(f"magnitude must be > 0, got {magnitude}")
+    if not 2.0 < duration <= MAX_DURATION:
+        raise ValueError(f"duration must be in (2, {MAX_DURATION:g}] s, got {duration}")
+    if not 0 < magnitude <= MAX_MAGNITUDE:
+        raise ValueError(f"magnitude must be in (0, {MAX_MAGNITUDE:g}] (1: the effect's typical size), got {magnitude}")
+    if not (math.isfinite(noise_scale) and noise_scale >= 0):
+        raise ValueError(f"noise_scale must be a finite number >= 0 (1: the FER's torque noise), got {noise_scale}")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
     rng = np.random.default_rng(seed)
     if effect == "random":
         effect = str(rng.choice(list(_effects()) + ["none"]))

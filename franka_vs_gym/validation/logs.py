@@ -42,6 +42,7 @@ import json
 import math
 import os
 import re
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -145,6 +146,18 @@ class MeasurementLog:
                               tool_declared=self.tool_declared)
 
 
+Q_RANGE_MARGIN = 0.05  # rad a logged joint position may lie beyond the range (soft limits below the hard stops)
+
+
+def joint_range() -> tuple[np.ndarray, np.ndarray]:
+    """The widest joint range of the registered robots (FER, FR3, ...), (7,) rad each: where a logged arm can be."""
+    from franka_vs_gym.model.description import ROBOTS
+
+    lo = np.min([np.asarray(r.limits.q_min, dtype=float) for r in ROBOTS.values()], axis=0)
+    hi = np.max([np.asarray(r.limits.q_max, dtype=float) for r in ROBOTS.values()], axis=0)
+    return lo, hi
+
+
 def validate(log: MeasurementLog) -> None:
     """Raise ValueError naming the first problem found: NaN/inf, decreasing time, implausible units."""
     t = log.time
@@ -175,6 +188,17 @@ def validate(log: MeasurementLog) -> None:
             raise ValueError(f"{name}[{j}] reaches {np.abs(a[:, j]).max():.4g}: joint positions must be in rad "
                              f"(the FER joint range is within [{FER.limits.q_min[j]}, {FER.limits.q_max[j]}] rad); "
                              "degrees?")
+    lo, hi = joint_range()
+    for name in ("q", "q_d"):  # the arm cannot be there: another robot, an encoder offset, or columns mixed up
+        a = getattr(log, name)
+        if a is None:
+            continue
+        out = (a < lo - Q_RANGE_MARGIN) | (a > hi + Q_RANGE_MARGIN)
+        if out.any():
+            r, j = (int(x) for x in np.argwhere(out)[0])
+            raise ValueError(f"{name}[{j}] is {a[r, j]:.4g} rad at row {r} (time {t[r]:.6g} s), outside the joint's "
+                             f"range [{lo[j]:.4g}, {hi[j]:.4g}] rad (every registered robot's): an encoder offset, "
+                             "another robot's log, or the joint columns in another order?")
     dq_max = FER.limit_arrays()["dq_max"]
     for name in ("dq", "dq_d"):
         a = getattr(log, name)
@@ -202,7 +226,7 @@ def _read_sidecar(path: Path) -> dict[str, Any]:
     for s in (sidecar_path(path), path.with_suffix(".json")):
         if os.path.lexists(s) and s != path:
             try:
-                d = json.loads(io.read_text(s, what="sidecar"))
+                d = io.loads_json(io.read_text(s, what="sidecar"), f"sidecar {s}")
             except json.JSONDecodeError as e:
                 raise ValueError(f"sidecar {s} is not valid JSON: {e}") from None
             if not isinstance(d, dict):
@@ -252,6 +276,17 @@ def _meta_kwargs(meta: dict[str, Any]) -> dict[str, Any]:
     if kw["controller"] is not None and not isinstance(kw["controller"], dict):
         raise ValueError(f"controller in the log metadata must be an object or null, got "
                          f"{type(kw['controller']).__name__}")
+    for gain in ("kp", "kd", "ki"):  # one number for every joint, or 7
+        v = (kw["controller"] or {}).get(gain)
+        if v is None:
+            continue
+        try:
+            a = np.asarray(v, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError(f"controller.{gain} in the log metadata must be a number or 7 numbers, got {v!r}") from None
+        if a.shape not in ((), (7,)) or not np.isfinite(a).all():
+            raise ValueError(f"controller.{gain} in the log metadata must be a finite number or 7 numbers (one per "
+                             f"joint), got {np.shape(a)[0] if a.ndim == 1 else np.shape(a)} values: {v!r}")
     kw["extra"] = meta
     return kw
 
@@ -268,7 +303,15 @@ def _columns_to_fields(header: list[str], data: np.ndarray, where: str) -> dict[
         m = _COL.match(name)
         if m:
             base, idx = m.group(1), int(m.group(2) if m.group(2) is not None else m.group(3))
-            groups.setdefault(base, {})[idx] = col
+            prev = groups.setdefault(base, {}).get(idx)
+            if prev is not None:  # two spellings of one column (q[0] and q_0): equal values are one column
+                if not np.array_equal(data[:, prev], data[:, col], equal_nan=True):
+                    r = int(np.argmax(data[:, prev] != data[:, col]))
+                    raise ValueError(f"{where}: columns {names[prev]!r} and {name!r} are the same column written "
+                                     f"twice with different values (first at data row {r}: {data[r, prev]:g} vs "
+                                     f"{data[r, col]:g}); keep one")
+                continue
+            groups[base][idx] = col
     out = {"time": data[:, names.index("time")]}
     for f in JOINT_FIELDS:
         g = groups.get(f)
@@ -307,13 +350,16 @@ def _load_csv(path: Path) -> dict[str, np.ndarray]:
             raise ValueError(f"{path}: the first line must be a header with column names (time, q[0], ...)")
         delimiter = "," if len(header) > 1 or "," in first else None
         try:
-            data = np.loadtxt(fh, dtype=np.float64, delimiter=delimiter, ndmin=2, comments=None, encoding=None)
+            with warnings.catch_warnings():  # "input contained no data": said below as "no data rows"
+                warnings.simplefilter("ignore", UserWarning)
+                data = np.loadtxt(fh, dtype=np.float64, delimiter=delimiter, ndmin=2, comments=None, encoding=None)
         except ValueError as e:
             msg = " ".join(str(e).split())
             m = _LOADTXT_BAD.search(msg)
-            if m:  # numpy counts data rows from 0; the file's line numbers start at 1 with the header
+            if m:  # numpy counts data rows from 0 and columns from 1; the file's lines start at 1 with the header
+                col = int(m.group(3)) - 1
                 msg = (f"line {int(m.group(2)) + 2}: {m.group(1)!r} is not a number (column "
-                       f"{header[int(m.group(3))].strip() if int(m.group(3)) < len(header) else m.group(3)})")
+                       f"{header[col].strip() if 0 <= col < len(header) else m.group(3)})")
             elif (m := _LOADTXT_COLS.search(msg)) is not None:  # here numpy counts data rows from 1
                 msg = (f"line {int(m.group(3)) + 1} has {m.group(2)} values, the header has {len(header)} "
                        "columns")
@@ -353,7 +399,7 @@ def _load_npz(path: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     meta: dict[str, Any] = {}
     if "meta" in keys:
         try:
-            meta = json.loads(str(np.asarray(z["meta"])))
+            meta = io.loads_json(str(np.asarray(z["meta"])), f"{path}: array 'meta'")
         except json.JSONDecodeError as e:
             raise ValueError(f"{path}: array 'meta' is not a JSON string: {e}") from None
         if not isinstance(meta, dict):
@@ -548,7 +594,14 @@ def load_log(path: str | os.PathLike, topic: str | None = None, progress: bool =
         meta: dict[str, Any] = {"tool": None, "source_format": "gaz2019"}
         meta.update(_read_sidecar(p / "log"))
     else:
-        arrays, meta = _load_file(p)
+        try:
+            arrays, meta = _load_file(p)
+        except UnicodeDecodeError as e:  # a binary file of no format we read
+            raise ValueError(f"{p}: not a log: byte {e.start} is not UTF-8 text, and the content is no NPZ, NPY, "
+                             "pickle of robot states or ROS bag") from None
+        except csv.Error as e:  # e.g. "field larger than field limit (131072)": a blob or a corrupt file
+            raise ValueError(f"{p}: not a readable table: {e} (a cell of over 128 KiB; a blob in a column or a "
+                             "corrupt file?)") from None
         meta = _with_sidecar(meta, _read_sidecar(p))
     kw = _meta_kwargs(meta)
     t = arrays.pop("time")

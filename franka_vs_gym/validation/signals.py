@@ -35,7 +35,14 @@ from scipy import signal
 from franka_vs_gym.validation.logs import OPTIONAL, MeasurementLog
 
 MAX_RATE = 1000.0  # Hz: logs faster than this are resampled down to it
+MAX_USER_RATE = 10_000.0  # Hz: the highest --rate accepted (10x the FER's state rate)
+MIN_CUTOFF = 0.1  # Hz: the lowest --cutoff accepted (below it the filter removes the motion, and goes singular)
 GAP_FACTOR = 4.0  # default max_gap: this many of the log's own median sample periods (at least 50 ms)
+#: the smallest torque noise floor used, Nm: a noise-free (simulated) log has an estimated floor near 0, while the
+#: processing itself leaves errors of up to about 1e-3 Nm (acceleration from the filtered velocity, resampling; the
+#: exact model's residual on `franka-vs experiment tracking --torque-noise 0`): effects are judged against at least
+#: this floor, 3x below the lowest real FER floor seen (0.027 Nm, joint 6 of the Gaz et al. 2019 log)
+NOISE_FLOOR_MIN = 0.01
 MIN_SECONDS = 3.0  # shortest log (after trimming) a diagnosis is attempted on
 
 
@@ -55,8 +62,14 @@ class CleanSettings:
     def __post_init__(self) -> None:
         if self.rate is not None and not self.rate > 0:
             raise ValueError(f"rate must be > 0 Hz, got {self.rate}")
+        if self.rate is not None and self.rate > MAX_USER_RATE:
+            raise ValueError(f"rate {self.rate:g} Hz is above {MAX_USER_RATE:g} Hz (the FER's state comes at 1 kHz; a "
+                             "finer grid only interpolates)")
         if self.cutoff is not None and not self.cutoff > 0:
             raise ValueError(f"cutoff must be > 0 Hz, got {self.cutoff}")
+        if self.cutoff is not None and self.cutoff < MIN_CUTOFF:
+            raise ValueError(f"cutoff {self.cutoff:g} Hz is below {MIN_CUTOFF:g} Hz: such a low-pass removes the motion "
+                             "itself (the default is 10 Hz)")
         if self.rate is not None and self.cutoff is not None and not self.cutoff < self.rate / 2:
             raise ValueError(f"cutoff must be in (0, rate/2) = (0, {self.rate / 2}) Hz, got {self.cutoff}")
         if self.max_gap is not None and not self.max_gap > 0:
@@ -131,6 +144,7 @@ class ProcessedLog:
         return ProcessedLog(self.time[idx], self.q[idx], self.dq[idx], self.ddq[idx], self.tau[idx],
                             self.tau_filt[idx], {k: v[idx] for k, v in self.optional.items()}, self.noise,
                             self.log, self.report, self.settings)
+
 
 
 def _lowpass(settings: CleanSettings):
@@ -230,6 +244,12 @@ def clean(log: MeasurementLog, settings: CleanSettings | None = None) -> Process
     frac = highpass_power_fraction(s)
     hf = (tau - tau_filt)[sl]
     noise = np.sqrt(np.mean(hf ** 2, axis=0) / frac)
+    low = [j for j in range(7) if noise[j] < NOISE_FLOOR_MIN]
+    if low:
+        warnings.append(f"torque noise floor estimated below {NOISE_FLOOR_MIN:g} Nm on joints {low} "
+                        f"({', '.join(f'{noise[j]:.2g}' for j in low)} Nm; a noise-free log?): {NOISE_FLOOR_MIN:g} "
+                        "Nm used there, the smallest error the processing resolves")
+        noise = np.maximum(noise, NOISE_FLOOR_MIN)
     report = CleaningReport(n_in, int(stale.sum()), int(rep.sum()), float(raw_dt.min()), float(np.median(raw_dt)),
                             float(raw_dt.max()), int(sl.stop - sl.start), asdict(s), warnings, bridged)
     return ProcessedLog(grid[sl] - grid[0], q[sl], dq[sl], ddq[sl], tau[sl], tau_filt[sl],
@@ -256,5 +276,5 @@ def decimated(data: ProcessedLog, max_samples: int = MAX_EFFECT_SAMPLES) -> Proc
     return sub
 
 
-__all__ = ["CleanSettings", "MAX_EFFECT_SAMPLES", "decimated", "CleaningReport", "ProcessedLog", "clean",
+__all__ = ["CleanSettings", "MAX_EFFECT_SAMPLES", "NOISE_FLOOR_MIN", "decimated", "CleaningReport", "ProcessedLog", "clean",
            "highpass_power_fraction"]

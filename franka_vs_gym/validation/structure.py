@@ -311,6 +311,8 @@ def assumptions_of(data: ProcessedLog, config: Any, tool: str | None = None) -> 
                                        if tool == "unknown" else "")
     elif log.tool_declared:
         tool_src = "declared by the log" + (f" ({log.extra['tool_source']})" if log.extra.get("tool_source") else "")
+    elif getattr(config, "notes", {}).get("tool_estimate"):
+        tool_src = config.notes["tool_estimate"]
     else:
         tool_src = "not declared by the log: the Franka Hand assumed (use --tool to say otherwise)"
     raw_rate = 1.0 / rep.dt_median if rep.dt_median > 0 else float("nan")

@@ -132,15 +132,18 @@ class WristCamera:
         Image size and focal lengths (MuJoCo-compatible: square pixels, centred principal point).
     period : float
         Time between frames, s.
+    camera : str or None
+        The MuJoCo camera rendered (default the robot's wrist camera; e.g. a camera fixed in the world).
     """
 
-    def __init__(self, sim, intrinsics: CameraIntrinsics | None = None, period: float = 0.02) -> None:
+    def __init__(self, sim, intrinsics: CameraIntrinsics | None = None, period: float = 0.02,
+                 camera: str | None = None) -> None:
         if not (period > 0 and math.isfinite(period)):
             raise ValueError(f"camera period must be > 0 s, got {period}")
         self.sim = sim
         self.intrinsics = intrinsics or CameraIntrinsics.default()
         self.period = float(period)
-        self.name = sim.camera_name()
+        self.name = sim.camera_name() if camera is None else camera
         set_mujoco_camera(sim.world.model, self.name, self.intrinsics)
         self._cam_id = mujoco.mj_name2id(sim.world.model, mujoco.mjtObj.mjOBJ_CAMERA, self.name)
         sim.world.renderer(self.intrinsics.width, self.intrinsics.height)  # made now: fails here if it cannot render

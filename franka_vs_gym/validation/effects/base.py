@@ -236,6 +236,12 @@ class Effect:
         """The configuration with this effect added (model and plant); raises NotApplicable if it cannot be."""
         raise NotApplicable(f"effect {self.name!r} cannot be written into a model configuration: {self.not_applicable}")
 
+    def constrain(self, ctx: Context, config: ModelConfig, fit: Fit) -> tuple[Fit, str | None]:
+        """The fit as ``config`` can take it with a physically valid result (e.g. a friction law that still opposes
+        motion): ``(fit, None)`` when nothing needs constraining, else the constrained fit and one line saying what
+        was constrained. ``franka-vs fit`` calls it before :meth:`apply`; the default constrains nothing."""
+        return fit, None
+
     def inject(self, plant: PlantChange, rng: np.random.Generator, magnitude: float) -> dict[str, Any]:
         """Put this effect, of a size drawn from ``rng`` and scaled by ``magnitude``, into a simulated plant (in
         place); returns the true parameters (the answer)."""

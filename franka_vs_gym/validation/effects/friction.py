@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 
+from franka_vs_gym.model.checks import dissipation_grid
 from franka_vs_gym.model.config import Friction, ModelConfig
 from franka_vs_gym.model.friction import (
     coulomb_friction,
@@ -33,7 +34,53 @@ from franka_vs_gym.validation.effects.base import (
 from franka_vs_gym.validation.evaluate import sigmoid_friction
 
 
-class ViscousFriction(Effect):
+class _DissipativeLinear(Effect):
+    """A friction term with one coefficient per joint, added to the model's friction law: :meth:`constrain` keeps the
+    law dissipative. The law is linear in the coefficient c, ``tau_f(dq) = base(dq) + c basis(dq)`` with
+    ``basis(dq) dq >= 0``, so on the velocities the model checks (:func:`~franka_vs_gym.model.checks.dissipation_grid`)
+    dissipativity is ``c >= c_min`` per joint: the least-squares coefficient constrained to it is
+    ``max(c, c_min)``."""
+
+    def friction(self, fr: Friction, fit: Fit) -> Friction:
+        """The friction law ``fr`` with this fit added (what :meth:`apply` writes)."""
+        raise NotImplementedError
+
+    def apply(self, config, fit):
+        return config.copy(friction=self.friction(config.friction, fit))
+
+    def constrain(self, ctx, config, fit):
+        c = _joint_coef(fit)[:, 0]
+        try:
+            base = self.friction(config.friction, Fit(fit.effect, {**fit.theta, "coef": np.zeros((7, 1))}, fit.joints))
+            one = self.friction(config.friction, Fit(fit.effect, {**fit.theta, "coef": np.ones((7, 1))}, fit.joints))
+        except NotApplicable:
+            return fit, None
+        grid = dissipation_grid(config.robot.limits.dq_max, low_speed=True)
+        b = base(grid) * grid
+        p = one(grid) * grid - b  # >= 0: the term opposes motion
+        pos = p > 1e-12
+        c_min = np.max(np.where(pos, -b / np.where(pos, p, 1.0), -np.inf), axis=0)
+        fin = np.isfinite(c_min)  # -inf: any coefficient keeps that joint's law dissipative
+        c_min[fin] += 1e-7 + 1e-6 * np.abs(c_min[fin])  # strictly inside (the check allows -1e-9 W)
+        infeasible = np.any(~pos & (b < -1e-9), axis=0)  # the rest of the law pushes where this term is ~0
+        joints, said = [], []
+        new = c.copy()
+        for j in fit.joints:
+            if infeasible[j]:
+                said.append(f"joint {j} left out (the rest of its friction law pushes the joint)")
+                continue
+            joints.append(j)
+            if c[j] < c_min[j]:
+                new[j] = c_min[j]
+                said.append(f"joint {j} constrained to a dissipative law ({c[j]:.3g} -> {new[j]:.3g})")
+        if not said:
+            return fit, None
+        coef = np.asarray(fit.theta["coef"], dtype=float).copy()
+        coef.reshape(7, -1)[:, 0] = new
+        return Fit(fit.effect, {**fit.theta, "coef": coef}, joints), "; ".join(said)
+
+
+class ViscousFriction(_DissipativeLinear):
     """Viscous joint friction ``tau_f = F_v dq`` (added to the model's friction).
 
     Signature: residual proportional to the joint velocity, a straight line through 0 in residual vs dq.
@@ -57,10 +104,10 @@ class ViscousFriction(Effect):
             j: f"viscous friction {tot[j]:.3g} Nm s/rad is implausibly large" for j in fit.joints
             if tot[j] > 0.2 * _tau_max(ctx)[j]}
 
-    def apply(self, config, fit):
-        fr = Friction.from_dict(config.friction.to_dict())
+    def friction(self, fr, fit):
+        fr = Friction.from_dict(fr.to_dict())
         fr.viscous = fr.viscous + _joint_coef(fit)[:, 0]
-        return config.copy(friction=fr)
+        return fr
 
     def inject(self, plant, rng, magnitude):
         v = self.SIZES * magnitude * rng.uniform(0.7, 1.3, 7)
@@ -73,7 +120,7 @@ class ViscousFriction(Effect):
         return {"viscous_Nms_per_rad": np.round(_joint_coef(fit)[:, 0], 6).tolist()}
 
 
-class CoulombFriction(Effect):
+class CoulombFriction(_DissipativeLinear):
     """Coulomb joint friction ``tau_f = F_c tanh(dq / v_c)``; the smoothing velocity v_c (common to all joints) is
     chosen from COULOMB_VC on the residual unless the model already has Coulomb friction.
 
@@ -108,11 +155,11 @@ class CoulombFriction(Effect):
             j: f"Coulomb friction {tot[j]:.3g} Nm is implausibly large" for j in fit.joints
             if tot[j] > 0.25 * _tau_max(ctx)[j]}
 
-    def apply(self, config, fit):
-        fr = Friction.from_dict(config.friction.to_dict())
+    def friction(self, fr, fit):
+        fr = Friction.from_dict(fr.to_dict())
         fr.coulomb = fr.coulomb + _joint_coef(fit)[:, 0]
         fr.coulomb_vel = float(fit.theta["coulomb_vel"])
-        return config.copy(friction=fr)
+        return fr
 
     def inject(self, plant, rng, magnitude):
         c = self.SIZES * magnitude * rng.uniform(0.7, 1.3, 7)
@@ -461,7 +508,7 @@ class LoadDependentFriction(Effect):
                 "coulomb_vel_rad_per_s": float(fit.theta["coulomb_vel"])}
 
 
-class StribeckFriction(Effect):
+class StribeckFriction(_DissipativeLinear):
     """The Stribeck effect: friction higher at breakaway than in sliding, decaying with speed,
     ``tau_f = F_s exp(-(dq / v_s)^2) tanh(dq / v_c)`` on top of the model's friction (the exponential Stribeck curve
     of Armstrong-Helouvry, Dupont & Canudas de Wit, Automatica 30(7) 1994, its sign smoothed through zero as the
@@ -536,8 +583,8 @@ class StribeckFriction(Effect):
                 if c[j] < 0} | {j: f"Stribeck height {c[j]:.3g} Nm is implausibly large" for j in fit.joints
                                 if c[j] >= 0.25 * tm[j]}
 
-    def apply(self, config, fit):
-        fr = Friction.from_dict(config.friction.to_dict())
+    def friction(self, fr, fit):
+        fr = Friction.from_dict(fr.to_dict())
         vs = np.broadcast_to(np.asarray(fit.theta["v_s"], dtype=float), (7,))
         c = _joint_coef(fit)[:, 0]
         for j in fit.joints:
@@ -550,7 +597,7 @@ class StribeckFriction(Effect):
             fr.stribeck_vel[j] = vs[j]
         if not fr.coulomb.any():  # the hump's sign smoothing is the Coulomb term's (kept when the model has one)
             fr.coulomb_vel = float(fit.theta["coulomb_vel"])
-        return config.copy(friction=fr)
+        return fr
 
     def inject(self, plant, rng, magnitude):
         h = self.SIZES * magnitude * rng.uniform(0.7, 1.3, 7)

@@ -443,6 +443,22 @@ class LinkInertials(Effect):
             fit.theta["links"] = new  # what apply writes into the model
         return {-1: "; ".join(out)} if out else {}
 
+    def constrain(self, ctx, config, fit):
+        """A fit that failed the consistency check (no consistent arm reproduces it within the tolerance) is applied
+        as its closest physically consistent links, when they exist and change no link's mass by more than x2: the
+        fit constrained to consistent inertials (the held-out check and the final RMSE judge them)."""
+        if fit.theta.get("links") is not None:  # passed its check: applied as it is
+            return fit, None
+        dt = float(getattr(ctx.data.report, "dt_median", 0.0) or 0.0)
+        if dt > 1.0 / LI_MIN_RATE:
+            return fit, None
+        new, old, problem = self._links(ctx, fit)
+        if problem is None or problem.startswith("the model's links") or not all(
+                0.5 <= new[i, 0] / old[i, 0] <= 2.0 for i in range(7)):
+            return fit, None
+        out = Fit(fit.effect, {**fit.theta, "links": new}, fit.joints)
+        return out, "applied as the closest physically consistent links (" + problem.split(": ", 1)[-1] + ")"
+
     def apply(self, config, fit):
         from dataclasses import replace
 

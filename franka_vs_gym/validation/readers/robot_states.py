@@ -406,7 +406,7 @@ def read_json(path: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     text = io.read_text(path, what="log", max_bytes=io.MAX_INPUT_BYTES)
     where = str(path)
     try:
-        doc = json.loads(text)
+        doc = io.loads_json(text, where)
         kind = "JSON"
     except json.JSONDecodeError as e:
         if "Extra data" not in str(e):
@@ -415,7 +415,7 @@ def read_json(path: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         for lineno, line in enumerate(text.splitlines(), start=1):
             if line.strip():
                 try:
-                    doc.append(json.loads(line))
+                    doc.append(io.loads_json(line, f"{where}: line {lineno}"))
                 except json.JSONDecodeError as e2:
                     raise ValueError(f"{where}: line {lineno} is not a JSON object: {e2}") from None
     if isinstance(doc, dict) and doc and set(doc) <= SIDECAR_KEYS | {"source_format", "time_origin_s", "tool_source",

@@ -85,13 +85,35 @@ def joint_index(name: str) -> int | None:
     return int(m.group(1)) - 1 if m else None
 
 
+def _storage_files(folder: Path) -> list[Path]:
+    """The rosbag2 storage files (``.db3``, ``.mcap``) directly in ``folder`` (a bag folder whose metadata.yaml is
+    missing, e.g. a recording that was interrupted or copied without it)."""
+    try:
+        return sorted(p for p in folder.iterdir() if p.suffix.lower() in (".db3", ".mcap") and not p.is_dir())
+    except OSError:
+        return []
+
+
+def _bare_storage(folder: Path) -> Path:
+    """The one storage file of a rosbag2 folder without metadata.yaml, read as a bare bag."""
+    from franka_vs_gym import io
+
+    files = _storage_files(folder)
+    if len(files) != 1:
+        raise ValueError(f"{folder}: a rosbag2 folder without metadata.yaml holding {len(files)} storage files "
+                         f"{[f.name for f in files]}; pass one of them (each is read as a bare bag)")
+    return io.check_input_file(files[0], what="ROS bag")
+
+
 def bag_kind(path: Path) -> str | None:
     """``"ROS 1"`` for a ROS 1 bag (``.bag``, or a regular file starting with ``#ROSBAG V2.0``), ``"ROS 2"`` for a
     rosbag2 folder (with metadata.yaml) or a bare ``.mcap``/``.db3`` file (or a file with their magic bytes), else
     None."""
     path = Path(path)
     if path.is_dir():
-        return ROS2 if (path / "metadata.yaml").is_file() else None
+        if (path / "metadata.yaml").is_file():
+            return ROS2
+        return ROS2 if _storage_files(path) else None
     suffix = path.suffix.lower()
     if suffix == ".bag":
         return ROS1
@@ -125,6 +147,8 @@ def _open_bag(p: Path, kind: str) -> Iterator[Any]:
     from rosbags.typesys import Stores, get_typestore
 
     default = get_typestore(Stores.ROS1_NOETIC if kind == ROS1 else Stores.ROS2_HUMBLE)
+    if p.is_dir() and not (p / "metadata.yaml").is_file():  # metadata.yaml missing: its storage file, bare
+        p = _bare_storage(p)
     with contextlib.ExitStack() as stack:
         target = p
         want = ".bag" if kind == ROS1 else None

@@ -1,0 +1,585 @@
+"""Confidence on every fitted number: standard errors, 95 % intervals, strong correlations and unidentifiable
+combinations of the parameters ``diagnose`` selects and ``fit`` applies.
+
+**Noise model.** The residual of a robot log is not white: the torque is low-pass filtered (neighbouring 1 kHz
+samples are nearly equal), what the model still lacks follows the motion for seconds, and the noise differs between
+joints and with speed. The ordinary least-squares covariance ``s^2 (X^T X)^-1`` (what ``mujoco.sysid``'s
+``calculate_intervals`` reports) assumes independent samples and is then far too narrow. This module uses a
+**sandwich** covariance ``B Omega B`` (``B = (J^T J)^-1`` on the identifiable subspace) whose middle ``Omega`` is the
+long-run variance of the per-sample scores ``g_t = sum_j J[t, j, :] e[t, j]`` (summing over the joints of one
+sample keeps the cross-joint correlation), estimated by the **equal-weighted cosine (EWC)** estimator: the average
+of ``nu`` outer products of the scores' projections onto the lowest cosines ``cos(pi k (t + 1/2) / N)``,
+``k = 1..nu`` (Lazarus, Lewis, Stock and Watson, "HAR inference: recommendations for practice", J. Bus. Econ. Stat.
+36(4), 2018). Why this and not the alternatives:
+
+- it is heteroscedasticity- *and* autocorrelation-consistent (HAC), like Newey-West, but its t-statistic follows a
+  Student t with ``nu`` degrees of freedom exactly under fixed-smoothing asymptotics, so the interval uses
+  ``t_nu(0.975)`` instead of 1.96 and keeps its coverage on strongly persistent series, where Newey-West with
+  normal critical values is known to under-cover (measured here: ``scripts/coverage_study.py``);
+- it needs one DCT of the scores, ``O(N log N)`` per parameter, where a moving-block bootstrap needs hundreds of
+  refits (the budget is 5 s for a 30 s, 1 kHz diagnosis);
+- ``nu`` is set from the log itself: ``nu = 0.4 N_eff^(2/3)`` (the rule of Lazarus et al. with the effective
+  number of samples ``N_eff = N / tau_int`` of the parameters' influence series in place of ``N``), at most
+  ``N_eff / 4`` (the highest cosine stays below the corner of the scores' spectrum), between 2 and ``MAX_DOF``: a
+  log with few independent samples gets few degrees of freedom and an honestly wide Student quantile.
+
+``method="hac"`` (the default of :func:`parameter_covariance`) is this EWC estimator; ``"newey_west"`` (Bartlett
+kernel, Andrews' AR(1) bandwidth, normal quantile) and ``"ols"`` (white noise, as ``mujoco.sysid``) are there for
+comparison (the coverage study and the test show what they do on robot logs).
+
+**Non-linear parameters.** Every fitted number of an effect (its linear coefficients and the shape parameters of
+its law: the sigmoid's width and centre, the Coulomb smoothing velocity, a refined delay, the replacement sigmoid of
+``fit``) is a parameter of the Jacobian ``J = d(contribution)/d(theta)`` (central finite differences of the effect's
+own ``contribution``; exact for the linear ones), so the sandwich is the delta method of the non-linear least-squares
+fit. Reported quantities that are non-linear functions of these (payload mass, centre of mass and inertia from the
+ten dynamic parameters, the tilt angle from the gravity change) get their interval by propagating ``N(theta,
+Sigma)`` through the effect's own ``public`` (``N_DRAWS`` seeded draws; the interval is the value +- the Student
+quantile times the draws' standard deviation); no effect needs code of its own, plug-ins included.
+
+**Unidentifiable directions.** Eigen-directions of the column-scaled ``J^T J`` below ``NULL_TOL`` of the largest
+are not identified by the log. Every reported number that moves along one gets the interval ``None``, and the
+combination is said in words ("payload mass and link 7 mass scale: only their sum is seen").
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy import fft as sfft
+from scipy import stats
+
+NULL_TOL = 1e-9  # relative eigenvalue of the scaled normal matrix below which a direction is not identified
+CORR_MIN = 0.9  # |r| above which a pair of parameters is reported as correlated
+MAX_DOF = 200
+N_DRAWS = 500
+LEVEL = 0.95
+_SKIP_KEYS = {"replace", "links", "joints"}
+
+
+# ------------------------------------------------------------------------------------------ the covariance itself
+def _scores(X: np.ndarray, residual: np.ndarray) -> np.ndarray:
+    X = np.asarray(X, dtype=np.float64)
+    e = np.asarray(residual, dtype=np.float64)
+    if X.ndim == 2:
+        if e.shape != (X.shape[0],):
+            raise ValueError(f"residual must have shape ({X.shape[0]},), got {e.shape}")
+        return X * e[:, None]
+    if X.ndim != 3 or e.shape != X.shape[:2]:
+        raise ValueError(f"X (N, k, P) and residual (N, k) do not match: {X.shape} vs {e.shape}")
+    return np.matmul(X.transpose(0, 2, 1), e[:, :, None])[:, :, 0]
+
+
+def _tau_int(x: np.ndarray, max_lag: int = 4000) -> float:
+    """Integrated autocorrelation time of a series (summed while the autocorrelation is positive)."""
+    from franka_vs_gym.validation.selection import n_eff
+
+    n = len(x)
+    return float(n / max(n_eff(x, max_lag=min(max_lag, n - 1)), 1.0))
+
+
+def ewc_dof(influence: np.ndarray) -> int:
+    """Degrees of freedom ``nu`` of the EWC estimator for influence series (N, P): ``0.4 N_eff^(2/3)`` with the
+    smallest effective sample size among the columns, at most ``N_eff / 4`` (the highest cosine then stays below
+    the corner frequency of the series' spectrum), clipped to [2, MAX_DOF]."""
+    n = influence.shape[0]
+    var = influence.var(axis=0)
+    cols = [c for c in range(influence.shape[1]) if var[c] > 0]
+    if not cols:
+        return MAX_DOF
+    tau = max(_tau_int(influence[:, c]) for c in cols)
+    neff = n / max(tau, 1.0)
+    nu = min(0.4 * neff ** (2.0 / 3.0), 0.25 * neff)
+    return int(np.clip(round(nu), 2, MAX_DOF))
+
+
+def _meat_ewc(g: np.ndarray, nu: int) -> np.ndarray:
+    n = g.shape[0]
+    c = sfft.dct(g, type=2, axis=0)[1:nu + 1] * math.sqrt(2.0 / n) / 2.0  # (nu, P): sqrt(2/N) sum g cos(...)
+    return n * (c.T @ c) / nu  # long-run variance of the sum of the scores
+
+
+def _andrews_bandwidth(g: np.ndarray) -> int:
+    """Andrews (1991) AR(1) plug-in bandwidth of the Bartlett kernel."""
+    n = g.shape[0]
+    num = den = 0.0
+    for c in range(g.shape[1]):
+        x = g[:, c] - g[:, c].mean()
+        d = float(x[:-1] @ x[:-1])
+        if d <= 0:
+            continue
+        rho = float(np.clip(x[1:] @ x[:-1] / d, -0.999, 0.999))
+        s2 = float(np.mean((x[1:] - rho * x[:-1]) ** 2))
+        num += 4 * rho ** 2 * s2 ** 2 / ((1 - rho) ** 6 * (1 + rho) ** 2)
+        den += s2 ** 2 / (1 - rho) ** 4
+    alpha = num / den if den > 0 else 0.0
+    return int(min(max(1, math.ceil(1.1447 * (alpha * n) ** (1.0 / 3.0))), n // 2))
+
+
+def _meat_newey_west(g: np.ndarray, lag: int) -> np.ndarray:
+    """Bartlett-weighted sum of autocovariances, exactly, as the sum of outer products of window sums."""
+    n, p = g.shape
+    pad = np.vstack([np.zeros((lag + 1, p)), g, np.zeros((lag, p))])
+    cs = np.cumsum(pad, axis=0)
+    S = cs[lag + 1:] - cs[:-(lag + 1)]  # sums of g over windows of lag + 1 samples (partial at the edges)
+    return (S.T @ S) / (lag + 1)
+
+
+@dataclass
+class Covariance:
+    """A parameter covariance with what its intervals need: ``cov`` (P, P), the Student degrees of freedom ``dof``
+    (``inf``: normal quantile), the unidentified directions ``null`` (P, m) in raw parameter units, the column
+    scales and the method."""
+
+    cov: np.ndarray
+    dof: float
+    null: np.ndarray
+    scale: np.ndarray
+    method: str
+    info: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def quantile(self) -> float:
+        q = (1 + LEVEL) / 2
+        return float(stats.norm.ppf(q) if not np.isfinite(self.dof) else stats.t.ppf(q, self.dof))
+
+    def se(self) -> np.ndarray:
+        return np.sqrt(np.maximum(np.diag(self.cov), 0.0))
+
+    def identified(self) -> np.ndarray:
+        """(P,) True where the parameter does not move along an unidentified direction."""
+        if self.null.shape[1] == 0:
+            return np.ones(len(self.scale), bool)
+        v = self.null * self.scale[:, None]  # scaled coordinates, unit columns
+        return np.max(np.abs(v), axis=1) < 1e-3
+
+
+def covariance(X: np.ndarray, residual: np.ndarray, *, method: str = "hac", gram: np.ndarray | None = None,
+               dof: int | None = None, bandwidth: int | None = None) -> Covariance:
+    """The covariance of least-squares parameters fitted to ``residual`` with regressor ``X`` ((N, P) or (N, k, P)
+    with ``residual`` (N, k): k channels sampled together, e.g. the 7 joints), see the module docstring.
+    ``gram``: ``X^T X`` when already known."""
+    X = np.asarray(X, dtype=np.float64)
+    g = _scores(X, residual)
+    n, p = g.shape
+    if n < 8:
+        raise ValueError(f"{n} samples are too few for a covariance")
+    if gram is None:
+        Xf = X.reshape(-1, p)
+        gram = Xf.T @ Xf
+    scale = np.sqrt(np.maximum(np.diag(gram), 1e-300))
+    Gs = gram / np.outer(scale, scale)
+    w, V = np.linalg.eigh(0.5 * (Gs + Gs.T))
+    top = max(float(w[-1]), 1e-300)
+    ok = w > NULL_TOL * top
+    Binv_s = (V[:, ok] / w[ok]) @ V[:, ok].T  # pseudo-inverse in scaled coordinates
+    B = Binv_s / np.outer(scale, scale)
+    null = V[:, ~ok] / scale[:, None]
+    info: dict[str, Any] = {}
+    if method in ("hac", "ewc"):
+        infl = g @ B
+        nu = int(dof) if dof is not None else ewc_dof(infl)
+        meat = _meat_ewc(g, nu)
+        dof_t: float = float(nu)
+        info["nu"] = nu
+    elif method == "newey_west":
+        lag = int(bandwidth) if bandwidth is not None else _andrews_bandwidth(g @ B)
+        meat = _meat_newey_west(g, lag)
+        dof_t = math.inf
+        info["bandwidth"] = lag
+    elif method == "ols":
+        e = np.asarray(residual, dtype=np.float64).ravel()
+        s2 = float(e @ e) / max(e.size - p, 1)
+        cov = s2 * B
+        return Covariance(0.5 * (cov + cov.T), float(max(e.size - p, 1)), null, scale, method, info)
+    else:
+        raise ValueError(f"unknown covariance method {method!r}: use 'hac', 'newey_west' or 'ols'")
+    cov = B @ meat @ B
+    return Covariance(0.5 * (cov + cov.T), dof_t, null, scale, method, info)
+
+
+def parameter_covariance(X: np.ndarray, residual: np.ndarray, *, method: str = "hac", **kw: Any) -> np.ndarray:
+    """(P, P) covariance of the least-squares parameters of ``residual`` on ``X`` ((N, P), or (N, k, P) with
+    ``residual`` (N, k)); ``method``: ``"hac"`` (equal-weighted cosine HAC, the workbench's), ``"newey_west"`` or
+    ``"ols"``. Directions the regressor does not identify get zero variance here (see :func:`covariance` for them
+    and for the Student degrees of freedom)."""
+    return covariance(X, residual, method=method, **kw).cov
+
+
+# ------------------------------------------------------------------------------------- effects' parameters
+def _leaf_paths(obj: Any, path: tuple = ()) -> list[tuple]:
+    """Paths of the numeric leaves of a JSON-like structure."""
+    out: list[tuple] = []
+    if isinstance(obj, dict):
+        for k, v in obj.items():
+            if k in _SKIP_KEYS:
+                continue
+            out += _leaf_paths(v, path + (k,))
+    elif isinstance(obj, (list, tuple)):
+        for i, v in enumerate(obj):
+            out += _leaf_paths(v, path + (i,))
+    elif isinstance(obj, (float, np.floating)):  # integers (counts, indices) are not estimates
+        out.append(path)
+    return out
+
+
+def _get(obj: Any, path: tuple) -> float | None:
+    try:
+        for k in path:
+            obj = obj[k]
+    except (KeyError, IndexError, TypeError):
+        return None
+    if obj is None or isinstance(obj, (bool, str)):
+        return None
+    try:
+        v = float(obj)
+    except (TypeError, ValueError):
+        return None
+    return v if math.isfinite(v) else None
+
+
+def _set(obj: Any, path: tuple, value: Any) -> None:
+    for k in path[:-1]:
+        obj = obj[k]
+    obj[path[-1]] = value
+
+
+def _mirror(obj: Any) -> Any:
+    """The structure with every number replaced by None; strings, booleans and the ``joints`` list kept."""
+    if isinstance(obj, dict):
+        return {k: (v if k in _SKIP_KEYS else _mirror(v)) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_mirror(v) for v in obj]
+    if isinstance(obj, (float, np.floating)):
+        return None
+    return obj
+
+
+_PAYLOAD = ["mass", "first moment x", "first moment y", "first moment z", "Ixx", "Ixy", "Iyy", "Ixz", "Iyz", "Izz"]
+
+
+def _label(effect, key: str, idx: tuple, joints_shape: bool) -> str:
+    name = effect.name
+    if key == "coef":
+        if name == "payload":
+            return f"payload {_PAYLOAD[idx[0]]}"
+        if name == "gravity_tilt":
+            return f"gravity {'xyz'[idx[0]]}"
+        if name == "link_mass":
+            return f"link {idx[0] + 1} mass scale"
+        if name == "link_inertials":
+            return f"arm base parameter {idx[0]}"
+        if name in ("delay",):
+            return "delay"
+        if joints_shape:
+            col = f" (column {idx[1]})" if len(idx) > 1 and idx[1] > 0 else ""
+            return f"{name} joint {idx[0]}{col}"
+        return f"{name} coefficient {idx[0]}"
+    if joints_shape:
+        return f"{name} {key} joint {idx[0]}"
+    return f"{name} {key}" + (f" {idx[0]}" if idx and len(idx) else "")
+
+
+@dataclass
+class _Param:
+    term: int
+    key: str
+    idx: tuple
+    label: str
+    value: float
+    step: float
+
+
+def _theta_params(effect, fit, ti: int) -> list[_Param]:
+    out: list[_Param] = []
+    for key, v in fit.theta.items():
+        if key in _SKIP_KEYS or isinstance(v, (bool, str)) or v is None:
+            continue
+        try:
+            a = np.asarray(v, dtype=np.float64)
+        except (TypeError, ValueError):
+            continue
+        if a.dtype.kind not in "fiu" or a.size == 0:
+            continue
+        joints_shape = effect.per_joint and a.ndim >= 1 and a.shape[0] == 7
+        if key == "coef" and effect.per_joint:
+            a = a.reshape(7, -1)
+            joints_shape = True
+        for idx in np.ndindex(a.shape):
+            if joints_shape and idx[0] not in fit.joints:
+                continue
+            val = float(a[idx])
+            step = 1e-4 * max(abs(val), 1e-3) if key != "coef" else 1.0
+            out.append(_Param(ti, key, tuple(int(i) for i in idx), _label(effect, key, idx, joints_shape), val, step))
+    return out
+
+
+def _with(fit, p: _Param, value: float):
+    from franka_vs_gym.validation.effects import Fit
+
+    th = {k: (np.array(v, dtype=np.float64, copy=True) if k == p.key else v) for k, v in fit.theta.items()}
+    a = th[p.key]
+    if p.key == "coef" and a.ndim == 1 and len(p.idx) == 2:
+        a = a.reshape(7, -1)
+        th[p.key] = a
+    if a.ndim == 0:
+        th[p.key] = np.float64(value)
+    else:
+        a[p.idx] = value
+    return Fit(fit.effect, th, list(fit.joints))
+
+
+def _set_theta(fit, params: list[_Param], x: np.ndarray):
+    """A copy of ``fit`` with the parameters ``params`` (all of this fit) set to ``x``."""
+    from franka_vs_gym.validation.effects import Fit
+
+    th = {k: (np.array(v, dtype=np.float64, copy=True) if k in {p.key for p in params} else v)
+          for k, v in fit.theta.items()}
+    for p, v in zip(params, x, strict=True):
+        a = th[p.key]
+        if p.key == "coef" and a.ndim == 1 and len(p.idx) == 2:
+            a = a.reshape(7, -1)
+            th[p.key] = a
+        if a.ndim == 0:
+            th[p.key] = np.float64(v)
+        else:
+            a[p.idx] = v
+    return Fit(fit.effect, th, list(fit.joints))
+
+
+def _public(effect, ctx, fit) -> dict[str, Any]:
+    out = effect.public(fit)
+    t = effect.tilt_deg(ctx, fit)
+    if t is not None:
+        out["tilt_deg"] = t
+    return out
+
+
+@dataclass
+class Confidence:
+    """The confidence of a set of fitted effects: per effect ``params_ci95`` (same structure as its ``public``
+    parameters, numbers replaced by [low, high] or None), ``correlations`` (|r| > CORR_MIN pairs) and
+    ``unidentifiable`` (sentences), plus the parameter-level covariance."""
+
+    params_ci95: list[dict[str, Any]]
+    correlations: list[list[dict[str, Any]]]
+    unidentifiable: list[list[str]]
+    labels: list[str]
+    theta: np.ndarray
+    cov: Covariance
+
+
+def _words(null: np.ndarray, labels: list[str], scale: np.ndarray) -> list[str]:
+    out = []
+    for c in range(null.shape[1]):
+        u = null[:, c]
+        us = u * scale
+        idx = [i for i in np.argsort(-np.abs(us)) if abs(us[i]) > 0.15 * np.abs(us).max()]
+        if not idx:
+            continue
+        if len(idx) == 1:
+            out.append(f"{labels[idx[0]]}: not seen at all by this log")
+            continue
+        if len(idx) == 2:
+            a, b = idx
+            r = u[a] / u[b]
+            if abs(r + 1) < 0.05:
+                how = "only their sum is seen"
+            elif abs(r - 1) < 0.05:
+                how = "only their difference is seen"
+            else:  # the seen combination A u_b - B u_a, i.e. A - (u_a / u_b) B
+                k = -u[a] / u[b]
+                how = f"only {labels[a]} {'+' if k >= 0 else '-'} {abs(k):.3g} x {labels[b]} is seen"
+            out.append(f"{labels[a]} and {labels[b]}: {how}")
+            continue
+        names = ", ".join(labels[i] for i in idx[:-1]) + f" and {labels[idx[-1]]}"
+        steps = ", ".join(f"{u[i] / abs(u[idx[0]]):+.3g}" for i in idx)
+        out.append(f"{names}: the log cannot tell them apart (changing them together by {steps} x leaves every "
+                   "torque unchanged)")
+    return out
+
+
+def confidence(ctx, effects: list, fits: list, y: np.ndarray, *, method: str = "hac",
+               draws: int = N_DRAWS, seed: int = 0) -> Confidence:
+    """Intervals of every reported parameter of the jointly fitted ``effects`` / ``fits`` on target ``y`` (N, 7)
+    (the context's residual the set explains); see the module docstring."""
+    params: list[_Param] = []
+    for ti, (e, f) in enumerate(zip(effects, fits, strict=True)):
+        params += _theta_params(e, f, ti)
+    from franka_vs_gym.validation.effects import Effect
+
+    contrib = [e.contribution(ctx, f) for e, f in zip(effects, fits, strict=True)]
+    resid = y - sum(contrib, np.zeros_like(y))
+    P = len(params)
+    n = ctx.n
+    Jt = np.zeros((P, n, 7))  # d(contribution)/d(theta_k), one contiguous block per parameter
+    designs: dict[int, np.ndarray] = {}
+    unfitted = np.zeros(P, dtype=bool)
+    for k, p in enumerate(params):
+        e, f = effects[p.term], fits[p.term]
+        if p.key == "coef" and p.term not in designs:
+            designs[p.term] = e.design(ctx, {kk: v for kk, v in f.theta.items() if kk != "coef"})
+        if p.key == "coef" and e.per_joint and len(p.idx) > 1 and p.idx[1] >= designs[p.term].shape[2]:
+            unfitted[k] = True  # a coefficient the effect's design has no column for (not estimated)
+            continue
+        if p.key == "coef" and type(e).contribution is Effect.contribution:  # linear: the design's column
+            D = designs[p.term]
+            if e.per_joint:
+                Jt[k, :, p.idx[0]] = D[:, p.idx[0], p.idx[1] if len(p.idx) > 1 else 0]
+            else:
+                Jt[k] = D[:, :, p.idx[0]]
+        elif p.key == "coef":
+            Jt[k] = e.contribution(ctx, _with(f, p, p.value + 1.0)) - contrib[p.term]
+        else:
+            h = p.step
+            Jt[k] = (e.contribution(ctx, _with(f, p, p.value + h))
+                     - e.contribution(ctx, _with(f, p, p.value - h))) / (2 * h)
+    Jf = Jt.reshape(P, -1)
+    # a parameter is fitted when changing it (a coefficient by 1, a shape parameter by its own size) changes the
+    # torque by more than round-off: e.g. the scale of a model term the model does not have is not
+    ref = np.array([1.0 if p.key == "coef" else max(abs(p.value), 1e-3) for p in params])
+    live = (np.linalg.norm(Jf, axis=1) * ref > 1e-7 * max(float(np.linalg.norm(y)), 1e-12)) & ~unfitted
+    labels = [p.label for p in params]
+    Jl = Jf[live]
+    cv = covariance(Jt[live].transpose(1, 2, 0), resid, method=method, gram=Jl @ Jl.T)
+    theta = np.array([p.value for p in params])
+    # full-size covariance (dead parameters: not fitted, no column)
+    full = np.zeros((P, P))
+    li = np.nonzero(live)[0]
+    full[np.ix_(li, li)] = cv.cov
+    null = np.zeros((P, cv.null.shape[1]))
+    null[li] = cv.null
+    scale = np.ones(P)
+    scale[li] = cv.scale
+    cov_full = Covariance(full, cv.dof, null, scale, cv.method, cv.info)
+    q = cv.quantile
+    rng = np.random.default_rng(seed)
+    # draws in the identified subspace
+    w, V = np.linalg.eigh(cv.cov)  # the fitted parameters only: the others stay exactly at their value
+    w = np.where(w > 1e-12 * max(float(w.max(initial=0.0)), 1e-300), w, 0.0)
+    Z = np.zeros((draws, P))
+    Z[:, li] = rng.standard_normal((draws, len(w))) @ (V * np.sqrt(w)).T
+    ci, corr, unid = [], [], []
+    se = cov_full.se()
+    sentences = _words(null, labels, scale)
+    for ti, (e, f) in enumerate(zip(effects, fits, strict=True)):
+        pub = _public(e, ctx, f)
+        mirror = _mirror(pub)
+        paths = _leaf_paths(pub)
+        own = [k for k, p in enumerate(params) if p.term == ti]
+        vals = {pth: [] for pth in paths}
+        for d in range(draws):
+            x = theta.copy()
+            x[own] += Z[d, own]
+            pd = _public(e, ctx, _set_theta(f, [params[k] for k in own], x[own]))
+            for pth in paths:
+                vals[pth].append(_get(pd, pth))
+        # numbers that move along an unidentified direction
+        moved: set[tuple] = set()
+        for c in range(null.shape[1]):
+            u = null[own, c]
+            if not np.any(u):
+                continue
+            s_own = np.maximum(np.maximum(np.abs(theta[own]), se[own]), 1e-6)
+            t = 1.0 / max(float(np.max(np.abs(u) / s_own)), 1e-300)
+            for sgn in (1.0, -1.0):
+                pd = _public(e, ctx, _set_theta(f, [params[k] for k in own], theta[own] + sgn * t * u))
+                for pth in paths:
+                    a, b = _get(pub, pth), _get(pd, pth)
+                    if a is None or b is None or abs(b - a) > 1e-3 * (abs(a) + 1e-6):
+                        moved.add(pth)
+        for pth in paths:
+            v0 = _get(pub, pth)
+            vs = np.array([v for v in vals[pth] if v is not None], dtype=float)
+            # None: moves along an unidentified direction, or does not move at all (nothing fitted drives it)
+            if v0 is None or pth in moved or len(vs) < 0.9 * draws or float(np.ptp(vs)) == 0.0:
+                continue
+            half = q * float(np.std(vs))
+            _set(mirror, pth, [_r(v0 - half), _r(v0 + half)])
+        if any(k in pub for k in ("link_mass_kg", "link_com_m")):
+            sentences_own = ("link_inertials: single link masses and centres of mass are not identifiable from joint "
+                             "torques, only the base parameters are (the link values shown are the physically "
+                             "consistent arm closest to the published one)")
+        else:
+            sentences_own = None
+        ci.append(mirror)
+        # correlations among this effect's parameters and with the others'
+        pairs = []
+        for a in own:
+            for b in range(P):
+                if b == a or (b in own and b < a) or se[a] <= 0 or se[b] <= 0:
+                    continue
+                r = full[a, b] / (se[a] * se[b])
+                if abs(r) > CORR_MIN:
+                    pairs.append({"a": labels[a], "b": labels[b], "r": round(float(r), 3)})
+        corr.append(pairs)
+        names = {labels[k] for k in own}
+        unid.append([s for s in sentences if any(nm in s for nm in names)] + ([sentences_own] if sentences_own else []))
+    return Confidence(ci, corr, unid, labels, theta, cov_full)
+
+
+def _r(x: float) -> float:
+    if x == 0 or not math.isfinite(x):
+        return float(x)
+    return float(f"{x:.6g}")
+
+
+def format_value(v: Any, ci: Any) -> str:
+    """'value [low, high]' for a number with its interval, 'value [not identifiable]' for None."""
+    if isinstance(v, float):
+        if isinstance(ci, (list, tuple)) and len(ci) == 2:
+            return f"{v:.4g} [{ci[0]:.4g}, {ci[1]:.4g}]"
+        return f"{v:.4g} [not identifiable]"
+    return str(v)
+
+
+def _fmt_list(v: list, c: Any, joints: list[int] | None = None) -> str:
+    cl = c if isinstance(c, list) else [None] * len(v)
+    items = []
+    for i, (x, cc) in enumerate(zip(v, cl, strict=False)):
+        if isinstance(x, list):
+            items.append(_fmt_list(x, cc))
+        elif x is None or (joints is not None and len(v) == 7 and i not in joints):
+            items.append("-")
+        else:
+            items.append(format_value(x, cc))
+    return "[" + "; ".join(items) + "]"
+
+
+def format_params(params: dict[str, Any], ci: dict[str, Any] | None, joints: list[int] | None = None) -> str:
+    """The parameters with their 95 % intervals, ``name=value [low, high]`` (lists element by element; per-joint
+    lists show "-" for the joints the effect is not fitted on when ``joints`` is given)."""
+    parts = []
+    for k, v in params.items():
+        c = (ci or {}).get(k)
+        if isinstance(v, list):
+            parts.append(f"{k}={_fmt_list(v, c, joints)}")
+        elif isinstance(v, float):
+            parts.append(f"{k}={format_value(v, c)}")
+        else:
+            parts.append(f"{k}={v}")
+    return ", ".join(parts)
+
+
+__all__ = ["Confidence", "Covariance", "covariance", "confidence", "covered", "ewc_dof", "format_params", "format_value",
+           "parameter_covariance"]
+
+
+def covered(ci: Any, truth: Any, joints: list[int] | None = None) -> tuple[int, int, int]:
+    """(inside, outside, unidentified) counts of the true value(s) ``truth`` (a number or a list, per joint when
+    ``joints`` is given: only those joints count) against the intervals ``ci`` (one ``params_ci95`` entry)."""
+    if isinstance(truth, (int, float)):
+        truth, ci, joints = [truth], [ci], None
+    ins = out = unid = 0
+    for j, (t, c) in enumerate(zip(truth, ci, strict=False)):
+        if joints is not None and j not in joints:
+            continue
+        if c is None:
+            unid += 1
+        elif c[0] <= t <= c[1]:
+            ins += 1
+        else:
+            out += 1
+    return ins, out, unid
