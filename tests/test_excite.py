@@ -202,6 +202,11 @@ def test_end_to_end_designed_payload_on_serve_with_hidden_truth(tmp_path):
     widths = effect_widths(data, ["payload"], ModelConfig())
     w = np.array(list(widths.values()))
     truth_vec = np.concatenate([[m_true], m_true * c_true])
+    # the fit's own 95 % intervals (validation.uncertainty, HAC) hold the true mass and centre of mass
+    ci = res.params_ci95["payload"]
+    assert ci["mass_kg"][0] <= m_true <= ci["mass_kg"][1]
+    for k, c in enumerate([0.02, -0.01, 0.07]):
+        assert ci["com_flange_m"][k][0] <= c <= ci["com_flange_m"][k][1], (k, ci["com_flange_m"])
     # the truth inside the predicted 95 % interval around the fit (mass and first moments)
     assert np.all(np.abs(th[:4] - truth_vec) <= w[:4] / 2), (th[:4], truth_vec, w[:4])
     # the designed recording's intervals at least 2x narrower than a generic excitation of the same duration

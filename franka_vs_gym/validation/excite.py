@@ -154,8 +154,11 @@ def _processed(time_s: np.ndarray, q: np.ndarray, dq: np.ndarray, ddq: np.ndarra
     rate = 1.0 / dt
     zeros = np.zeros((n, 7))
     if not _PLANNED_LOG:  # metadata only (tool, gravity: the defaults; the model's are the configuration's)
-        _PLANNED_LOG.append(MeasurementLog(np.array([0.0, 0.001]), np.zeros((2, 7)), np.zeros((2, 7)),
-                                           np.zeros((2, 7)), extra={"planned": True}))
+        from franka_vs_gym.model.description import FER
+
+        q0 = np.repeat(np.asarray(FER.neutral(), dtype=float)[None], 2, axis=0)  # a pose inside every joint range
+        _PLANNED_LOG.append(MeasurementLog(np.array([0.0, 0.001]), q0, np.zeros((2, 7)), np.zeros((2, 7)),
+                                           extra={"planned": True}))
     settings = replace(CleanSettings(), rate=rate, cutoff=min(10.0, 0.45 * rate), max_gap=4 * dt)
     report = CleaningReport(n, 0, 0, dt, dt, dt, n, {}, [])
     return ProcessedLog(time_s - time_s[0], q, dq, ddq, zeros, zeros, {}, np.asarray(noise, float),
