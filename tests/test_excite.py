@@ -73,7 +73,8 @@ def test_unseen_direction_is_infinite_not_narrow():
 
 
 def test_design_keeps_limits_and_table_clearance_and_beats_generic():
-    d = design_excitation(["armature"], duration=14.0, time_budget=12.0, fraction=0.5, clearance=0.15, seed=1)
+    d = design_excitation(["armature"], duration=14.0, time_budget=120.0, max_evaluations=250, fraction=0.5,
+                          clearance=0.15, seed=1)
     model = FrankaModel()
     lim = model.limits()
     rows = trajectory_table(d.motion, 1000.0)
@@ -93,20 +94,22 @@ def test_design_keeps_limits_and_table_clearance_and_beats_generic():
     assert np.all(np.isfinite(d.widths))
 
 
-def _cli(*argv):
-    return subprocess.run([sys.executable, "-m", "franka_vs_gym.cli", *argv], capture_output=True, text=True,
-                          timeout=120)
+def _cli(capsys, *argv):
+    from franka_vs_gym.cli import main as cli_main
+
+    rc = cli_main(list(argv))
+    return rc, capsys.readouterr().err
 
 
-def test_cli_errors_are_one_line(tmp_path):
-    r = _cli("excite", "--effects", "no_such_effect", "-o", str(tmp_path / "x"))
-    assert r.returncode == 2 and "unknown effect 'no_such_effect'" in r.stderr and "Traceback" not in r.stderr
-    r = _cli("excite", "--separate", "payload", "-o", str(tmp_path / "x"))
-    assert r.returncode == 2 and "--separate needs two or more effects" in r.stderr
+def test_cli_errors_are_one_line(tmp_path, capsys):
+    rc, err = _cli(capsys, "excite", "--effects", "no_such_effect", "-o", str(tmp_path / "x"))
+    assert rc == 2 and "unknown effect 'no_such_effect'" in err and len(err.strip().splitlines()) == 1
+    rc, err = _cli(capsys, "excite", "--separate", "payload", "-o", str(tmp_path / "x"))
+    assert rc == 2 and "--separate needs two or more effects" in err
     diag = tmp_path / "d.json"
     diag.write_text(json.dumps({"selected": [], "verdict": "none"}))
-    r = _cli("excite", "--from", str(diag), "-o", str(tmp_path / "x"))
-    assert r.returncode == 2 and "names no ambiguous or selected effect" in r.stderr
+    rc, err = _cli(capsys, "excite", "--from", str(diag), "-o", str(tmp_path / "x"))
+    assert rc == 2 and "names no ambiguous or selected effect" in err
     assert not (tmp_path / "x").exists()
 
 
@@ -175,8 +178,8 @@ def test_end_to_end_designed_payload_on_serve_with_hidden_truth(tmp_path):
 
     duration = 8.0
     out = tmp_path / "excite"
-    assert cli_main(["excite", "--effects", "payload", "--duration", str(duration), "--time-budget", "20",
-                     "--rest", "0.5", "-o", str(out), "--quiet", "--json"]) == 0
+    assert cli_main(["excite", "--effects", "payload", "--duration", str(duration), "--time-budget", "300",
+                     "--evaluations", "400", "--rest", "0.5", "-o", str(out), "--quiet", "--json"]) == 0
     truth = {"effects": [{"effect": "payload", "mass_kg": 1.3, "com_flange_m": [0.02, -0.01, 0.07]}],
              "torque_noise_Nm": 0.1, "seed": 2}
     tf = tmp_path / "truth.json"
@@ -199,6 +202,11 @@ def test_end_to_end_designed_payload_on_serve_with_hidden_truth(tmp_path):
     widths = effect_widths(data, ["payload"], ModelConfig())
     w = np.array(list(widths.values()))
     truth_vec = np.concatenate([[m_true], m_true * c_true])
+    # the fit's own 95 % intervals (validation.uncertainty, HAC) hold the true mass and centre of mass
+    ci = res.params_ci95["payload"]
+    assert ci["mass_kg"][0] <= m_true <= ci["mass_kg"][1]
+    for k, c in enumerate([0.02, -0.01, 0.07]):
+        assert ci["com_flange_m"][k][0] <= c <= ci["com_flange_m"][k][1], (k, ci["com_flange_m"])
     # the truth inside the predicted 95 % interval around the fit (mass and first moments)
     assert np.all(np.abs(th[:4] - truth_vec) <= w[:4] / 2), (th[:4], truth_vec, w[:4])
     # the designed recording's intervals at least 2x narrower than a generic excitation of the same duration
@@ -216,7 +224,8 @@ def test_franky_script_plays_the_design(tmp_path):
     from franka_vs_gym.validation.logs import load_log
 
     out = tmp_path / "excite"
-    assert cli_main(["excite", "--effects", "armature", "--duration", "6", "--time-budget", "3", "--rest", "0.5",
+    assert cli_main(["excite", "--effects", "armature", "--duration", "6", "--time-budget", "60", "--evaluations", "30",
+                     "--rest", "0.5",
                      "-o", str(out), "--quiet", "--json"]) == 0
     with FCIServer(loopback_host(NET + 2), lockstep=True, camera=False, verbose=False) as srv:
         r = subprocess.run([sys.executable, str(out / "play_excitation_franky.py"), srv.host], capture_output=True,
@@ -246,3 +255,22 @@ def test_sigmoid_question_is_its_three_parameters():
     assert np.allclose(cols.A[:, :, 0].sum(axis=1), expect[:, 0], atol=1e-6)  # joint 0's phi1 column
     F, _ = motion_information(m, cfg, [get_effect("sigmoid_friction")], np.full(7, 0.2))
     assert len(cols.names) == 21 and np.isfinite(predicted_widths(F, 100.0)).all()
+
+
+def test_reference_log_and_model_file_truth(tmp_path):
+    """--log: the design is compared with the log that raised the question, with that log's noise floor; a
+    calibrated model file is a truth as it stands."""
+    from franka_vs_gym.fci.truth import load_truth
+    from franka_vs_gym.validation.compare import as_processed
+    from franka_vs_gym.validation.hidden import make_hidden_effect_log
+
+    log, _ = make_hidden_effect_log("none", seed=3, duration=6.0)
+    data = as_processed(log)
+    d = design_excitation(["delay"], duration=6.0, rest=0.5, time_budget=60.0, max_evaluations=30, reference=data)
+    assert d.reference.startswith("the log") and np.allclose(d.noise, data.noise)
+    w_ref = effect_widths(data, ["delay"], ModelConfig())["delay.delay_s"]
+    assert np.isclose(d.widths_reference[0], w_ref, rtol=1e-6)
+    p = tmp_path / "plant.json"
+    ModelConfig(armature=np.full(7, 0.2)).save(p)
+    t = load_truth(p, ModelConfig())
+    assert np.allclose(t.plant.armature, 0.2) and t.payload is None

@@ -53,6 +53,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="seed of the starting points (default 0)")
     parser.add_argument("--time-budget", type=float, default=45.0, metavar="S",
                         help="seconds the optimiser may use (default 45)")
+    parser.add_argument("--evaluations", type=int, default=None, metavar="N",
+                        help="stop the search after N criterion evaluations (the same design on any machine); the "
+                             "time budget still applies")
     parser.add_argument("--json", action="store_true", help="print the design as one JSON object on stdout")
     parser.add_argument("--force", action="store_true", help="replace an existing output folder")
     parser.add_argument("--quiet", action="store_true", help="no progress messages on stderr")
@@ -117,6 +120,8 @@ def main(args: argparse.Namespace) -> int:
                     ("--neff-rate", args.neff_rate)):
         if not (v > 0 and np.isfinite(v)):
             raise UserError(f"{name} must be a positive number, got {v}")
+    if args.evaluations is not None and args.evaluations < 1:
+        raise UserError(f"--evaluations must be >= 1, got {args.evaluations}")
     if not 0 < args.fraction <= 1:
         raise UserError(f"--fraction must be in (0, 1], got {args.fraction}")
     if args.clearance < 0 or args.rest < 0 or args.position_margin < 0:
@@ -136,7 +141,8 @@ def main(args: argparse.Namespace) -> int:
                                   criterion=args.criterion, rest=args.rest, fraction=args.fraction,
                                   pos_margin=args.position_margin, clearance=args.clearance,
                                   neff_rate=args.neff_rate, reference=reference, seed=args.seed,
-                                  time_budget=args.time_budget, verbose=verbose)
+                                  time_budget=args.time_budget, max_evaluations=args.evaluations,
+                                  verbose=verbose)
         except ValueError as e:
             raise UserError(str(e)) from None
         out = d.to_dict()

@@ -11,22 +11,28 @@ acceleration are zero where the motion leaves and joins the rests (``sum_l a_jl 
 the robot starts and ends at rest, with a continuous acceleration.
 
 **Criterion.** The workbench's own regressor: a validation :class:`~franka_vs_gym.validation.effects.Context` is
-built from the candidate motion (its q, dq, ddq sampled at a design rate, the robot's model), and each effect in
-question gives its columns (:meth:`~franka_vs_gym.validation.effects.Effect.design`, friction laws and the delay's
-``-d tau/dt`` included). With white torque noise ``sigma_j`` per joint (the robot's typical floor, or the noise of
-a given log) and an effective sample size ``N_eff = duration x neff_rate`` (samples of a 1 kHz robot log are
-correlated through the unmodelled part of the residual; ``neff_rate`` 100 Hz by default, i.e. an integrated
-autocorrelation time of 10 ms), the parameters' predicted covariance is ``(sum_k x_k W x_k^T)^-1 x N_eff / N``
-and their 95 % interval half-width ``1.96 sqrt(diag)``. The design maximises ``log det`` of the information
-matrix normalised by that of a reference motion (D-optimal: small joint confidence region, and effects whose
-columns are collinear are pulled apart, which is what ``--separate`` needs) or its smallest eigenvalue
-(E-optimal: the worst-identified direction).
+built from the candidate motion (its q, dq, ddq sampled on one period, plus its rest pose; the robot's model), and
+each effect in question gives its columns (:meth:`~franka_vs_gym.validation.effects.Effect.design`, friction laws
+and the delay's ``-d tau/dt`` included). With white torque noise ``sigma_j`` per joint (the robot's typical floor,
+or the noise of a given log) and an effective sample size ``N_eff = duration x neff_rate`` (samples of a 1 kHz robot
+log are correlated through the unmodelled part of the residual; ``neff_rate`` 100 Hz by default, i.e. an integrated
+autocorrelation time of 10 ms), the parameters' predicted covariance is ``(neff_rate sum_k dt_k x_k W x_k^T)^-1``
+and their 95 % interval half-width ``1.96 sqrt(diag)``. The design maximises ``log det`` of the information matrix
+normalised by that of a reference motion (D-optimal: small joint confidence region, and effects whose columns are
+collinear are pulled apart, which is what ``--separate`` needs) or its smallest eigenvalue (E-optimal: the
+worst-identified direction).
 
 **Limits.** Joint positions within the limits minus ``pos_margin``; velocities, accelerations and jerks within
 ``fraction`` of the robot's limits (``model.limits()``); the flange at least ``clearance`` above the table top
 (z = 0 of the base frame) and the end effector and the wrist (joints 5-7) at least ``clearance / 2``, checked
-with the model's kinematics on a fine grid. The optimiser (``scipy.optimize.minimize``, L-BFGS-B) sees a penalty
-on violations; the result is then scaled about its centre pose until every limit holds on a 200 Hz grid.
+with the model's kinematics. Every candidate is scaled about its centre pose to the largest size within these
+limits (linear in the scale for the joint limits, bisection for the clearance), so the optimiser
+(``scipy.optimize.minimize``, L-BFGS-B from the best of 8 random starts, within a wall-time budget) only compares
+motions the robot may play; the result is re-checked on a 200 Hz grid of the whole motion.
+
+**Scope.** Non-linear shape parameters (smoothing and Stribeck velocities) are held at nominal values; the model's
+sigmoid is designed for through its sensitivities to phi1, phi2, phi3. Self-collision and obstacles other than the
+table are not checked.
 """
 
 from __future__ import annotations
@@ -148,8 +154,11 @@ def _processed(time_s: np.ndarray, q: np.ndarray, dq: np.ndarray, ddq: np.ndarra
     rate = 1.0 / dt
     zeros = np.zeros((n, 7))
     if not _PLANNED_LOG:  # metadata only (tool, gravity: the defaults; the model's are the configuration's)
-        _PLANNED_LOG.append(MeasurementLog(np.array([0.0, 0.001]), np.zeros((2, 7)), np.zeros((2, 7)),
-                                           np.zeros((2, 7)), extra={"planned": True}))
+        from franka_vs_gym.model.description import FER
+
+        q0 = np.repeat(np.asarray(FER.neutral(), dtype=float)[None], 2, axis=0)  # a pose inside every joint range
+        _PLANNED_LOG.append(MeasurementLog(np.array([0.0, 0.001]), q0, np.zeros((2, 7)), np.zeros((2, 7)),
+                                           extra={"planned": True}))
     settings = replace(CleanSettings(), rate=rate, cutoff=min(10.0, 0.45 * rate), max_gap=4 * dt)
     report = CleaningReport(n, 0, 0, dt, dt, dt, n, {}, [])
     return ProcessedLog(time_s - time_s[0], q, dq, ddq, zeros, zeros, {}, np.asarray(noise, float),
@@ -359,21 +368,6 @@ class Kinematics:
         return out
 
 
-def violations(motion, lim: Limits, kin: Kinematics, t: np.ndarray, t_kin: np.ndarray) -> np.ndarray:
-    """Ratios > 0 by which each limit is exceeded (a flat array; all <= 0 when the motion is within limits)."""
-    q, dq, ddq, dddq = motion.sample(t)
-    parts = [(q - lim.q_max).max(axis=0), (lim.q_min - q).max(axis=0),
-             (np.abs(dq) / lim.dq_max).max(axis=0) - 1, (np.abs(ddq) / lim.ddq_max).max(axis=0) - 1,
-             (np.abs(dddq) / lim.dddq_max).max(axis=0) - 1]
-    if lim.clearance > 0:
-        qk, _, _, _ = motion.sample(t_kin)
-        h = kin.heights(qk)
-        need = np.array([lim.clearance, 0.5 * lim.clearance, 0.5 * lim.clearance, 0.5 * lim.clearance,
-                         0.5 * lim.clearance])
-        parts.append(((need - h) / lim.clearance).max(axis=0))
-    return np.concatenate([np.atleast_1d(p) for p in parts])
-
-
 def max_scale(motion: FourierMotion, lim: Limits, kin: Kinematics, t: np.ndarray, t_kin: np.ndarray) -> float:
     """The largest factor on the motion's amplitudes (about its centre pose) that keeps it within the limits on the
     grids ``t`` (positions, velocities, accelerations, jerks: linear in the factor) and ``t_kin`` (table clearance:
@@ -485,10 +479,13 @@ def design_excitation(effects: list[str], *, separate: list[list[str]] | None = 
                       config: ModelConfig | None = None, criterion: str = "D", harmonics: int = 5,
                       rest: float = 1.0, fraction: float = 0.5, pos_margin: float = 0.2, clearance: float = 0.15,
                       noise: Any = None, neff_rate: float = NEFF_RATE, reference: Any = None, seed: int = 0,
-                      time_budget: float = 45.0, verbose: bool = False) -> Design:
+                      time_budget: float = 45.0, max_evaluations: int | None = None,
+                      verbose: bool = False) -> Design:
     """Design an excitation for ``effects`` (names; those of the ``separate`` groups are added). ``reference`` is a
-    ProcessedLog (the log that raised the question) or None (the generic excitation of the same duration).
-    Raises ValueError naming a bad input."""
+    ProcessedLog (the log that raised the question) or None (the generic excitation of the same duration). The
+    search stops after ``time_budget`` s of wall time or ``max_evaluations`` criterion evaluations, whichever comes
+    first (a number of evaluations makes the design the same on any machine). Raises ValueError naming a bad
+    input."""
     from scipy.optimize import minimize
 
     from franka_vs_gym.model.franka_model import FrankaModel
@@ -569,7 +566,8 @@ def design_excitation(effects: list[str], *, separate: list[list[str]] | None = 
     deadline = t0 + time_budget
 
     def objective(x: np.ndarray) -> float:
-        if time.perf_counter() > deadline and best["m"] is not None:
+        if best["m"] is not None and (time.perf_counter() > deadline
+                                      or (max_evaluations is not None and n_eval[0] >= max_evaluations)):
             raise _OutOfTime
         n_eval[0] += 1
         m = within(unpack(x))
