@@ -6,7 +6,10 @@ effect alone, best first: ``effect``, ``joints``, ``params``, ``rmse_tau_after``
 ``plausible``, ``removed_rms``, ``problems``), ``verdict`` (the strongest selected effect or ``"none"``),
 ``selected`` (the set fitted together: ``effect``, ``joints``, ``params``, ``contribution`` (Nm removed per joint in
 context), ``score``), ``rmse_tau_selected``, ``explained`` and ``unexplained`` (what the residual still follows),
-``assumptions`` (tool, gravity, rate, cleaning, warnings) and ``notes`` (why effects were rejected). Progress goes to
+``ambiguous`` (lists of effect names the log cannot tell apart) and ``ambiguity`` (each with ``candidates``,
+``joints``, ``evidence`` and ``separate_by``, the motion that would separate them), ``changes`` (the model changes
+during the log: ``t``, ``what``, ``before``, ``after``), ``assumptions`` (tool, gravity, rate, cleaning, warnings) and
+``notes`` (why effects were rejected). Progress goes to
 stderr.
 """
 
@@ -77,6 +80,10 @@ def main(args: argparse.Namespace) -> int:
         print(f"selected: {s.effect:26s} joints {s.joints}  removes (Nm) {np.round(s.contribution, 3).tolist()}")
     if d.rmse_tau_selected is not None and d.selection:
         print(f"held-out RMSE with the selected set (Nm): {np.round(d.rmse_tau_selected, 3).tolist()}")
+    for c in d.changes:
+        print(c.text())
+    for amb in d.ambiguous:
+        print(amb.text())
     for n in d.notes:
         print(f"note: {n}")
     if d.unexplained is not None:

@@ -166,6 +166,9 @@ def _diagnosis_section(d: Diagnosis, out: Path) -> list[str]:
         p = plot_unexplained(d, out / "unexplained.png")
         if p is not None:
             L += [f"![unexplained residual]({p.name})", ""]
+    changes, amb = getattr(d, "changes", []), getattr(d, "ambiguous", [])
+    if changes or amb:
+        L += [f"- {c.text()}" for c in changes] + [f"- {a.text()}" for a in amb] + [""]
     if d.notes:
         L += ["Notes:", ""] + [f"- {n}" for n in d.notes] + [""]
     L += ["Each effect alone on the baseline residual:", "",
