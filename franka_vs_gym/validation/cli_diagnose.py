@@ -8,7 +8,9 @@ effect alone, best first: ``effect``, ``joints``, ``params``, ``rmse_tau_after``
 number replaced by its 95 % interval ``[low, high]``, ``null`` where the log cannot identify it), ``correlations``
 (parameter pairs with abs(r) > 0.9), ``unidentifiable`` (combinations the log cannot separate, in words),
 ``contribution`` (Nm removed per joint in context), ``score``), ``rmse_tau_selected``, ``explained`` and
-``unexplained`` (what the residual still follows),
+``unexplained`` (what the residual still follows), ``ambiguous`` (lists of effect names the log cannot tell apart)
+and ``ambiguity`` (each with ``candidates``, ``joints``, ``evidence`` and ``separate_by``, the motion that would
+separate them), ``changes`` (the model changes during the log: ``t``, ``what``, ``before``, ``after``),
 ``assumptions`` (tool, gravity, rate, cleaning, warnings) and ``notes`` (why effects were rejected). Progress goes to
 stderr.
 """

@@ -33,6 +33,16 @@ Method (all on the inverse-dynamics residual ``r = tau_J - tau_model`` of the ba
 8. **Lack of fit.** Each selected effect's law is compared with nonparametric functions of its own driving
    variables (:mod:`~franka_vs_gym.validation.lackfit`); an effect whose law misses the shape its variable shows
    is kept as the closest library effect with ``lack_of_fit``, and ``explained`` is false.
+9. **Payload before link inertials.** When ``link_inertials`` is selected, a body at the flange that explains the
+   residual as well replaces it, or is named beside the links 1-6 when it is heavier than ``PAYLOAD_MIN_KG`` and
+   centred beyond the flange plane (:meth:`_Selector._payload_first`).
+10. **Changes during the log** (:mod:`~franka_vs_gym.validation.changes`): a payload or offsets that change at a
+   time ``t_c`` are found from the residual; the selection runs again with the change, which is reported in
+   ``changes`` (:class:`ModelChange`), not in ``selected``.
+11. **Ambiguity.** On each joint of a selected per-joint law, the laws a log may not tell apart (``CONFUSABLE``,
+   and torque-sensor crosstalk for friction laws) are fitted in its place; within ``AMBIGUOUS`` of its held-out
+   evidence (or above it) they are reported in ``ambiguous`` (:class:`Ambiguity`), with the motion that would
+   separate them.
 """
 
 from __future__ import annotations
@@ -69,6 +79,34 @@ COLLINEAR = 0.8
 FLOOR_STOP = 1.05
 FOLDS = 5
 HOLDOUT = 0.25
+MAX_EFFECTS = 8  # selection rounds: a real log already needs about five (friction laws, link inertials, tilt)
+PAYLOAD_MIN_KG = 0.1  # a flange body lighter than this is not named beside the link inertials (link 7's own error)
+# a body held at the flange has its centre of mass beyond the flange plane (flange z >= 0, with a margin); a flange
+# body centred inside link 7 is link 7's own error, which the link inertials keep
+PAYLOAD_COM_Z_MIN = -0.03
+AMBIGUOUS = 10.0  # held-out evidence (the score's units) within which two laws on a joint are not told apart
+# laws a log may not tell apart on a joint, and the motion that separates them
+CONFUSABLE = {
+    "torque_offset": [("asymmetric_friction", "the joint at rest for a few seconds at two or three poses, and slow "
+                                              "motions in both directions (an offset stays at rest, friction "
+                                              "vanishes)")],
+    "asymmetric_friction": [("torque_offset", "the joint at rest for a few seconds at two or three poses, and slow "
+                                              "motions in both directions (an offset stays at rest, friction "
+                                              "vanishes)")],
+    "viscous_friction": [("coulomb_friction", "the joint at three or more constant speeds (e.g. 0.1, 0.5 and 1 "
+                                              "rad/s) in both directions (viscous friction grows with speed, a "
+                                              "Coulomb step does not)")],
+    "coulomb_friction": [("viscous_friction", "the joint at three or more constant speeds (e.g. 0.1, 0.5 and 1 "
+                                              "rad/s) in both directions (viscous friction grows with speed, a "
+                                              "Coulomb step does not)")],
+    "sigmoid_friction": [("viscous_friction", "the joint at three or more constant speeds (e.g. 0.1, 0.5 and 1 "
+                                              "rad/s) in both directions (viscous friction grows with speed, a "
+                                              "step law does not)")],
+}
+CROSSTALK_SEPARATE = ("the joint held still while the joints before it move through large torque changes (torque-"
+                      "sensor crosstalk follows the other joint's torque, friction needs the joint's own motion)")
+FRICTION_NAMES = ("viscous_friction", "coulomb_friction", "sigmoid_friction", "asymmetric_friction",
+                  "stribeck_friction")
 
 
 @dataclass
@@ -140,6 +178,46 @@ class Selected:
 
 
 @dataclass
+class Ambiguity:
+    """Explanations the log cannot tell apart: ``candidates`` (effect names, the selected one first) on ``joints``,
+    their held-out ``evidence`` (name -> score of the selected set with that candidate in place; within
+    ``AMBIGUOUS`` of each other), and ``separate_by``: in words, the motion that would separate them."""
+
+    candidates: list[str]
+    joints: list[int]
+    evidence: dict[str, float]
+    separate_by: str
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"candidates": list(self.candidates), "joints": list(map(int, self.joints)),
+                "evidence": {k: round(float(v), 2) for k, v in self.evidence.items()},
+                "separate_by": self.separate_by}
+
+    def text(self) -> str:
+        ev = ", ".join(f"{k} {v:.1f}" for k, v in self.evidence.items())
+        return (f"ambiguous on joint{'s' if len(self.joints) != 1 else ''} {', '.join(map(str, self.joints))}: "
+                f"{' or '.join(self.candidates)} explain the log equally well (held-out evidence {ev}); "
+                f"to separate them record {self.separate_by}")
+
+
+@dataclass
+class ModelChange:
+    """The model changes during the log at ``t`` (s from the start of the processed log): ``what`` in words, the
+    parameters ``before`` and ``after`` (e.g. a payload's mass and centre of mass)."""
+
+    t: float
+    what: str
+    before: dict[str, Any]
+    after: dict[str, Any]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"t": round(float(self.t), 3), "what": self.what, "before": self.before, "after": self.after}
+
+    def text(self) -> str:
+        return f"the model changes at t = {self.t:.2f} s: {self.what}"
+
+
+@dataclass
 class Diagnosis:
     """Result of :func:`diagnose`: baseline RMSE (7,) Nm, total, noise floor (7,), ranking (each effect alone, best
     first), verdict (the strongest selected effect or "none"), the selected set (``selection``; ``selected`` its
@@ -160,6 +238,8 @@ class Diagnosis:
     notes: list[str] = field(default_factory=list)
     residual: np.ndarray | None = None
     data: ProcessedLog | None = None  # the whole processed log (the context may hold a decimated copy)
+    ambiguous: list[Ambiguity] = field(default_factory=list)
+    changes: list[ModelChange] = field(default_factory=list)
     # each selected effect's torque (N, 7) Nm on the analysed samples (context.data.time), fitted with the set
     contributions: dict[str, np.ndarray] = field(default_factory=dict)
 
@@ -181,6 +261,9 @@ class Diagnosis:
         if self.unexplained is not None:
             d["explained"] = bool(self.unexplained.explained)
             d["unexplained"] = self.unexplained.to_dict()
+        d["ambiguous"] = [list(a.candidates) for a in self.ambiguous]
+        d["ambiguity"] = [a.to_dict() for a in self.ambiguous]
+        d["changes"] = [c.to_dict() for c in self.changes]
         d["assumptions"] = self.assumptions
         d["notes"] = list(self.notes)
         return d
@@ -191,12 +274,45 @@ def _folds(n: int, k: int) -> list[np.ndarray]:
     return [np.arange(edges[i], edges[i + 1]) for i in range(k)]
 
 
+class _Crosstalk(Effect):
+    """Torque-sensor crosstalk (internal: an alternative the ambiguity check tries, not a library effect): joint j's
+    sensor also measures a fraction of the torque of another joint i (the model's torque of the i whose torque
+    follows the target most closely, chosen per joint)."""
+
+    name = "torque_crosstalk"
+    n_params = 2
+    injectable = False
+
+    def shape(self, ctx, target):
+        P = ctx.ev.predicted[ctx.coarse]
+        P = P - P.mean(axis=0)
+        T = target[ctx.coarse] - target[ctx.coarse].mean(axis=0)
+        c = np.abs(np.einsum("ni,nj->ij", P, T)) / np.sqrt(np.outer(np.einsum("ni,ni->i", P, P),
+                                                                       np.einsum("nj,nj->j", T, T)) + 1e-30)
+        np.fill_diagonal(c, -1.0)
+        return {"from": np.argmax(c, axis=0).astype(float)}
+
+    def design(self, ctx, shape):
+        src = np.asarray(shape["from"], dtype=int)
+        return ctx.ev.predicted[:, src][:, :, None]
+
+
+CROSSTALK = _Crosstalk()
+
+
 class _Selector:
     """In-context forward selection with a backward pass, on one Engine."""
 
     def __init__(self, ctx: Context, eng: Engine, noise: np.ndarray, effects: list[Effect], verbose: bool) -> None:
         self.ctx, self.eng, self.noise, self.effects, self.verbose = ctx, eng, noise, effects, verbose
         self.rejections: dict[str, str] = {}
+
+    forced: tuple[Term, ...] = ()
+
+    def _first(self, base: list[Term]) -> bool:
+        """The first round: nothing in the set but what the caller forced (a tool fitted as a payload, a model
+        change found mid-log)."""
+        return all(any(t is f for f in self.forced) for t in base)
 
     def _neff(self, sf: SetFit) -> np.ndarray:
         return np.maximum(np.asarray(n_eff(self.eng.residual(sf))), 2.0)
@@ -213,7 +329,7 @@ class _Selector:
         ln_n = np.log(neff)
         if e.per_joint:
             sf_all = eng.fit(base + [Term(e, shape, list(range(7)))])
-            if not base:  # ranking: the effective sample size of what would remain with the candidate alone
+            if self._first(base):  # ranking: the effective sample size of what would remain with the candidate alone
                 neff = np.maximum(neff, self._neff(sf_all))
                 ln_n = np.log(neff)
             js = self._gain(mse0, sf_all.mse_cv, neff) - e.n_params * ln_n
@@ -257,7 +373,7 @@ class _Selector:
             fit.joints = list(keep)
         else:
             sf = eng.fit(base + [Term(e, shape)])
-            if not base:
+            if self._first(base):
                 neff = np.maximum(neff, self._neff(sf))
             gain = self._gain(mse0, sf.mse_cv, neff)
             js = gain
@@ -314,10 +430,11 @@ class _Selector:
         den = float(np.sqrt(np.einsum("ij,ij->", ca, ca) * np.einsum("ij,ij->", cb, cb)))
         return den > 0 and abs(float(np.einsum("ij,ij->", ca, cb))) / den > COLLINEAR
 
-    def run(self, select: bool, max_effects: int = 5, forced: list[Term] | None = None,
+    def run(self, select: bool, max_effects: int = MAX_EFFECTS, forced: list[Term] | None = None,
             ) -> tuple[list[Candidate], list[Term], SetFit]:
         eng, noise = self.eng, self.noise
         forced = list(forced or [])
+        self.forced = tuple(forced)
         chosen: list[Term] = list(forced)
         cur = eng.fit(chosen)
         ranking: list[Candidate] = []
@@ -364,8 +481,42 @@ class _Selector:
                 chosen, cur = self._swap(chosen, cur, forced)
                 chosen, cur = self._backward(chosen, cur, keep=forced)
         if select and len(chosen) > len(forced):
+            chosen, cur = self._payload_first(chosen, cur)
             chosen, cur = self._prune_joints(chosen, cur)
         return ranking, chosen, cur
+
+    def _payload_first(self, chosen: list[Term], cur: SetFit) -> tuple[list[Term], SetFit]:
+        """A rigid body at the flange before a change of the link inertials: when ``link_inertials`` is selected
+        and ``payload`` is a candidate, (1) the payload replaces the link inertials when the set then scores
+        within ``AMBIGUOUS`` of it (it explains the residual as well); (2) otherwise, when the links 1-6 with a
+        flange body (link 7's own parameters and the payload are one body) carry a flange body of at least
+        ``PAYLOAD_MIN_KG`` with its centre of mass beyond the flange plane (``PAYLOAD_COM_Z_MIN``) that is
+        plausible, it is named ``payload`` and ``link_inertials`` keeps what the flange body cannot explain."""
+        from franka_vs_gym.validation.effects.inertial import ArmLinkInertials, LinkInertials
+
+        i = next((k for k, t in enumerate(chosen) if isinstance(t.effect, LinkInertials)
+                  and not isinstance(t.effect, ArmLinkInertials)), None)
+        pay = next((e for e in self.effects if e.name == "payload"), None)
+        if i is None or pay is None or any(t.effect is pay for t in chosen):
+            return chosen, cur
+        neff = self._neff(cur)
+        base_score = self.set_score(chosen, cur, neff)
+        alt = chosen[:i] + [Term(pay, {})] + chosen[i + 1:]
+        sf = self.eng.fit(alt)
+        if self.set_score(alt, sf, neff) >= base_score - AMBIGUOUS and not pay.problems(self.ctx, sf.fits[i]):
+            progress("payload first: a flange body explains the residual as well as the link inertials", self.verbose)
+            return self._refresh(alt)
+        arm = ArmLinkInertials(chosen[i].effect)
+        split = chosen[:i] + [Term(arm, {}), Term(pay, {})] + chosen[i + 1:]
+        sf = self.eng.fit(split)
+        fit = sf.fits[i + 1]
+        mass = float(pay.coef(fit)[0])
+        com_z = float(pay.public(fit).get("com_flange_m", [0.0, 0.0, -1.0])[2]) if mass > 0 else -1.0
+        if (mass >= PAYLOAD_MIN_KG and com_z >= PAYLOAD_COM_Z_MIN and not pay.problems(self.ctx, fit)
+                and not arm.problems(self.ctx, sf.fits[i])):
+            progress(f"payload first: a flange body of {mass:.2f} kg, link inertials for the rest", self.verbose)
+            return split, sf
+        return chosen, cur
 
     def _refresh(self, chosen: list[Term]) -> tuple[list[Term], SetFit]:
         """Re-choose the shape of every non-linear term on what the others leave (alternating once)."""
@@ -483,6 +634,51 @@ class _Selector:
             out.append(Selected(t.effect.name, joints, params, contrib, loss))
         return out
 
+    def ambiguities(self, chosen: list[Term], cur: SetFit) -> list[Ambiguity]:
+        """Joints where a selected per-joint law and a confusable one (:data:`CONFUSABLE`, and torque-sensor
+        crosstalk for friction laws) explain the log within ``AMBIGUOUS`` of each other: each law's held-out
+        evidence on the joint is its score there against the set without the joint's law."""
+        eng = self.eng
+        neff = self._neff(cur)
+        lib = {e.name: e for e in self.effects}
+        found: dict[tuple[str, str], list[tuple[int, float, float, str]]] = {}
+        contribs = eng.contributions(cur)
+        total = sum(contribs, np.zeros_like(eng.y))
+        for i, t in enumerate(chosen):
+            if not t.effect.per_joint or not t.joints:
+                continue
+            alts = [(lib[a], why) for a, why in CONFUSABLE.get(t.effect.name, []) if a in lib]
+            if t.effect.name in FRICTION_NAMES:
+                alts.append((CROSSTALK, CROSSTALK_SEPARATE))
+            rests: dict[int, tuple[list[Term], SetFit]] = {}
+            for alt, why in alts:
+                target = eng.y - (total - contribs[i])
+                shape = alt.shape(self.ctx, target)
+                for j in t.joints:
+                    if any(u.effect is alt and u.active(j) for u in chosen):
+                        continue
+                    if j not in rests:  # the set without this law on joint j (shared by the alternatives)
+                        js = [x for x in t.joints if x != j]
+                        rest = chosen[:i] + ([Term(t.effect, t.shape, js)] if js else []) + chosen[i + 1:]
+                        rests[j] = (rest, eng.fit(rest))
+                    rest, sf_rest = rests[j]
+                    k = next((m for m, u in enumerate(rest) if u.effect is alt), None)
+                    if k is None:
+                        trial = rest + [Term(alt, shape, [j])]
+                    else:
+                        trial = rest[:k] + [Term(alt, rest[k].shape, sorted(rest[k].joints + [j]))] + rest[k + 1:]
+                    sf_alt = eng.fit(trial)
+                    m0 = max(float(sf_rest.mse_cv[j]), 1e-30)
+                    e_sel, e_alt = (float(neff[j] * np.log(m0 / max(float(m1[j]), 1e-30)) - kp * np.log(neff[j]))
+                                    for m1, kp in ((cur.mse_cv, t.effect.n_params), (sf_alt.mse_cv, alt.n_params)))
+                    if e_alt > JOINT_SCORE_MIN and e_alt > e_sel - AMBIGUOUS:
+                        found.setdefault((t.effect.name, alt.name), []).append((j, e_sel, e_alt, why))
+        out = []
+        for (a, b), rows in found.items():
+            out.append(Ambiguity([a, b], [r[0] for r in rows], {a: sum(r[1] for r in rows),
+                                                                b: sum(r[2] for r in rows)}, rows[0][3]))
+        return out
+
 
 def _order(c: Candidate) -> tuple:
     return (not c.ok, not c.plausible, -c.score)
@@ -573,11 +769,16 @@ def diagnose(log: MeasurementLog | ProcessedLog | str, model: Any = None, *, rig
     eng = Engine(ctx, y, fl)
     sel = _Selector(ctx, eng, noise, cands, verbose)
     ranking, chosen, cur = sel.run(select, forced=forced)
+    changes: list[ModelChange] = []
+    if select:
+        chosen, cur, changes = _model_changes(ctx, eng, sel, chosen, cur, noise, forced, verbose)
     notes = [f"{n} not selected: {why}" for n, why in sel.rejections.items()]
     selection = sel.describe(chosen, cur) if chosen else []
     if chosen and select:
         progress("95% intervals of the selected set's parameters", verbose)
         _attach_confidence(ctx, y, chosen, cur, selection)
+    selection = [s for s in selection if not s.effect.endswith("_after")]  # a mid-log change is in `changes`
+    ambiguous = sel.ambiguities(chosen, cur) if select and chosen else []
     # the delay may be on the command channel instead (commands reach the joints late)
     if any(e.name == "delay" for e in cands):
         meas = next((c for c in ranking if c.effect == "delay"), None)
@@ -606,7 +807,7 @@ def diagnose(log: MeasurementLog | ProcessedLog | str, model: Any = None, *, rig
             progress("lack-of-fit test of each selected effect along its own variables", verbose)
             _lack_of_fit(ctx, eng, chosen, cur, residual, noise, folds, selection, unexplained)
     d = Diagnosis(rmse(y), float(np.sqrt(np.mean(y ** 2))), noise.copy(), ranking, verdict, selection, cfg, ctx,
-                  rmse_sel, unexplained, assumptions_of(data, cfg, tool), notes, residual, data)
+                  rmse_sel, unexplained, assumptions_of(data, cfg, tool), notes, residual, data, ambiguous, changes)
     if fx is not data:
         d.assumptions["effects_analysed_at_hz"] = fx.settings.rate
     if select and chosen:
@@ -639,6 +840,31 @@ def _attach_command_confidence(ctx: Context, fit: Fit, s: Selected) -> None:
                                                        conf.unidentifiable[0])
 
 
+def _model_changes(ctx: Context, eng: Engine, sel: _Selector, chosen: list[Term], cur: SetFit, noise: np.ndarray,
+                   forced: list[Term], verbose: bool) -> tuple[list[Term], SetFit, list[ModelChange]]:
+    """Scan the residual of the selected set for a change of the model during the log
+    (:mod:`~franka_vs_gym.validation.changes`); when one is found, select again with the change in the model (so
+    the effects present all along are named on a residual without the step) and describe it."""
+    from franka_vs_gym.validation import changes as ch
+
+    found = ch.scan(ctx, eng.residual(cur), noise)
+    if found is None:
+        return chosen, cur, []
+    progress(f"the model changes at t = {found.t_c:.2f} s ({found.effect}): selecting again with the change", verbose)
+    base = get_effect(found.effect)
+    step = ch.After(base, found.t_c)
+    joints = None
+    if base.per_joint:
+        joints = [j for j in range(7) if found.removed[j] >= 0.25 * noise[j]] or list(range(7))
+    term = Term(step, {}, joints)
+    _, chosen2, cur2 = sel.run(True, forced=forced + [term])
+    k = next(i for i, t in enumerate(chosen2) if t.effect is step)  # (its joints may have been pruned)
+    whole = next((f for t, f in zip(chosen2, cur2.fits, strict=True) if t.effect is base), None)
+    what, before, after = ch.describe(found.effect, base.public(whole) if whole is not None else None,
+                                      step.public(cur2.fits[k]))
+    return chosen2, cur2, [ModelChange(found.t_c, what, before, after)]
+
+
 def _lack_of_fit(ctx: Context, eng: Engine, chosen: list[Term], cur: SetFit, residual: np.ndarray,
                  noise: np.ndarray, folds: int, selection: list[Selected], unexplained: Any) -> None:
     """Mark the selected effects whose law does not capture the shape of their own driving variables (see
@@ -647,7 +873,9 @@ def _lack_of_fit(ctx: Context, eng: Engine, chosen: list[Term], cur: SetFit, res
     from franka_vs_gym.validation.lackfit import describe, test_lack_of_fit
     from franka_vs_gym.validation.structure import Finding
 
-    fails = test_lack_of_fit(ctx, chosen, eng.contributions(cur), residual, noise, folds)
+    keep = [i for i, t in enumerate(chosen) if not t.effect.name.endswith("_after")]  # a model change: not a law
+    contribs = eng.contributions(cur)
+    fails = test_lack_of_fit(ctx, [chosen[i] for i in keep], [contribs[i] for i in keep], residual, noise, folds)
     if not fails:
         return
     if unexplained.explained:
@@ -999,5 +1227,5 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
     return res
 
 
-__all__ = ["Candidate", "Diagnosis", "FitResult", "Selected", "diagnose", "fit_effects", "n_eff",
-           "resolve_effects", "SCORE_MIN", "PRACTICAL"]
+__all__ = ["Ambiguity", "Candidate", "Diagnosis", "ModelChange", "FitResult", "Selected", "diagnose", "fit_effects",
+           "n_eff", "resolve_effects", "SCORE_MIN", "PRACTICAL"]

@@ -61,7 +61,10 @@ class Term:
 
     @property
     def key(self) -> tuple:
-        return (self.effect.name, self.effect.shape_key(self.shape))
+        k = self.__dict__.get("_key")
+        if k is None:  # computed once: a term's effect and shape do not change after construction
+            k = self.__dict__["_key"] = (self.effect.name, self.effect.shape_key(self.shape))
+        return k
 
     def active(self, j: int) -> bool:
         return not self.effect.per_joint or (self.joints is not None and j in self.joints)

@@ -504,3 +504,25 @@ class LinkInertials(Effect):
         return out
 
 
+class ArmLinkInertials(LinkInertials):
+    """``link_inertials`` without link 7's own parameters (what joint torques cannot tell from a body held at the
+    flange): the arm's links 1-6, to be fitted together with ``payload``, which then takes everything at the
+    flange (link 7's error included). Same name and output as :class:`LinkInertials`; used by ``diagnose`` when a
+    flange body explains part of what a change of the link inertials would (payload named before link inertials).
+    """
+
+    def __init__(self, full: LinkInertials) -> None:
+        super().__init__()
+        self._bases = full._bases  # the same base parameters (one QR per robot)
+
+    def shape_key(self, shape):
+        return ("arm_links_1_6",)
+
+    def design(self, ctx, shape):
+        def make():
+            b = self.basis(ctx.config)
+            D = np.array(ctx.ev.Y[:, :, b["cols"]], copy=True)
+            D[:, :, b["cols"] >= 60] = 0.0  # link 7's own parameters: the flange body's
+            return D
+        return ctx.cached(("link_inertials_design", "arm_links_1_6"), make)
+

@@ -155,9 +155,10 @@ def verdict_lines(diagnosis) -> list[str]:
         ex = effect_extras(s)
         if ex.get("unidentifiable"):
             lines.append(f"    not identifiable from this log: {fmt(ex['unidentifiable'])}")
-    amb = getattr(d, "ambiguous", None)
-    if amb:
-        lines.append(f"  ambiguous: {amb if isinstance(amb, str) else fmt(amb)}")
+    for c in getattr(d, "changes", None) or []:
+        lines.append("  " + (c.text() if hasattr(c, "text") else f"the model changes: {fmt(c)}"))
+    for a in getattr(d, "ambiguous", None) or []:
+        lines.append("  " + (a.text() if hasattr(a, "text") else f"ambiguous: {fmt(a)}"))
     if d.unexplained is not None:
         lines.append(f"explained: {'yes' if d.unexplained.explained else 'NO'} - {' '.join(d.unexplained.text)}")
     return lines

@@ -48,6 +48,9 @@ def _diagnosis_section(d: Diagnosis, out: Path) -> list[str]:
         p = plot_unexplained(d, out / "unexplained.png")
         if p is not None:
             L += [f"![unexplained residual]({p.name})", ""]
+    changes, amb = getattr(d, "changes", []), getattr(d, "ambiguous", [])
+    if changes or amb:
+        L += [f"- {c.text()}" for c in changes] + [f"- {a.text()}" for a in amb] + [""]
     if d.notes:
         L += ["Notes:", ""] + [f"- {n}" for n in d.notes] + [""]
     why = _why_not(d)

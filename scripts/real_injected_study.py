@@ -1,0 +1,226 @@
+#!/usr/bin/env python
+"""Score ``diagnose`` on a real FER recording with a known effect added (franka_vs_gym.validation.injected): the
+Gaz et al. 2019 log (exciting trajectory 1, ../shared/data/gaz2019_traj1) at its own ~1 kHz and as every 10th and
+every 33rd row (100 Hz and 30 Hz, as a ROS recording gives). Each injected copy is scored as the *difference* from
+the untouched copy's answer at the same rate:
+
+- library effects: **right** when the effect is named on the joints it touches (an accepted law: a Coulomb step may
+  be named Coulomb, sigmoid or asymmetric friction; for an effect the untouched copy already names, its fitted
+  change must match: a tilt within 50 % of the injected change of the gravity vector, a payload's mass within
+  50 %) and nothing else new is named; **flagged** when it is not, but the answer says so on a touched joint
+  (``ambiguous`` with an accepted candidate, a new unexplained finding, a reported model change);
+  **confident wrong** otherwise when something wrong or nothing was said.
+- outside effects: **flagged** (the right answer) when a touched joint gets a new unexplained finding, an ambiguity
+  or (a grasp) a model change; **right** for a grasp when the change is reported within 1 s with a payload and the
+  effects of the untouched copy are still named; **confident wrong** when a library effect is newly named on a
+  touched joint with nothing flagged; **missed** when nothing changed.
+- a law newly named on a joint where the answer also says it is ambiguous with another (``ambiguous`` listing it
+  on that joint) is not counted as a confident name.
+- ``others``: cases whose answer changed on joints the effect does not touch (laws named or dropped there).
+
+    python scripts/real_injected_study.py --cases 1 -o study.json        # about 5 min on one core
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from franka_vs_gym.io import atomic_write  # noqa: E402
+from franka_vs_gym.validation.diagnose import diagnose  # noqa: E402
+from franka_vs_gym.validation.injected import KINDS, LIBRARY_KINDS, every_kth, inject  # noqa: E402
+from franka_vs_gym.validation.logs import load_log  # noqa: E402
+from franka_vs_gym.validation.signals import clean  # noqa: E402
+
+GAZ = ROOT.parent / "shared" / "data" / "gaz2019_traj1"
+RATES = {"1 kHz": 1, "100 Hz": 10, "30 Hz": 33}
+STEP = {"coulomb_friction", "sigmoid_friction", "asymmetric_friction", "stribeck_friction"}
+ACCEPT = {"payload": {"payload"}, "gravity_tilt": {"gravity_tilt"}, "torque_offset": {"torque_offset"},
+          "viscous_friction": {"viscous_friction"}, "coulomb_friction": STEP, "armature": {"armature"},
+          "delay": {"delay"}}
+SHARED = {"payload", "gravity_tilt", "delay", "link_inertials", "link_mass"}
+
+
+def canon(name: str) -> str:
+    """The step-friction laws (Coulomb, sigmoid, asymmetric, Stribeck) are one family: a real joint's friction
+    differs from the model's and the log decides which of them fits it best, so a change among them on a joint
+    is not a new name."""
+    return "step_friction" if name in STEP else name
+
+
+def named(d, raw: bool = False) -> dict[str, set[int]]:
+    """Effect name (family) -> joints (shared effects: every joint, the name is what counts)."""
+    out: dict[str, set[int]] = {}
+    for s in d.selection:
+        n = s.effect if raw else canon(s.effect)
+        out.setdefault(n, set()).update(set(range(7)) if s.effect in SHARED else set(s.joints))
+    return out
+
+
+def params(d, name):
+    return next((s.params for s in d.selection if s.effect == name), None)
+
+
+def flagged_joints(base, d) -> set[int]:
+    """Joints the injected copy's answer flags that the untouched copy's did not: unexplained findings (beyond
+    the untouched ones on that joint), ambiguities, lack-of-fit."""
+    def findings(x):
+        out = {}
+        if x.unexplained is not None:
+            for f in x.unexplained.findings:
+                out[f.joint] = max(out.get(f.joint, 0.0), f.removed_rms)
+        return out
+
+    fb, fd = findings(base), findings(d)
+    noise = d.noise_floor
+    out = {j for j, r in fd.items() if r > fb.get(j, 0.0) + 0.25 * noise[j]}
+    old = {(tuple(a.candidates), j) for a in getattr(base, "ambiguous", []) or [] for j in a.joints}
+    for a in getattr(d, "ambiguous", []) or []:
+        out |= {j for j in a.joints if (tuple(a.candidates), j) not in old}
+    return out
+
+
+def ambiguous_with(d, accepted: set[str], joints: set[int]) -> bool:
+    for a in getattr(d, "ambiguous", []) or []:  # an ambiguity naming an accepted law on a touched joint
+        if set(a.candidates) & accepted and (set(a.joints) & joints or not a.joints):
+            return True
+    return False
+
+
+def score_case(base, d, truth: list[dict]) -> dict:
+    nb, nd = named(base), named(d)
+    touched = set().union(*[set(t["joints"]) for t in truth])
+    lib = [t for t in truth if t["effect"] in ACCEPT]
+    outside = [t for t in truth if t["effect"] not in ACCEPT]
+    ok_names = {canon(n) for t in lib for n in ACCEPT[t["effect"]]}
+    # new (name, joint) pairs
+    new = {(n, j) for n, js in nd.items() for j in js if j not in nb.get(n, set())}
+    gone = {(n, j) for n, js in nb.items() for j in js if j not in nd.get(n, set())}
+    # a law named on a joint together with an ambiguity that lists it there is not a confident name
+    said = {(canon(c), j) for a in getattr(d, "ambiguous", []) or [] for c in a.candidates for j in a.joints}
+    new_confident = {(n, j) for n, j in new if (n, j) not in said}
+    spurious = {(n, j) for n, j in new_confident if n not in ok_names or (n not in SHARED and j not in touched)}
+    if outside:
+        spurious_touch = {(n, j) for n, j in new_confident if n not in ok_names and (n in SHARED or j in touched)}
+    rb, rd = named(base, raw=True), named(d, raw=True)
+    raw_new = {(n, j) for n, js in rd.items() for j in js if j not in rb.get(n, set())}
+    raw_gone = {(n, j) for n, js in rb.items() for j in js if j not in rd.get(n, set())}
+    others = {(n, j) for n, j in raw_new | raw_gone if n not in SHARED and j not in touched}
+    flags = flagged_joints(base, d) & (touched or set(range(7)))
+    changes = getattr(d, "changes", []) or []
+    res = {"named": {n: sorted(js) for n, js in nd.items()}, "new": sorted(map(list, new)),
+           "gone": sorted(map(list, gone)), "others_changed": bool(others), "flagged_joints": sorted(flags),
+           "ambiguous": [[a.candidates, a.joints] for a in getattr(d, "ambiguous", []) or []],
+           "changes": [{"t": c.t, "what": c.what} for c in changes], "explained": bool(d.explained)}
+    if lib and not outside:
+        hit = True
+        for t in lib:
+            acc = ACCEPT[t["effect"]]
+            if t["effect"] in SHARED:
+                if not {canon(a) for a in acc} & set(nd):
+                    hit = False
+                elif t["effect"] == "gravity_tilt" and "gravity_tilt" in nb:
+                    dg = np.subtract(params(d, "gravity_tilt")["delta_gravity_m_per_s2"],
+                                     params(base, "gravity_tilt")["delta_gravity_m_per_s2"])
+                    hit &= bool(np.linalg.norm(dg - t["delta_gravity_m_per_s2"])
+                                < 0.5 * np.linalg.norm(t["delta_gravity_m_per_s2"]))
+                elif t["effect"] == "payload":
+                    m = params(d, "payload").get("mass_kg", 0.0) - (params(base, "payload") or {}).get("mass_kg", 0)
+                    hit &= bool(abs(m - t["mass_kg"]) < 0.5 * t["mass_kg"])
+            else:
+                hit &= all(any(j in nd.get(canon(a), set()) for a in acc) for j in t["joints"])
+        amb = any(ambiguous_with(d, ACCEPT[t["effect"]], set(t["joints"])) for t in lib)
+        if hit and not spurious:
+            res["outcome"] = "right"
+        elif amb or flags:
+            res["outcome"] = "flagged"
+        else:
+            res["outcome"] = "confident wrong"
+        return res
+    # outside the library (possibly with a library effect)
+    if truth[0]["effect"] == "grasp" and changes:
+        t_ok = any(abs(c.t - truth[0]["t_s"]) < 1.0 and "payload" in c.what for c in changes)
+        kept = set(nb) - {"payload", "link_inertials"} <= set(nd) | {"payload"}  # the effects present all along
+        res["outcome"] = "right" if t_ok and kept and not spurious_touch else "flagged"
+        return res
+    if flags:
+        res["outcome"] = "flagged"
+    elif spurious_touch:
+        res["outcome"] = "confident wrong"
+    else:
+        res["outcome"] = "missed"
+    return res
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--data", default=str(GAZ), help="the Gaz et al. 2019 folder (exciting trajectory 1)")
+    ap.add_argument("--cases", type=int, default=1, help="injected copies per kind (seeds 0..cases-1)")
+    ap.add_argument("--kinds", default=",".join(KINDS))
+    ap.add_argument("--rates", default=",".join(RATES))
+    ap.add_argument("-o", "--output", default=None, help="write the per-case results as JSON")
+    ap.add_argument("--merge", nargs="+", default=None, metavar="JSON",
+                    help="print the table of earlier runs' JSON outputs (e.g. one run per rate) instead of running")
+    args = ap.parse_args()
+    if args.merge:
+        rows = [r for p in args.merge for r in json.loads(Path(p).read_text())]
+        kinds = list(dict.fromkeys(r["kind"] for r in rows))
+        rates = [r for r in RATES if any(x["rate"] == r for x in rows)]
+        table(rows, kinds, rates, args.cases)
+        return 0
+    log = load_log(args.data)
+    noise = clean(log).noise
+    kinds = [k for k in args.kinds.split(",") if k]
+    rates = [r for r in args.rates.split(",") if r]
+    t_start = time.time()
+    base = {}
+    for r in rates:
+        base[r] = diagnose(every_kth(log, RATES[r]), tool="none")
+        print(f"untouched {r}: {sorted(named(base[r]).items())} explained {base[r].explained}", file=sys.stderr)
+    rows = []
+    for kind in kinds:
+        for seed in range(args.cases):
+            inj, truth = inject(log, kind, seed, noise=noise)
+            for r in rates:
+                t0 = time.process_time()
+                d = diagnose(every_kth(inj, RATES[r]), tool="none")
+                res = score_case(base[r], d, truth)
+                res.update(kind=kind, seed=seed, rate=r, truth=truth, cpu_s=round(time.process_time() - t0, 2))
+                rows.append(res)
+                print(f"{kind:16s} seed {seed} {r:6s}: {res['outcome']:16s} new {res['new']} gone {res['gone']} "
+                      f"flags {res['flagged_joints']} amb {res['ambiguous']} changes {res['changes']} "
+                      f"truth {[(t['effect'], t['joints']) for t in truth]}", file=sys.stderr)
+    print(f"\n{len(rows)} injected copies, {time.time() - t_start:.0f} s")
+    table(rows, kinds, rates, args.cases)
+    if args.output:
+        atomic_write(args.output, json.dumps(rows, indent=1, default=float))
+    return 0
+
+
+def table(rows: list[dict], kinds: list[str], rates: list[str], cases: int) -> None:
+    outcomes = ("right", "flagged", "confident wrong", "missed")
+    print(f"\n{len(rows)} injected copies ({cases} per kind and rate)\n")
+    print("| kind | " + " | ".join(f"{r}: right / flagged / confident wrong / missed" for r in rates) + " |")
+    print("|---|" + "---|" * len(rates))
+    groups = [(k, [k]) for k in kinds]
+    groups.append(("**library, all**", [k for k in kinds if all(p in LIBRARY_KINDS for p in k.split("+"))]))
+    groups.append(("**outside, all**", [k for k in kinds if not all(p in LIBRARY_KINDS for p in k.split("+"))]))
+    for name, ks in groups:
+        cells = []
+        for r in rates:
+            sub = [x for x in rows if x["kind"] in ks and x["rate"] == r]
+            cells.append(" / ".join(str(sum(x["outcome"] == o for x in sub)) for o in outcomes)
+                         + (f" ({sum(x['others_changed'] for x in sub)} others changed)" if sub else ""))
+        print(f"| {name} | " + " | ".join(cells) + " |")
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
