@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import math
 
+import mujoco
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -36,7 +37,8 @@ PUSH = 10.0  # N, peak of the push on the hand
 
 
 def _run(robot: str, rotor: float, law: str, m: float, n: int = 1000) -> bool:
-    sim = FrankaSim(ModelConfig(robot=robot_description(robot).with_rotor_inertia(rotor)), camera=False, table=False)
+    sim = FrankaSim(ModelConfig(robot=robot_description(robot).with_rotor_inertia(rotor)), camera=False, table=False,
+                    rotor_inertia=True)
     r = FCIRobot(sim)
     model = sim.model
     q0 = sim.q
@@ -52,7 +54,7 @@ def _run(robot: str, rotor: float, law: str, m: float, n: int = 1000) -> bool:
     target = q0
     p_d = T0[:3, 3]
     R_d = Rotation.from_matrix(T0[:3, :3])
-    hand = sim._hand_body
+    hand = mujoco.mj_name2id(sim.world.model, mujoco.mjtObj.mjOBJ_BODY, f"{sim.prefix}hand")
     st = r.fill_state().f
     early = late = 0.0
     for k in range(1, n + 1):

@@ -99,6 +99,8 @@ class FCIServer:
     max_missed_commands : real time: cycles in a row without a command before the communication-constraints reflex
         (default :data:`~franka_vs_gym.fci.robot.MAX_MISSED_COMMANDS`, 20).
     verbose : print the ready line and connection events.
+    rotor_inertia : the plant carries the robot's effective armature (``RobotDescription.rotor_inertia``, the motors
+        as a torque controller feels them; default True, as the robot; see ``FrankaSim``).
 
     Attributes
     ----------
@@ -113,7 +115,7 @@ class FCIServer:
                  record: str | Path | None = None,
                  port: int = codec.ROBOT_PORT,
                  gripper_port: int = codec.GRIPPER_PORT, max_missed_commands: int | None = None,
-                 verbose: bool = True) -> None:
+                 verbose: bool = True, rotor_inertia: bool = True) -> None:
         from franka_vs_gym.sim import FrankaSim
 
         self.host, self.port, self.gripper_port = host, int(port), int(gripper_port)
@@ -130,6 +132,8 @@ class FCIServer:
         kwargs: dict[str, Any] = {"camera": camera, "tags": tags, "table": table, "extra_worldbody": extra_worldbody}
         if q0 is not None:
             kwargs["q0"] = q0
+        if "rotor_inertia" in inspect.signature(FrankaSim).parameters:
+            kwargs["rotor_inertia"] = bool(rotor_inertia)  # the robot's motors as a torque controller feels them
         if "robot" in inspect.signature(FrankaSim).parameters:
             kwargs["robot"] = self.description
         elif self.description.name != "fer":
