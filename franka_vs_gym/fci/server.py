@@ -440,7 +440,8 @@ class FCIServer:
             tool = None
         log = MeasurementLog(a[:, 0], cols[0], cols[1], cols[2], tau_J_d=cols[3], q_d=cols[4], dq_d=cols[5],
                              ddq_d=cols[6], tau_ext_hat_filtered=cols[7], tool=tool, gravity=cfg.gravity,
-                             controller={"law": "fci_session", "lockstep": self.lockstep},
+                             controller={"law": "fci_session", "lockstep": self.lockstep,
+                                         "rotor_inertia_kgm2": self.sim.rotor_inertia.tolist()},
                              extra={"source": "franka-vs serve", "robot": self.description.name})
         save_log(log, self.record_path)
         if self.verbose:
