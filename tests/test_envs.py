@@ -326,8 +326,7 @@ def test_model_file_is_used(tmp_path):
     path = cfg.save(tmp_path / "calibrated.json")
     env = gym.make("FrankaTorqueTracking-v0", model=str(path))
     u = env.unwrapped
-    rotor = np.array(u.sim.model.config.robot.rotor_inertia)  # the plant adds the motors' effective armature
-    np.testing.assert_allclose(u.world.model.dof_armature[u.sim.dof_slice], 0.123 + rotor)
+    np.testing.assert_allclose(u.world.model.dof_armature[u.sim.dof_slice], 0.123)
     np.testing.assert_allclose(u.sim.model.config.armature, 0.123)
     env.close()
 
@@ -359,11 +358,9 @@ def test_tag_lost_is_a_failure():
 
 def test_tracking_success_with_computed_torque_and_zero_fails():
     from franka_vs_gym.control import ComputedTorque
-    from franka_vs_gym.model import FrankaModel, ModelConfig
-    from franka_vs_gym.model.description import FER
+    from franka_vs_gym.model import FrankaModel
 
-    # the controller knows the robot's motors: its model carries the plant's effective armature
-    ct = ComputedTorque(FrankaModel(ModelConfig(armature=np.array(FER.rotor_inertia))))
+    ct = ComputedTorque(FrankaModel())
 
     def policy(o):
         tau = ct(float(o["time"][0]), *(o[k].astype(float) for k in ("q", "dq", "q_desired", "dq_desired",
@@ -495,7 +492,7 @@ def test_declared_payload_is_compensated_like_set_load():
 
 
 def test_final_info_shares_nothing_with_the_reset_info():
-    """A reflex ends the episode within its first steps (full torque): the final info repeats the episode's drawn
+    """A reflex ends the episode on its first step (full torque): the final info repeats the episode's drawn
     dynamics, as fresh objects (the sharing check of Gymnasium's passive checker, written out here as Gymnasium 1.2
     lacks it), so a user who keeps or edits one info does not change the other."""
     def data_shares_objects(a, b):  # Gymnasium >= 1.3 has this check; 1.2 (with Ray) does not
@@ -509,10 +506,7 @@ def test_final_info_shares_nothing_with_the_reset_info():
     env = gym.make("FrankaTorqueTracking-v0", link_mass_range=(0.9, 1.1), action_scale="physical",
                    limit_rate=False).unwrapped
     _, info0 = env.reset(seed=3)
-    for _ in range(5):  # the motors' inertia (effective armature) slows the wrist: a few 10 ms steps
-        _, _, term, _, info1 = env.step(env.action_space.high.copy())
-        if term:
-            break
+    _, _, term, _, info1 = env.step(env.action_space.high.copy())
     assert term and info1["failure"] == "joint_velocity_violation"
     np.testing.assert_array_equal(info0["link_mass_scale"], info1["link_mass_scale"])
     assert not data_shares_objects(info0, info1)

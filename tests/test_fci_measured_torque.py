@@ -57,12 +57,14 @@ MODES = {"torque": (C.EXTERNAL_CONTROLLER, G.NONE), "joint_position": (C.JOINT_I
 SERVO_MODES = {"joint_position", "joint_velocity", "cartesian_pose", "cartesian_velocity", "idle_hold"}
 
 
+@pytest.mark.parametrize("rotor", [False, True])
 @pytest.mark.parametrize("mode", list(MODES))
-def test_fci_tau_J_is_the_applied_torque_in_every_mode(mode):
+def test_fci_tau_J_is_the_applied_torque_in_every_mode(mode, rotor):
     """tau_J in the robot state = B(q) ddq + C dq + g + tau_f(dq) of the step just taken (float32 on the wire),
     whether the joints are driven by the client's torques, the internal joint impedance (its damping in the plant's
-    implicit velocity servos) or the internal Cartesian impedance."""
-    sim = FrankaSim(camera=False)
+    implicit velocity servos) or the internal Cartesian impedance; with the motors' effective armature in the plant
+    (as the FCI server's robot) too: the sensor stays link side."""
+    sim = FrankaSim(camera=False, rotor_inertia=rotor)
     robot = FCIRobot(sim)
     model = FrankaModel()
     T, n = 1.0, 1000
@@ -135,7 +137,7 @@ def test_sim_velocity_control_torque_reading_includes_the_servo_share():
 def _plant(rotor: float, **kw) -> FrankaSim:
     """A FER plant with its effective armature (rotor_inertia) scaled by ``rotor``."""
     from franka_vs_gym.model.description import FER
-    return FrankaSim(ModelConfig(robot=FER.with_rotor_inertia(rotor)), camera=False, **kw)
+    return FrankaSim(ModelConfig(robot=FER.with_rotor_inertia(rotor)), camera=False, rotor_inertia=True, **kw)
 
 
 @pytest.mark.parametrize("rotor", [0.0, 1.0])

@@ -249,8 +249,7 @@ def test_model_matches_the_plant(name, rng):
         d.qvel[:] = rng.uniform(-2, 2, 7)
         mujoco.mj_forward(m, d)
         mujoco.mj_fullM(m, d, M)
-        # the plant's joints carry the motors' effective armature too (the model is link side)
-        np.testing.assert_allclose(fm.mass_matrix(q) + np.diag(cfg.robot.rotor_inertia), M, atol=1e-6)
+        np.testing.assert_allclose(fm.mass_matrix(q), M, atol=1e-6)
         np.testing.assert_allclose(fm.bias(q, d.qvel), d.qfrc_bias, atol=1e-6)
     lim = cfg.robot.limits
     np.testing.assert_allclose(m.jnt_range, np.c_[lim.q_min, lim.q_max])
@@ -283,7 +282,7 @@ def test_simulator_respects_the_robots_limits(name):
     sim.set_robot_state(FORCE_TORQUE)
     sim.set_force_torque(JOINT_STATE, np.full(7, 500.0))
     sim.step()
-    tau = sim.get_force_torque() + sim.rotor_inertia * sim.get_acceleration()  # the motors' torque
+    tau = sim.get_force_torque()
     assert (np.abs(tau) <= lim["tau_max"] + 1e-9).all()
     assert tau[0] == pytest.approx(lim["tau_max"][0])
 

@@ -45,7 +45,8 @@ def test_measured_torque_follows_the_model_equation(rng, rotor):
     gravity minus what accelerates the motors, rotor_inertia * ddq, and the link-side equation still holds."""
     from franka_vs_gym.model.config import ModelConfig
     from franka_vs_gym.model.description import FER
-    sim = FrankaSim(ModelConfig(robot=FER.with_rotor_inertia(rotor)), camera=False, reflexes=False)
+    sim = FrankaSim(ModelConfig(robot=FER.with_rotor_inertia(rotor)), camera=False, reflexes=False,
+                    rotor_inertia=True)
     sim.set_robot_state(FORCE_TORQUE)
     m = sim.model
     rot = np.array(FER.rotor_inertia) * rotor
@@ -126,13 +127,12 @@ def test_set_position_moves_there(sim):
 
 
 def test_torque_saturation(sim):
-    """Commands saturate at the FER limits; the total (command + gravity) is clamped too. The motors' torque is
-    the link-side tau_J plus what accelerates the motors (the effective armature)."""
+    """Commands saturate at the FER limits; the total (command + gravity) is clamped too."""
     sim.set_robot_state(FORCE_TORQUE)
     g = sim.get_gravity()
     sim.set_force_torque(JOINT_STATE, [500, 0, 0, 0, -100, 0, 0])
     sim.step()
-    tau = sim.get_force_torque() + sim.rotor_inertia * sim.get_acceleration()
+    tau = sim.get_force_torque()
     assert tau[0] == pytest.approx(min(87.0, 87.0 + g[0]))
     assert tau[4] == pytest.approx(max(-12.0, -12.0 + g[4]))
 
@@ -223,8 +223,7 @@ def test_calibrated_model_file_builds_plant_and_model(tmp_path):
     cfg = ModelConfig(armature=np.full(7, 0.2), torque_offset=np.full(7, 0.3))
     path = cfg.save(tmp_path / "m.json")
     sim = FrankaSim(model=str(path), camera=False)
-    # the plant's joint armature: the file's (link-side visible) armature plus the robot's effective rotor inertia
-    assert sim._m.dof_armature[:7] == pytest.approx(0.2 + np.array(sim.model.config.robot.rotor_inertia))
+    assert sim._m.dof_armature[:7] == pytest.approx(np.full(7, 0.2))
     np.testing.assert_allclose(sim.get_force_torque(), sim.get_gravity() + 0.3, atol=1e-9)
     assert isinstance(sim.model, FrankaModel)
 

@@ -16,7 +16,8 @@ import json
 import math
 import sys
 import time as wallclock
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import pylibfranka

@@ -10,10 +10,12 @@ Cartesian waypoint motion, and a Cartesian velocity motion (2 cm/s along z for 1
 within the robot's limits (Ruckig); each ends when the target is reached. The JSON summary gives each motion's
 final error.
 """
+import argparse
+import json
+import math
 import time
 
 import numpy as np
-from common import Q_READY, arguments, report
 from franky import (
     Affine,
     CartesianMotion,
@@ -34,9 +36,16 @@ from franky import (
     Twist,
 )
 
+Q_READY = (0.0, -math.pi / 4, 0.0, -3 * math.pi / 4, 0.0, math.pi / 2, math.pi / 4)  # (franky and pylibfranka
+# cannot share a process, so this script does not import common.py)
+
 
 def main() -> None:
-    args = arguments(__doc__, dynamics=(float, 0.05, "franky's relative_dynamics_factor (README: 0.05)"))
+    ap = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
+    ap.add_argument("host", help="robot (or simulator) address")
+    ap.add_argument("--json", action="store_true", help="print a JSON summary")
+    ap.add_argument("--dynamics", type=float, default=0.05, help="franky's relative_dynamics_factor (README: 0.05)")
+    args = ap.parse_args()
     robot = Robot(args.host, realtime_config=RealtimeConfig.Ignore)
     robot.relative_dynamics_factor = args.dynamics
     started = time.monotonic()
@@ -57,7 +66,9 @@ def main() -> None:
     pose0 = robot.current_pose.end_effector_pose
     robot.move(CartesianMotion(Affine([0.05, 0.0, 0.0]), ReferenceType.Relative))
     moved = robot.current_pose.end_effector_pose.translation - pose0.translation
-    errors["cartesian_motion_m"] = float(np.linalg.norm(moved - np.array([0.05, 0.0, 0.0])))
+    # (a relative target is composed in the end-effector frame: the hand moved 5 cm along its own x axis)
+    x_ee = np.asarray(pose0.matrix)[:3, 0]
+    errors["cartesian_motion_m"] = float(np.linalg.norm(moved - 0.05 * x_ee))
     robot.move(CartesianWaypointMotion([CartesianWaypoint(RobotPose(pose0))]))
     errors["cartesian_waypoint_motion_m"] = float(np.linalg.norm(robot.current_pose.end_effector_pose.translation
                                                                  - pose0.translation))
@@ -65,18 +76,10 @@ def main() -> None:
     robot.move(CartesianVelocityMotion(RobotVelocity(Twist([0.0, 0.0, 0.02])), duration=Duration(1000)))
     errors["cartesian_velocity_motion_moved_m"] = float(robot.current_pose.end_effector_pose.translation[2] - z0)
     state = robot.state
-    report(args, _Reader(state), "franky_examples", started, errors_by_motion=errors,
-           worst_error=max(v for k, v in errors.items() if "moved" not in k))
-
-
-class _Reader:
-    """The last franky state in the shape :func:`common.report` reads (``read_once``)."""
-
-    def __init__(self, state):
-        self.state = state
-
-    def read_once(self):
-        return self.state
+    out = {"example": "franky_examples", "q": list(state.q), "errors": str(state.current_errors),
+           "robot_mode": str(state.robot_mode), "wall_s": time.monotonic() - started, "errors_by_motion": errors,
+           "worst_error": max(v for k, v in errors.items() if "moved" not in k)}
+    print(json.dumps(out) if args.json else "\n".join(f"{k}: {v}" for k, v in out.items()))
 
 
 if __name__ == "__main__":

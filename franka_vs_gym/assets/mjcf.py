@@ -112,7 +112,9 @@ class RobotSpec:
 
     prefix: name prefix of all its elements; base_pos (3,) m and base_quat (w, x, y, z) of the base in the world;
     config: the robot's model configuration; camera: add the wrist camera; ft_sensor: add a wrist force/torque
-    sensor at the flange; undeclared_payload: a body held by the tool that the robot's gravity compensation ignores.
+    sensor at the flange; undeclared_payload: a body held by the tool that the robot's gravity compensation ignores;
+    rotor_inertia: put the robot's effective armature (``RobotDescription.rotor_inertia``, the motors as a torque
+    controller feels them) on its joints (the FCI server's robot does; off by default).
     """
 
     prefix: str = "r0_"
@@ -122,6 +124,7 @@ class RobotSpec:
     camera: bool = True
     ft_sensor: bool = False
     undeclared_payload: RigidBody | None = None
+    rotor_inertia: bool = False
 
 
 @dataclass
@@ -155,7 +158,7 @@ def _robot_bodies(r: RobotSpec) -> tuple[str, str, str, str]:
         xml.append(f'<body name="{p}link{i + 1}" pos="{_fmt(M[:3, 3])}" quat="{_fmt(mat2quat(M[:3, :3]))}" '
                    f'gravcomp="1">')
         xml.append(_inertial(body))
-        armature = cfg.armature[i] + robot.rotor_inertia[i]  # link-side armature + the motors' effective armature
+        armature = cfg.armature[i] + (robot.rotor_inertia[i] if r.rotor_inertia else 0.0)  # (+ the motors')
         xml.append(f'<joint name="{p}joint{i + 1}" range="{lo} {hi}" armature="{armature:.12g}" '
                    f'actuatorfrcrange="{-tau} {tau}" actuatorgravcomp="true" {JOINT_STOP}/>')
         xml.append(f'<geom class="fer_visual" mesh="link{i + 1}"/><geom class="fer_collision" mesh="link{i + 1}"/>')

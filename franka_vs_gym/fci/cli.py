@@ -16,6 +16,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "instead of real time")
     p.add_argument("--model", metavar="FILE", help="calibrated-model JSON file (tool, payload, gravity, friction...)")
     p.add_argument("--robot", default="fer", help="robot description: fer (default) or fr3 when available")
+    p.add_argument("--rotor-inertia", type=float, default=1.0, metavar="SCALE",
+                   help="multiply the robot's effective armature (motor and gear inertia felt through the torque "
+                        "loop, RobotDescription.rotor_inertia) by SCALE: 1 the published values (default), 0 an "
+                        "ideal link-side torque source (a stricter test of a torque controller), > 1 heavier")
     p.add_argument("--q0", type=float, nargs=7, metavar="Q", help="start joint position, 7 values in rad")
     p.add_argument("--scene", choices=SCENES, default="table",
                    help="table (default), tag (8 cm AprilTag id 0 on the table) or empty (no table)")
@@ -33,9 +37,9 @@ def main(args: argparse.Namespace) -> int:
     from franka_vs_gym.model.description import robot_description
 
     try:
-        robot = robot_description(args.robot)
+        robot = robot_description(args.robot).with_rotor_inertia(args.rotor_inertia)
     except ValueError as e:
-        raise UserError(str(e)) from None
+        raise UserError(f"--robot/--rotor-inertia: {e}") from None
     if args.q0 is not None and not all(math.isfinite(v) for v in args.q0):
         raise UserError("--q0 must be 7 finite joint angles in rad")
     tags = None

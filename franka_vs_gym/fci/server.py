@@ -102,6 +102,8 @@ class FCIServer:
         values) or a :class:`~franka_vs_gym.fci.truth.Truth`: the plant carries it, the robot's own model (``model``:
         what ``load_model``, ``set_load``, the internal controllers and the gravity compensation use) does not.
     verbose : print the ready line and connection events.
+    rotor_inertia : the plant carries the robot's effective armature (``RobotDescription.rotor_inertia``, the motors
+        as a torque controller feels them; default True, as the robot; see ``FrankaSim``).
 
     Attributes
     ----------
@@ -116,7 +118,7 @@ class FCIServer:
                  record: str | Path | None = None,
                  port: int = codec.ROBOT_PORT,
                  gripper_port: int = codec.GRIPPER_PORT, max_missed_commands: int | None = None,
-                 verbose: bool = True, truth: Any = None) -> None:
+                 verbose: bool = True, truth: Any = None, rotor_inertia: bool = True) -> None:
         from franka_vs_gym.sim import FrankaSim
 
         self.host, self.port, self.gripper_port = host, int(port), int(gripper_port)
@@ -133,6 +135,8 @@ class FCIServer:
         kwargs: dict[str, Any] = {"camera": camera, "tags": tags, "table": table, "extra_worldbody": extra_worldbody}
         if q0 is not None:
             kwargs["q0"] = q0
+        if "rotor_inertia" in inspect.signature(FrankaSim).parameters:
+            kwargs["rotor_inertia"] = bool(rotor_inertia)  # the robot's motors as a torque controller feels them
         if "robot" in inspect.signature(FrankaSim).parameters:
             kwargs["robot"] = self.description
         elif self.description.name != "fer":
@@ -461,7 +465,8 @@ class FCIServer:
             tool = None
         log = MeasurementLog(a[:, 0], cols[0], cols[1], cols[2], tau_J_d=cols[3], q_d=cols[4], dq_d=cols[5],
                              ddq_d=cols[6], tau_ext_hat_filtered=cols[7], tool=tool, gravity=cfg.gravity,
-                             controller={"law": "fci_session", "lockstep": self.lockstep},
+                             controller={"law": "fci_session", "lockstep": self.lockstep,
+                                         "rotor_inertia_kgm2": self.sim.rotor_inertia.tolist()},
                              extra={"source": "franka-vs serve", "robot": self.description.name})
         save_log(log, self.record_path)
         if self.verbose:

@@ -134,6 +134,10 @@ class FrankaSim:
         velocity or torque beyond its limit holds the joints (brakes) and raises
         :class:`~franka_vs_gym.sim.reflexes.ControlException` with libfranka's reason name; ``current_errors``
         lists them and ``automatic_error_recovery()`` clears them. See :mod:`franka_vs_gym.sim.reflexes`.
+    rotor_inertia : put the robot's effective armature (``RobotDescription.rotor_inertia``: the motors and gears as
+        a torque controller feels them through the robot's torque loop) between the commanded torque and the link
+        (default False: an ideal link-side torque source, what the environments and the project's link-side
+        controllers are tuned on; the FCI server's robot has it on). ``tau_J`` stays the link-side torque.
     command_rates : "pass" (default: commands reach the joints as given), "limit" (through the robot interface's
         rate limiter, libfranka's ``limitRate`` with the robot's published limits: franka_vs_gym.sim.rate_limit)
         or "check" (a command that jumps beyond those limits within one 1 ms cycle trips
@@ -146,10 +150,11 @@ class FrankaSim:
                  world: SimWorld | None = None, prefix: str = "r0_", q0: Any = None, ft_sensor: bool = False,
                  undeclared_payload: RigidBody | None = None, torque_noise: float = 0.0, seed: int | None = None,
                  extra_worldbody: str = "", extra_assets: str = "", reflexes: bool = True,
-                 command_rates: str = "pass", cameras: list[CameraSpec] | None = None) -> None:
+                 command_rates: str = "pass", cameras: list[CameraSpec] | None = None,
+                 rotor_inertia: bool = False) -> None:
         world, spec, cfg = self._make_world(model, robot, world, prefix, camera=camera, tags=tags, table=table,
-                                            cameras=cameras,
-                                            timestep=timestep, ft_sensor=ft_sensor,
+                                            cameras=cameras, timestep=timestep, ft_sensor=ft_sensor,
+                                            rotor_inertia=rotor_inertia,
                                             undeclared_payload=undeclared_payload, extra_worldbody=extra_worldbody,
                                             extra_assets=extra_assets)
         self.world, self.prefix, self.spec = world, prefix, spec
@@ -164,7 +169,8 @@ class FrankaSim:
         self._setup_delay(cfg)
         self._tau_cmd = np.zeros(7)
         self._offset = cfg.torque_offset.copy()
-        self.rotor_inertia = np.array(cfg.robot.rotor_inertia, dtype=np.float64)  # effective armature, kg m^2
+        # the plant's effective armature (kg m^2): the description's rotor_inertia when the spec asks for it
+        self.rotor_inertia = np.array(cfg.robot.rotor_inertia if spec.rotor_inertia else (0.0,) * 7, dtype=np.float64)
         self.servo_gains = self._servo_gains(cfg)  # joint velocity servo, Nm s/rad
         self._torque_noise = float(torque_noise)
         if not (math.isfinite(self._torque_noise) and self._torque_noise >= 0):
@@ -191,7 +197,7 @@ class FrankaSim:
         if world is None:
             cfg = resolve_config(model, robot)
             spec = RobotSpec(prefix=prefix, config=cfg, camera=scene["camera"], ft_sensor=scene["ft_sensor"],
-                             undeclared_payload=scene["undeclared_payload"])
+                             undeclared_payload=scene["undeclared_payload"], rotor_inertia=scene["rotor_inertia"])
             timestep = scene["timestep"]
             if not (timestep > 0 and math.isfinite(timestep)):
                 raise ValueError(f"timestep must be > 0 s, got {timestep}")

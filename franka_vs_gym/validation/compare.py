@@ -315,8 +315,19 @@ def replay(data: ProcessedLog, config: ModelConfig, mode: str | None = None) -> 
     # A payload in the configuration is a body the robot did not know about while logging (its gravity
     # compensation used the declared tool only): it enters the plant as an undeclared body.
     measured_lag = config.delay if delay_channel(config) == "measurement" else 0.0
-    sim = FrankaSim(model=config.copy(delay=config.delay - measured_lag, payload=None), camera=False, table=False,
-                    timestep=data.dt, undeclared_payload=config.payload)
+    # Commanded torques pass through the robot's motors (its effective armature, RobotDescription.rotor_inertia)
+    # before they reach the links: a "torque" replay drives a plant with them, as the robot (real, or franka-vs
+    # serve, whose own recordings state the values they had). Controller and tracking replays are unchanged.
+    rotor = ctrl_meta.get("rotor_inertia_kgm2")
+    if rotor is None and mode == "torque":
+        rotor = list(config.robot.rotor_inertia)
+    plant_config = config.copy(delay=config.delay - measured_lag, payload=None)
+    if rotor is not None:
+        from dataclasses import replace as _replace
+
+        plant_config = plant_config.copy(robot=_replace(config.robot, rotor_inertia=tuple(float(v) for v in rotor)))
+    sim = FrankaSim(model=plant_config, camera=False, table=False, timestep=data.dt,
+                    undeclared_payload=config.payload, rotor_inertia=rotor is not None)
     lim_lo, lim_hi = sim.q_min + 1e-6, sim.q_max - 1e-6
     start = 0
     if mode == "controller":

@@ -56,6 +56,40 @@ class Armature(Effect):
     def public(self, fit):
         return {"armature_kgm2": np.round(_joint_coef(fit)[:, 0], 6).tolist()}
 
+    @staticmethod
+    def effective(ctx) -> dict:
+        """The effective armature (7,) kg m^2 a torque controller feels through the robot's torque loop: the
+        inertia between the commanded torque and the link-side torque sensor (``RobotDescription.rotor_inertia``).
+
+        It is invisible in ``tau_J`` alone (the sensor sits on the link side of the motors), so it needs the
+        commanded torque ``tau_J_d``: per joint, least squares of ``tau_J_d + g(q) - tau_J`` (the command filtered
+        as the measurement) on ``ddq``, with a ``d tau_J_d/dt`` column for a lag of the torque loop and a constant
+        for a sensor offset. Returns ``{"effective_armature_kgm2", "loop_lag_s", "explained"}`` (``explained``: the
+        share of that residual's variance the fit explains, per joint). Raises :class:`NotApplicable` for a log
+        with ``tau_J`` only."""
+        cmd = ctx.data.optional.get("tau_J_d")
+        if cmd is None:
+            raise NotApplicable("an effective armature needs the commanded torque tau_J_d in the log: the torque "
+                                "sensor (tau_J) sits on the link side of the motors, so tau_J alone cannot see "
+                                "their inertia")
+        from scipy import signal
+
+        st = ctx.data.settings
+        sos = signal.butter(st.order, st.cutoff, fs=st.rate, output="sos")
+        cmd_f = signal.sosfiltfilt(sos, cmd, axis=0)
+        dcmd = np.gradient(cmd_f, ctx.data.time, axis=0)
+        r = cmd_f + ctx.ev.gravity - ctx.data.tau_filt
+        a, lag, explained = np.zeros(7), np.zeros(7), np.zeros(7)
+        for j in range(7):
+            X = np.column_stack([ctx.data.ddq[:, j], dcmd[:, j], np.ones(ctx.n)])
+            coef, *_ = np.linalg.lstsq(X, r[:, j], rcond=None)
+            a[j], lag[j] = coef[0], coef[1]
+            res = r[:, j] - X @ coef
+            var = float(np.var(r[:, j]))
+            explained[j] = 1.0 - float(np.var(res)) / var if var > 0 else 0.0
+        return {"effective_armature_kgm2": np.round(a, 5).tolist(), "loop_lag_s": np.round(lag, 6).tolist(),
+                "explained": np.round(explained, 4).tolist()}
+
 
 # ---------------------------------------------------------------------------------------------- shared effects
 class GravityTilt(Effect):
