@@ -283,7 +283,8 @@ def _meta_kwargs(meta: dict[str, Any]) -> dict[str, Any]:
         try:
             a = np.asarray(v, dtype=np.float64)
         except (TypeError, ValueError):
-            raise ValueError(f"controller.{gain} in the log metadata must be a number or 7 numbers, got {v!r}") from None
+            raise ValueError(f"controller.{gain} in the log metadata must be a number or 7 numbers, "
+                             f"got {v!r}") from None
         if a.shape not in ((), (7,)) or not np.isfinite(a).all():
             raise ValueError(f"controller.{gain} in the log metadata must be a finite number or 7 numbers (one per "
                              f"joint), got {np.shape(a)[0] if a.ndim == 1 else np.shape(a)} values: {v!r}")

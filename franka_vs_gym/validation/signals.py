@@ -68,8 +68,8 @@ class CleanSettings:
         if self.cutoff is not None and not self.cutoff > 0:
             raise ValueError(f"cutoff must be > 0 Hz, got {self.cutoff}")
         if self.cutoff is not None and self.cutoff < MIN_CUTOFF:
-            raise ValueError(f"cutoff {self.cutoff:g} Hz is below {MIN_CUTOFF:g} Hz: such a low-pass removes the motion "
-                             "itself (the default is 10 Hz)")
+            raise ValueError(f"cutoff {self.cutoff:g} Hz is below {MIN_CUTOFF:g} Hz: such a low-pass removes the "
+                             "motion itself (the default is 10 Hz)")
         if self.rate is not None and self.cutoff is not None and not self.cutoff < self.rate / 2:
             raise ValueError(f"cutoff must be in (0, rate/2) = (0, {self.rate / 2}) Hz, got {self.cutoff}")
         if self.max_gap is not None and not self.max_gap > 0:
@@ -276,5 +276,5 @@ def decimated(data: ProcessedLog, max_samples: int = MAX_EFFECT_SAMPLES) -> Proc
     return sub
 
 
-__all__ = ["CleanSettings", "MAX_EFFECT_SAMPLES", "NOISE_FLOOR_MIN", "decimated", "CleaningReport", "ProcessedLog", "clean",
-           "highpass_power_fraction"]
+__all__ = ["CleanSettings", "MAX_EFFECT_SAMPLES", "NOISE_FLOOR_MIN", "decimated", "CleaningReport", "ProcessedLog",
+           "clean", "highpass_power_fraction"]
