@@ -146,7 +146,8 @@ class MeasurementLog:
                               tool_declared=self.tool_declared)
 
 
-Q_RANGE_MARGIN = 0.05  # rad a logged joint position may lie beyond the range (soft limits below the hard stops)
+Q_RANGE_MARGIN = 0.5  # rad beyond the joint range that no arm reaches (its hard stops are a few degrees out): refused
+Q_RANGE_WARN = 0.05  # rad beyond the range that is warned about (a position past the soft limits)
 
 
 def joint_range() -> tuple[np.ndarray, np.ndarray]:
