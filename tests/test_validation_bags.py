@@ -434,3 +434,25 @@ def test_franka_ros2_frankastate_declared_load_two_robots_and_sidecar(source, tm
     side.write_text(json.dumps({"tool": None}))
     log = load_log(bag, topic="/left/franka_robot_state_broadcaster/robot_state")
     assert log.tool is None and log.tool_declared and "tool_source" not in log.extra
+
+
+@pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
+def test_ros2_bag_folder_without_metadata_yaml_reads_as_its_storage_file(tmp_path, storage):
+    """A rosbag2 folder whose metadata.yaml is missing (an interrupted recording, a copy of the storage file alone)
+    is read as a bag, identical to the folder with it; several storage files without metadata are a named error."""
+    log, _ = make_hidden_effect_log("none", 3, duration=3.0)
+    bag = tmp_path / "with_meta"
+    _write_ros2(bag, log, storage, step=5)
+    bare = tmp_path / "no_meta"
+    bare.mkdir()
+    for f in bag.iterdir():
+        if f.name != "metadata.yaml":
+            (bare / f.name).write_bytes(f.read_bytes())
+    a, b = load_log(bag), load_log(bare)
+    for name in ("time", "q", "dq", "tau_J"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    assert a.extra["topic"] == b.extra["topic"]
+    suffix = ".mcap" if storage == "mcap" else ".db3"
+    (bare / f"second{suffix}").write_bytes(next(bare.glob(f"*{suffix}")).read_bytes())
+    with pytest.raises(ValueError, match="without metadata.yaml holding 2 storage files"):
+        load_log(bare)

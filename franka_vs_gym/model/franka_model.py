@@ -12,10 +12,10 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
+from franka_vs_gym.errors import UserError
 from franka_vs_gym.model.checks import as_vector
 from franka_vs_gym.model.config import ROBOT_DEFAULT, ModelConfig, RigidBody, Tool, resolve_config
 from franka_vs_gym.model.description import FER, RobotDescription
-from franka_vs_gym.errors import UserError
 
 _LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 _LOCAL = pin.ReferenceFrame.LOCAL

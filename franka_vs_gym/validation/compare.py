@@ -381,7 +381,9 @@ def replay(data: ProcessedLog, config: ModelConfig, mode: str | None = None) -> 
                 "reflex" if isinstance(e, ControlException) else "refused")
         diverged = f"{'diverged' if what == 'diverged' else 'stopped'} at t = {t[k]:.3f} s: {e}"
         m = re.search(r"joint (\d)", str(e))
-        stop = {"mode": mode, "time_s": round(float(t[k]), 4), "joint": int(m.group(1)) if m else None,
+        tm = re.search(r"t=([0-9.eE+-]+) s", str(e))  # the violation's own time in the plant (reset at t[start])
+        when = float(t[start]) + float(tm.group(1)) if tm else float(t[k])
+        stop = {"mode": mode, "time_s": round(when, 4), "joint": int(m.group(1)) if m else None,
                 "kind": what, "reason": " ".join(str(e).split())}
         q_sim[k:] = np.nan
         tau_sim[k:] = np.nan

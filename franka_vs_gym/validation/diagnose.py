@@ -1163,7 +1163,7 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
     progress(f"fitting {names} on all samples", verbose)
     fits = _alternate(ctx, spec, y, np.arange(ctx.n), refine=True) if spec else []
     implausible: dict[str, list[str]] = {}
-    for attempt in range(2):
+    for _attempt in range(2):
         implausible = {}
         for e, f in zip(members, fits, strict=True):
             probs = e.problems(ctx, f)  # also prepares what apply needs (e.g. consistent link inertials)

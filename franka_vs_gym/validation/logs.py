@@ -146,7 +146,8 @@ class MeasurementLog:
                               tool_declared=self.tool_declared)
 
 
-Q_RANGE_MARGIN = 0.05  # rad a logged joint position may lie beyond the range (soft limits below the hard stops)
+Q_RANGE_MARGIN = 0.5  # rad beyond the joint range that no arm reaches (its hard stops are a few degrees out): refused
+Q_RANGE_WARN = 0.05  # rad beyond the range that is warned about (a position past the soft limits)
 
 
 def joint_range() -> tuple[np.ndarray, np.ndarray]:
@@ -283,7 +284,8 @@ def _meta_kwargs(meta: dict[str, Any]) -> dict[str, Any]:
         try:
             a = np.asarray(v, dtype=np.float64)
         except (TypeError, ValueError):
-            raise ValueError(f"controller.{gain} in the log metadata must be a number or 7 numbers, got {v!r}") from None
+            raise ValueError(f"controller.{gain} in the log metadata must be a number or 7 numbers, "
+                             f"got {v!r}") from None
         if a.shape not in ((), (7,)) or not np.isfinite(a).all():
             raise ValueError(f"controller.{gain} in the log metadata must be a finite number or 7 numbers (one per "
                              f"joint), got {np.shape(a)[0] if a.ndim == 1 else np.shape(a)} values: {v!r}")

@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 from scipy import signal
 
-from franka_vs_gym.validation.logs import OPTIONAL, MeasurementLog
+from franka_vs_gym.validation.logs import OPTIONAL, Q_RANGE_WARN, MeasurementLog, joint_range
 
 MAX_RATE = 1000.0  # Hz: logs faster than this are resampled down to it
 MAX_USER_RATE = 10_000.0  # Hz: the highest --rate accepted (10x the FER's state rate)
@@ -68,8 +68,8 @@ class CleanSettings:
         if self.cutoff is not None and not self.cutoff > 0:
             raise ValueError(f"cutoff must be > 0 Hz, got {self.cutoff}")
         if self.cutoff is not None and self.cutoff < MIN_CUTOFF:
-            raise ValueError(f"cutoff {self.cutoff:g} Hz is below {MIN_CUTOFF:g} Hz: such a low-pass removes the motion "
-                             "itself (the default is 10 Hz)")
+            raise ValueError(f"cutoff {self.cutoff:g} Hz is below {MIN_CUTOFF:g} Hz: such a low-pass removes the "
+                             "motion itself (the default is 10 Hz)")
         if self.rate is not None and self.cutoff is not None and not self.cutoff < self.rate / 2:
             raise ValueError(f"cutoff must be in (0, rate/2) = (0, {self.rate / 2}) Hz, got {self.cutoff}")
         if self.max_gap is not None and not self.max_gap > 0:
@@ -241,6 +241,13 @@ def clean(log: MeasurementLog, settings: CleanSettings | None = None) -> Process
     if still:
         warnings.append(f"joints {still} barely move (abs(dq) < 0.05 rad/s): their friction, inertia and delay cannot "
                         "be identified from this log (only offsets and pose-dependent effects)")
+    lo, hi = joint_range()
+    beyond = np.maximum(lo - log.q, log.q - hi).max(axis=0)
+    far = [j for j in range(7) if beyond[j] > Q_RANGE_WARN]
+    if far:
+        warnings.append("joint positions beyond every registered robot's range on joints "
+                        + ", ".join(f"{j} (by {beyond[j]:.3g} rad)" for j in far)
+                        + ": an encoder offset, another robot, or the joint columns in another order?")
     frac = highpass_power_fraction(s)
     hf = (tau - tau_filt)[sl]
     noise = np.sqrt(np.mean(hf ** 2, axis=0) / frac)
@@ -276,5 +283,5 @@ def decimated(data: ProcessedLog, max_samples: int = MAX_EFFECT_SAMPLES) -> Proc
     return sub
 
 
-__all__ = ["CleanSettings", "MAX_EFFECT_SAMPLES", "NOISE_FLOOR_MIN", "decimated", "CleaningReport", "ProcessedLog", "clean",
-           "highpass_power_fraction"]
+__all__ = ["CleanSettings", "MAX_EFFECT_SAMPLES", "NOISE_FLOOR_MIN", "decimated", "CleaningReport", "ProcessedLog",
+           "clean", "highpass_power_fraction"]
