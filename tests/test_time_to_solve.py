@@ -28,7 +28,11 @@ def test_batched_evaluation_is_evaluate_episode_by_episode():
 
     agent = load_agent("ibvs_ppo")
     tts = _script()
-    r = tts.evaluate_ibvs(agent.model, "FrankaIBVS-v0", 6, 20_000, float(agent.action_scale), {}, None)
+    # the scale the agent was trained with (rad/s of an output of 1): AgentPolicy.training_scale where the envs'
+    # action spaces are normalized (AgentPolicy.action_scale then being the env's), else AgentPolicy.action_scale
+    scale = getattr(agent, "training_scale", None)
+    scale = float(agent.action_scale if scale is None else scale)
+    r = tts.evaluate_ibvs(agent.model, "FrankaIBVS-v0", 6, 20_000, scale, {}, None)
     ref = franka_vs_gym.evaluate(agent, "FrankaIBVS-v0", 6, 20_000,
                                  env_kwargs={"observation_type": "features", "action_type": "joint_velocity"})
     for a, b in zip(r["episodes"], ref["episodes"], strict=True):
