@@ -31,8 +31,9 @@ def test_diagnose_prints_verdict_with_values_first_and_one_progress_line(tilt_lo
     lines = out.splitlines()
     assert lines[0] == "verdict: gravity_tilt"
     # the fitted value on the next line, with its unit: a tilt of 1.5 x 4 deg (x [0.7, 1.3])
-    m = re.search(r"tilt ([0-9.]+) deg", lines[1])
+    m = re.search(r"tilt ([0-9.]+) \[([0-9.]+), ([0-9.]+)\] deg", lines[1])  # the value and its 95 % interval
     assert lines[1].lstrip().startswith("gravity_tilt") and m and 4.0 < float(m.group(1)) < 10.0
+    assert float(m.group(2)) <= float(m.group(1)) <= float(m.group(3))
     assert "m/s^2" in lines[1]
     assert lines[-1].startswith("next: franka-vs fit ") and "--add gravity_tilt" in lines[-1]
     assert "each effect alone" not in out  # the ranking is a detail (--verbose)

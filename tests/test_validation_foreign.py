@@ -49,7 +49,10 @@ def _foreign_log(plant: ModelConfig, payload: RigidBody | None = None, seed: int
             rows[key][k] = v
         rows["tau"][k] = sim.get_force_torque()
     return MeasurementLog(t, rows["q"], rows["dq"], rows["tau"], tau_J_d=rows["cmd"], q_d=rows["qd"],
-                          dq_d=rows["dqd"], ddq_d=rows["ddqd"], tool="franka_hand")
+                          dq_d=rows["dqd"], ddq_d=rows["ddqd"], tool="franka_hand",
+                          # what its plant had, as franka-vs serve's recordings state it: FrankaSim's default ideal
+                          # torque source, no motors between command and link (the torque replay needs to know)
+                          controller={"rotor_inertia_kgm2": [0.0] * 7})
 
 
 def test_foreign_no_effect_is_none():

@@ -269,8 +269,6 @@ class FrankaEnv(gym.Env):
         limits = self.sim.model.limits()
         self.q_min, self.q_max = limits["q_min"], limits["q_max"]
         self.dq_max, self.tau_max = limits["dq_max"], limits["tau_max"]
-        # a joint within 1 mrad of its limit has hit the hard stop
-        self._q_lo_fail, self._q_hi_fail = self.q_min + 1e-3, self.q_max - 1e-3
         if action_type == "torque":
             hi = self.tau_max
         elif action_type == "joint_velocity":
@@ -280,6 +278,13 @@ class FrankaEnv(gym.Env):
         #: the physical bounds of the action type (the robot's limits)
         self.physical_action_bounds = hi.astype(np.float64)
         self.action_scale: np.ndarray | None = self._resolve_action_scale(action_scale, hi)
+        # a joint within 1 mrad of its limit has hit the hard stop; with joint-velocity actions in the normalized space
+        # the task's joint-limit condition also keeps one control period's travel at the action scale from the limit,
+        # so an episode ends on that condition before the robot's own position reflex could stop it mid-period
+        margin = np.full(self.q_min.shape, 1e-3)
+        if action_type == "joint_velocity" and self.action_scale is not None:
+            margin = margin + self.action_scale * self.control_period
+        self._q_lo_fail, self._q_hi_fail = self.q_min + margin, self.q_max - margin
         if self.action_scale is None:
             self.action_space = spaces.Box(-hi.astype(np.float32), hi.astype(np.float32), dtype=np.float32)
         else:
