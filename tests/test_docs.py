@@ -16,7 +16,8 @@ does not see but a reader of the source does:
 ``ci`` marks the README's test command, which CI runs itself (checked identical to ``.ci/run`` here).
 ``fixtures`` are made first (see ``FIXTURES``: a short simulated log with a hidden payload, a calibrated-model file,
 bags, a client script); ``replace=A:B`` (several: ``A:B|C:D``) runs the block with the text A replaced by B (a
-long training run shortened; the substitution is visible in the source next to the block); ``needs=rosbags`` skips where that module is missing;
+long training run shortened; the substitution is visible in the source next to the block); ``needs=rosbags``
+skips where that module is missing;
 ``excerpt=FILE`` marks an excerpt of a file of the repository: every code line of the block (comments aside,
 ``...`` standing for omitted lines) must be a line of that file, and the file itself runs.
 """
