@@ -26,6 +26,25 @@ def local_ray():
     ray.shutdown()
 
 
+def _first_difference(a, b, path="") -> str:
+    """Where two JSON values first differ, for the failure message."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        for k in a:
+            if k not in b:
+                return f"{path}/{k}: missing"
+            d = _first_difference(a[k], b[k], f"{path}/{k}")
+            if d:
+                return d
+        return ""
+    if isinstance(a, list) and isinstance(b, list) and len(a) == len(b):
+        for i, (x, y) in enumerate(zip(a, b, strict=True)):
+            d = _first_difference(x, y, f"{path}[{i}]")
+            if d:
+                return d
+        return ""
+    return "" if _same(a, b) else f"{path}: {str(a)[:200]} != {str(b)[:200]}"
+
+
 def _same(a, b):
     if isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b):
         return True
@@ -52,7 +71,6 @@ def test_distributed_evaluation_equals_the_serial_run(local_ray):
 
 
 def test_diagnose_folder_in_parallel_equals_serial_diagnose(local_ray, tmp_path):
-    from franka_vs_gym.validation import diagnose
     from franka_vs_gym.validation.hidden import make_hidden_effect_log
     from franka_vs_gym.validation.logs import save_log
 
@@ -61,10 +79,20 @@ def test_diagnose_folder_in_parallel_equals_serial_diagnose(local_ray, tmp_path)
         save_log(log, tmp_path / f"{i}_{effect}.csv")
     res = scale.diagnose_folder(tmp_path)
     assert [Path(r["log"]).name for r in res] == ["0_gravity_tilt.csv", "1_none.csv"]
-    for r in res:
-        assert _same(r["diagnosis"], json.loads(json.dumps(diagnose(r["log"]).to_dict())))
+    # the serial reference in a fresh process, as each Ray worker is (this test process has run other tests before)
+    code = ("import json, sys; from franka_vs_gym.validation import diagnose; "
+            "print(json.dumps([diagnose(p).to_dict() for p in sys.argv[1:]]))")
+    ref = subprocess.run([sys.executable, "-c", code, *[r["log"] for r in res]], capture_output=True, text=True,
+                         check=True, timeout=600)
+    for r, d in zip(res, json.loads(ref.stdout.strip().splitlines()[-1]), strict=True):
+        assert _same(r["diagnosis"], d), _first_difference(r["diagnosis"], d)
     assert res[0]["diagnosis"]["verdict"] == "gravity_tilt"
-    assert _same(json.loads(json.dumps(scale.diagnose_folder(tmp_path, use_ray=False))), json.loads(json.dumps(res)))
+    code = ("import json, sys; from franka_vs_gym import scale; "
+            "print(json.dumps(scale.diagnose_folder(sys.argv[1], use_ray=False)))")
+    serial = subprocess.run([sys.executable, "-c", code, str(tmp_path)], capture_output=True, text=True, check=True,
+                            timeout=600)
+    serial = json.loads(serial.stdout.strip().splitlines()[-1])
+    assert _same(serial, json.loads(json.dumps(res))), _first_difference(serial, json.loads(json.dumps(res)))
     (tmp_path / "empty").mkdir()
     with pytest.raises(FileNotFoundError, match="no measurement logs"):
         scale.find_logs(tmp_path / "empty")
