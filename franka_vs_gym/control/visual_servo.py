@@ -65,6 +65,26 @@ def _gain(gain: AdaptiveGain | float) -> AdaptiveGain:
     return gain if isinstance(gain, AdaptiveGain) else AdaptiveGain.constant(float(gain))
 
 
+def _points_task(s: np.ndarray, s_star: np.ndarray, Z: np.ndarray, Z_star: np.ndarray,
+                 interaction: InteractionMatrixType | str) -> tuple[np.ndarray, np.ndarray]:
+    """The point features' interaction matrix L (2n, 6) of the chosen kind and the error e = s - s* (2n,), with the
+    inputs checked; shared by the eye-in-hand and eye-to-hand IBVS laws."""
+    s, s_star = np.asarray(s, dtype=np.float64), np.asarray(s_star, dtype=np.float64)
+    if s.shape != s_star.shape or s.ndim != 1 or len(s) % 2:
+        raise ValueError(f"s and s_star must be (2n,) arrays of the same shape, got {s.shape} and {s_star.shape}")
+    if not (np.isfinite(s).all() and np.isfinite(s_star).all()):
+        raise ValueError("features contain NaN or inf")
+    kind = InteractionMatrixType(interaction)
+    if kind == InteractionMatrixType.CURRENT:
+        L = points_interaction_matrix(s.reshape(-1, 2), Z)
+    elif kind == InteractionMatrixType.DESIRED:
+        L = points_interaction_matrix(s_star.reshape(-1, 2), Z_star)
+    else:
+        L = 0.5 * (points_interaction_matrix(s.reshape(-1, 2), Z)
+                   + points_interaction_matrix(s_star.reshape(-1, 2), Z_star))
+    return L, s - s_star
+
+
 def ibvs_velocity(s: np.ndarray, s_star: np.ndarray, Z: np.ndarray, Z_star: np.ndarray,
                   interaction: InteractionMatrixType | str = InteractionMatrixType.CURRENT,
                   gain: AdaptiveGain | float = AdaptiveGain()) -> tuple[np.ndarray, np.ndarray]:
@@ -73,20 +93,7 @@ def ibvs_velocity(s: np.ndarray, s_star: np.ndarray, Z: np.ndarray, Z_star: np.n
     s, s_star: (2n,) normalized coordinates (x0, y0, x1, y1, ...); Z, Z_star: (n,) depths (m).
     Lost points must be removed by the caller (with at least 3 points left the 6 dof stay controllable).
     """
-    s, s_star = np.asarray(s, dtype=np.float64), np.asarray(s_star, dtype=np.float64)
-    if s.shape != s_star.shape or s.ndim != 1 or len(s) % 2:
-        raise ValueError(f"s and s_star must be (2n,) arrays of the same shape, got {s.shape} and {s_star.shape}")
-    if not (np.isfinite(s).all() and np.isfinite(s_star).all()):
-        raise ValueError("features contain NaN or inf")
-    kind = InteractionMatrixType(interaction)
-    e = s - s_star
-    if kind == InteractionMatrixType.CURRENT:
-        L = points_interaction_matrix(s.reshape(-1, 2), Z)
-    elif kind == InteractionMatrixType.DESIRED:
-        L = points_interaction_matrix(s_star.reshape(-1, 2), Z_star)
-    else:
-        L = 0.5 * (points_interaction_matrix(s.reshape(-1, 2), Z)
-                   + points_interaction_matrix(s_star.reshape(-1, 2), Z_star))
+    L, e = _points_task(s, s_star, Z, Z_star, interaction)
     lam = _gain(gain)(float(np.abs(e).max()))
     return -lam * np.linalg.pinv(L) @ e, e
 
@@ -157,20 +164,7 @@ def ibvs_eye_to_hand(s: np.ndarray, s_star: np.ndarray, Z: np.ndarray, Z_star: n
                      **frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Eye-to-hand IBVS with point features: (joint velocities dq (7,), error e (2n,)). s, s_star, Z, Z_star as
     :func:`ibvs_velocity`; ``frames`` the twists and Jacobians of ``form`` (see :func:`eye_to_hand_task_jacobian`)."""
-    s, s_star = np.asarray(s, dtype=np.float64), np.asarray(s_star, dtype=np.float64)
-    if s.shape != s_star.shape or s.ndim != 1 or len(s) % 2:
-        raise ValueError(f"s and s_star must be (2n,) arrays of the same shape, got {s.shape} and {s_star.shape}")
-    if not (np.isfinite(s).all() and np.isfinite(s_star).all()):
-        raise ValueError("features contain NaN or inf")
-    kind = InteractionMatrixType(interaction)
-    if kind == InteractionMatrixType.CURRENT:
-        L = points_interaction_matrix(s.reshape(-1, 2), Z)
-    elif kind == InteractionMatrixType.DESIRED:
-        L = points_interaction_matrix(s_star.reshape(-1, 2), Z_star)
-    else:
-        L = 0.5 * (points_interaction_matrix(s.reshape(-1, 2), Z)
-                   + points_interaction_matrix(s_star.reshape(-1, 2), Z_star))
-    e = s - s_star
+    L, e = _points_task(s, s_star, Z, Z_star, interaction)
     J = eye_to_hand_task_jacobian(L, form, **frames)
     return eye_to_hand_joint_velocity(e, J, _gain(gain)(float(np.abs(e).max()))), e
 
