@@ -317,18 +317,8 @@ def _theta_params(effect, fit, ti: int) -> list[_Param]:
 
 
 def _with(fit, p: _Param, value: float):
-    from franka_vs_gym.validation.effects import Fit
-
-    th = {k: (np.array(v, dtype=np.float64, copy=True) if k == p.key else v) for k, v in fit.theta.items()}
-    a = th[p.key]
-    if p.key == "coef" and a.ndim == 1 and len(p.idx) == 2:
-        a = a.reshape(7, -1)
-        th[p.key] = a
-    if a.ndim == 0:
-        th[p.key] = np.float64(value)
-    else:
-        a[p.idx] = value
-    return Fit(fit.effect, th, list(fit.joints))
+    """A copy of ``fit`` with the one parameter ``p`` set to ``value``."""
+    return _set_theta(fit, [p], [value])
 
 
 def _set_theta(fit, params: list[_Param], x: np.ndarray):
