@@ -371,7 +371,11 @@ class LinkInertials(Effect):
 
         from franka_vs_gym.model.franka_model import build_pinocchio_model
 
-        key = config.robot.name + str(config.robot.dh_placement(6).round(6).tobytes())
+        # The base parameters depend on the kinematics and on the gravity direction (a tilted gravity makes link
+        # 1's first moments identifiable): both are in the key, so a basis made for one model is never reused for
+        # another in the same process.
+        key = (config.robot.name + str(config.robot.dh_placement(6).round(6).tobytes())
+               + str(np.asarray(config.gravity, dtype=float).round(9).tobytes()))
         if key not in self._bases:
             model, _, _ = build_pinocchio_model(config)
             data = model.createData()
