@@ -133,3 +133,23 @@ def test_base_parameters_follow_the_model_gravity_in_one_process():
         assert len(li.basis(second)["cols"]) == rank(second)
         assert len(li.basis(first)["cols"]) == rank(first)
     assert rank(tilted) > rank(vertical)
+
+
+def test_rate_check_takes_a_jittered_100_hz_log_as_100_hz(monkeypatch):
+    """Link inertials need >= 100 Hz. A resampled or ROS-published '100 Hz' log whose median period is a little over
+    10 ms is a 100 Hz log (the real Gaz log resampled to 100 Hz was once refused with 'the log's rate (100 Hz) is
+    below 100 Hz'); a 30 Hz log is refused with its rate named."""
+    from types import SimpleNamespace
+
+    li = get_effect("link_inertials")
+    links = np.ones((7, 10))
+    monkeypatch.setattr(li, "_links", lambda ctx, fit: (links, links, None))
+
+    def ctx(dt):
+        return SimpleNamespace(data=SimpleNamespace(report=SimpleNamespace(dt_median=dt)))
+
+    fit = SimpleNamespace(theta={})
+    for dt in (0.001, 0.01, 0.01002, 0.0104):
+        assert -1 not in (li.problems(ctx(dt), fit) or {}), dt
+    slow = li.problems(ctx(1 / 30), fit)
+    assert "rate (30.0 Hz) is below 100 Hz" in slow[-1]

@@ -318,6 +318,9 @@ def physical_problems(pi: np.ndarray, what: str) -> str | None:
 LI_TOL_NOISE = 0.25  # noise floors: a consistent arm may miss the fitted torque change by this much on a joint
 LI_MIN_RATE = 100.0  # Hz: below it (30 Hz ROS logs) the link inertials are not identified (measured: a payload was
 # taken for them at 30 Hz on the independent generator)
+#: a log "at 100 Hz" whose median period is a little over 10 ms (a ROS publisher's jitter, a resampled log) counts as
+#: 100 Hz: the rate check allows this relative slack on the period
+LI_RATE_SLACK = 0.05
 LI_TOL_CHANGE = 0.5  # or by this fraction of the change itself (keeps >= 75% of its mean-square reduction)
 
 
@@ -469,8 +472,8 @@ class LinkInertials(Effect):
 
     def problems(self, ctx, fit):
         dt = float(getattr(ctx.data.report, "dt_median", 0.0) or 0.0)
-        if dt > 1.0 / LI_MIN_RATE:  # accelerations of a slow log do not determine 43 inertial combinations
-            return {-1: f"the log's rate ({1.0 / dt:.0f} Hz) is below {LI_MIN_RATE:g} Hz: its accelerations cannot "
+        if dt > (1.0 + LI_RATE_SLACK) / LI_MIN_RATE:  # a slow log's accelerations do not determine 43 combinations
+            return {-1: f"the log's rate ({1.0 / dt:.1f} Hz) is below {LI_MIN_RATE:g} Hz: its accelerations cannot "
                         "identify the link inertials (a payload or mass-scale law may still be named)"}
         new, old, problem = self._links(ctx, fit)
         out = [problem] if problem else []
@@ -488,7 +491,7 @@ class LinkInertials(Effect):
         if fit.theta.get("links") is not None:  # passed its check: applied as it is
             return fit, None
         dt = float(getattr(ctx.data.report, "dt_median", 0.0) or 0.0)
-        if dt > 1.0 / LI_MIN_RATE:
+        if dt > (1.0 + LI_RATE_SLACK) / LI_MIN_RATE:
             return fit, None
         new, old, problem = self._links(ctx, fit)
         if problem is None or problem.startswith("the model's links") or not all(
