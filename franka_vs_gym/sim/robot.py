@@ -940,7 +940,8 @@ class FrankaSim:
                 and r._hold is None
                 and not r._relaxed and not r._check_tau and not r.errors and r._ud[0] == ARMED
                 and not self._delay_steps and self._meas_fifo is None and not w._active and not w._post_hooks
-                and len(w._checks) == 1 and self._state == RobotState(control_state))
+                and len(w._checks) == 1
+                and (control_state is self._state or self._state == RobotState(control_state)))  # (enum call skipped)
 
     @property
     def limits_commands_in_plant(self) -> bool:
