@@ -279,6 +279,27 @@ def test_compiled_step_gives_the_general_paths_bits(env_id, kwargs, policy, step
     assert taken >= 0.6 * steps, taken  # (mid-period camera frames and failing steps take the general path)
 
 
+def test_velocity_step_leaves_another_friction_law_to_the_general_path():
+    """Joint velocity actions with a model whose friction is not the sigmoid alone (a viscous term): its
+    feed-forward is only computed by the model, so every step takes the general path, with the same results."""
+    import dataclasses
+
+    from franka_vs_gym.model.config import resolve_config
+
+    cfg = resolve_config(None, None)
+    cfg = dataclasses.replace(cfg, friction=dataclasses.replace(cfg.friction, viscous=np.full(7, 0.05)))
+    kw = {"action_scale": "normalized", "model": cfg}
+    a, taken = _rollout("FrankaIBVS-v0", kw, _uniform, 60, True)
+    b, _ = _rollout("FrankaIBVS-v0", kw, _uniform, 60, False)
+    assert taken == 0
+    _assert_same(a, b)
+    env = gym.make("FrankaIBVS-v0", **kw)
+    env.reset(seed=0)
+    assert env.unwrapped.sim.feedforward_friction() is None
+    assert gym.make("FrankaIBVS-v0").unwrapped.sim.feedforward_friction()[0].shape == (7,)  # the default law
+    env.close()
+
+
 def test_compiled_step_leaves_other_actions_to_the_general_path():
     env = gym.make("FrankaVisualTorque-v0", action_scale="physical")
     ref = gym.make("FrankaVisualTorque-v0", action_scale="physical")
