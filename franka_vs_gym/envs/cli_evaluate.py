@@ -6,7 +6,9 @@ Policies:
                                 --env-kwargs '{"action_type": "cartesian_velocity"}')
   ``computed-torque`` / ``impedance``   franka_vs_gym.policies torque policies (FrankaTorqueTracking-v0)
   ``zero``                      a zero action (a reference: what doing nothing scores)
-  ``ibvs_ppo``                  a shipped agent (franka_vs_gym.policies.shipped_agents(); needs the [rl] extra)
+  ``ibvs_ppo``, ``ibvs_pixels`` a shipped agent (franka_vs_gym.policies.shipped_agents(); needs the [rl] extra):
+                                the features agent, and the agent that sees the camera image (its env kwargs,
+                                observation_type "image" at 64x48, come from its JSON sidecar)
   ``path/to/agent.zip``         a stable-baselines3 agent saved by baselines/train_sb3.py (with its .json)
 """
 
@@ -24,8 +26,8 @@ SCRIPTED = ("ibvs", "pbvs", "computed-torque", "impedance", "zero")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("policy", help=f"one of {', '.join(SCRIPTED)}, a shipped agent (ibvs_ppo), or the path of "
-                        "an agent .zip")
+    parser.add_argument("policy", help=f"one of {', '.join(SCRIPTED)}, a shipped agent (ibvs_ppo, ibvs_pixels), or "
+                        "the path of an agent .zip")
     parser.add_argument("--env", default=None, help="environment id (default: the agent's, or FrankaIBVS-v0 for "
                         "ibvs/pbvs/zero, FrankaTorqueTracking-v0 for the torque policies)")
     parser.add_argument("--episodes", type=int, default=20)

@@ -23,6 +23,9 @@ import numpy as np
 from gymnasium import spaces
 
 OBS_LAYOUT = "servo-vector/2"
+#: the pixel agent's layout (franka_vs_gym.envs.pixels.IMAGE_LAYOUT: the camera image, q and dq)
+IMAGE_LAYOUT = "image-q-dq/1"
+OBS_LAYOUTS = (OBS_LAYOUT, IMAGE_LAYOUT)
 VECTOR_SIZE = 8 + 8 + 1 + 8 + 4 + 7 + 7 + 1
 
 
@@ -101,12 +104,17 @@ class AgentPolicy:
     contract observation (dict) in and the physical action (e.g. joint velocities, rad/s) out.
 
     Load with :meth:`load` from a model zip and its JSON sidecar (same name, ``.json``) written by
-    ``baselines/train_sb3.py``; the sidecar records the env id, env kwargs and action scale used in training.
+    ``baselines/train_sb3.py`` or ``baselines/train_pixels.py``; the sidecar records the env id, env kwargs, action
+    scale and observation layout used in training (the flat servo vector, or the camera image with q and dq).
     """
 
     def __init__(self, model: Any, action_scale: Any, env_id: str = "FrankaIBVS-v0",
-                 env_kwargs: dict[str, Any] | None = None) -> None:
+                 env_kwargs: dict[str, Any] | None = None, observation_layout: str = OBS_LAYOUT) -> None:
+        if observation_layout not in OBS_LAYOUTS:
+            raise ValueError(f"observation_layout must be one of {OBS_LAYOUTS}, got {observation_layout!r}")
         self.model = model
+        #: what the agent sees: the flat servo vector (OBS_LAYOUT) or the camera image with q and dq (IMAGE_LAYOUT)
+        self.observation_layout = observation_layout
         self.training_scale = np.asarray(action_scale, dtype=np.float64)
         #: the physical value of an output of 1 (None: physical outputs, the training scale times the agent's
         #: [-1, 1] action); see with_action_scale
@@ -126,19 +134,26 @@ class AgentPolicy:
             raise FileNotFoundError(f"agent metadata not found: {meta_path} (written next to the zip by "
                                     "baselines/train_sb3.py)")
         meta = json.loads(meta_path.read_text())
-        if meta.get("observation_layout") != OBS_LAYOUT:
-            raise ValueError(f"{meta_path}: observation layout {meta.get('observation_layout')!r} is not "
-                             f"{OBS_LAYOUT!r}")
+        if meta.get("observation_layout") not in OBS_LAYOUTS:
+            raise ValueError(f"{meta_path}: observation layout {meta.get('observation_layout')!r} is not one of "
+                             f"{OBS_LAYOUTS}")
         import stable_baselines3 as sb3
 
         algo = getattr(sb3, str(meta.get("algo", "")).upper(), None)
         if algo is None:
             raise ValueError(f"{meta_path}: unknown algorithm {meta.get('algo')!r}")
         model = algo.load(str(p), device="cpu")
-        return cls(model, meta["action_scale"], meta.get("env_id", "FrankaIBVS-v0"), meta.get("env_kwargs", {}))
+        return cls(model, meta["action_scale"], meta.get("env_id", "FrankaIBVS-v0"), meta.get("env_kwargs", {}),
+                   meta["observation_layout"])
 
     def predict(self, observation: dict[str, Any], deterministic: bool = True) -> np.ndarray:
-        a, _ = self.model.predict(servo_vector(observation), deterministic=deterministic)
+        if self.observation_layout == IMAGE_LAYOUT:
+            from franka_vs_gym.envs.pixels import image_observation
+
+            seen: Any = image_observation(observation)
+        else:
+            seen = servo_vector(observation)
+        a, _ = self.model.predict(seen, deterministic=deterministic)
         phys = np.clip(np.asarray(a, dtype=np.float64), -1.0, 1.0) * self.training_scale
         if self.action_scale is not None:
             phys = phys / self.action_scale
