@@ -162,3 +162,24 @@ def test_design_parameter_names_and_units():
     assert parameter("sigmoid_friction.phi2_s_per_rad[5]") == ("sigmoid_friction", "phi2", 5, "s/rad")
     assert parameter("gravity_tilt.dg_x") == ("gravity_tilt", "dg_x", None, "m/s^2")
     assert parameter("delay.delay_s") == ("delay", "delay", None, "s")
+
+
+def test_alongside_runs_the_work_and_raises_its_error_here(tmp_path):
+    """The report's PNGs are written by a forked child where a second CPU is free: the work is done (in a child
+    when it can be), and a failure there is raised in the caller as if it had run there."""
+    import os
+    import threading
+
+    from franka_vs_gym.validation.cli_common import alongside
+
+    marker = tmp_path / "pid"
+    alongside(lambda: marker.write_text(str(os.getpid())))()
+    assert marker.exists()
+    if len(os.sched_getaffinity(0)) >= 2 and threading.active_count() == 1:
+        assert int(marker.read_text()) != os.getpid()  # it ran in a child
+
+    def bad():
+        raise ValueError("figure failed")
+
+    with pytest.raises(ValueError, match="figure failed"):
+        alongside(bad)()
