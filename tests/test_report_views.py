@@ -183,3 +183,15 @@ def test_alongside_runs_the_work_and_raises_its_error_here(tmp_path):
 
     with pytest.raises(ValueError, match="figure failed"):
         alongside(bad)()
+
+
+def test_excite_report_refuses_a_design_without_limits(tmp_path):
+    from franka_vs_gym.errors import UserError
+    from franka_vs_gym.validation.report.excite import excite_report
+
+    with pytest.raises(UserError, match="robot_limits"):
+        excite_report({"limits": {"fraction_of_limits": 0.5}}, np.zeros((10, 22)), tmp_path / "r", tmp_path)
+    with pytest.raises(UserError, match="22 columns"):
+        excite_report({"limits": {"robot_limits": {"q_min_rad": [0] * 7}}}, np.zeros((10, 5)), tmp_path / "r",
+                      tmp_path)
+    assert not (tmp_path / "r").exists()

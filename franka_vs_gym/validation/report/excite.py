@@ -185,12 +185,25 @@ class ExciteView:
 def view(design, table: np.ndarray, folder: str | Path, seconds: float | None = None) -> ExciteView:
     """An ExciteView of a :class:`~franka_vs_gym.validation.excite.Design` (or its ``to_dict()``) and the rows of its
     trajectory.csv."""
+    from franka_vs_gym.errors import UserError
+
     d = design.to_dict() if hasattr(design, "to_dict") else dict(design)
+    if not (d.get("limits") or {}).get("robot_limits"):
+        raise UserError("the design has no robot_limits (an excite.json of an older franka-vs): run "
+                        "'franka-vs excite' again to report it")
+    table = np.asarray(table, float)
+    if table.ndim != 2 or table.shape[1] != 22:
+        raise UserError(f"the trajectory must have 22 columns (time, q_d, dq_d, ddq_d), got shape {table.shape}")
     return ExciteView(d, np.asarray(table, float), str(folder), float(seconds if seconds is not None
                                                                        else d.get("design_seconds", 0.0)))
 
 
 # ----------------------------------------------------------------------------------------------------- PNG
+def _periods(motion: dict[str, Any]) -> str:
+    k = int(motion["periods"])
+    return f"{k} period{'s' if k != 1 else ''}"
+
+
 def _pretty_width(x: float) -> str:
     return "not identifiable" if not math.isfinite(x) else fmt(x, 3)
 
@@ -274,7 +287,7 @@ def markdown_excite(v: ExciteView, outdir: Path) -> Path:
     traj = plot_trajectory(v, out / "excitation_limits.png")
     wid = plot_widths(v, out / "predicted_widths.png")
     L = [f"# Designed excitation: {v.question()}", "",
-         f"{d['criterion']}-optimal, {d['motion']['duration_s']:g} s ({d['motion']['periods']} periods of "
+         f"{d['criterion']}-optimal, {d['motion']['duration_s']:g} s ({_periods(d['motion'])} of "
          f"{d['motion']['period_s']:.3g} s between {d['motion']['rest_s']:g} s rests), designed in {v.seconds:.1f} s "
          f"({d['criterion_evaluations']} criterion evaluations). Reference: {d['reference']}. Noise model: "
          f"{d['noise_model']}.", ""]
@@ -294,7 +307,7 @@ def markdown_excite(v: ExciteView, outdir: Path) -> Path:
     L += ["", f"Lowest flange {lim['lowest_flange_m']} m over the table (clearance asked "
               f"{lim['table_clearance_m']} m), lowest end effector {lim['lowest_end_effector_m']} m.", "",
           f"![trajectory against the limits]({traj.name})", "", "## Run it", "", "```bash"]
-    L += [f"{cmd}    # {what}" for what, cmd in v.commands()] + ["```", ""]
+    L += [line for what, cmd in v.commands() for line in (f"# {what}", cmd)] + ["```", ""]
     md = out / "report.md"
     md.write_text("\n".join(L))
     return md
@@ -310,6 +323,7 @@ def html_excite(v: ExciteView, outdir: Path) -> Path:
     from bokeh.models import ColumnDataSource, FactorRange, HoverTool
     from bokeh.plotting import figure
     from bokeh.resources import Resources
+    from bokeh.transform import dodge
 
     from franka_vs_gym.validation.report.html import COLORS, CSS, PLOT_W, _Report, _table
 
@@ -354,23 +368,21 @@ def html_excite(v: ExciteView, outdir: Path) -> Path:
     fin = [x for r in rows for x in (r.designed, r.reference) if math.isfinite(x) and x > 0]
     hi = max(fin) * 3 if fin else 1.0
     lo = min(fin) / 3 if fin else 0.1
-    factors = [(r.name, which) for r in rows for which in ("reference", "designed")]
-    vals = [getattr(r, which) for r in rows for which in ("reference", "designed")]
-    src = ColumnDataSource({
-        "y": factors, "right": [x if math.isfinite(x) else hi for x in vals], "left": [lo] * len(vals),
-        "color": ["#9a9a9a" if w == "reference" else COLORS["before"] for _, w in factors],
-        "series": [w for _, w in factors],
-        "text": [_pretty_width(x) for x in vals],
-        "unit": [next(r.unit for r in rows if r.name == n) or "-" for n, _ in factors]})
-    h = int(min(2400, 90 + 26 * len(rows)))
-    wf = figure(y_range=FactorRange(*factors[::-1], group_padding=0.4, factor_padding=0.0), x_axis_type="log",
-                x_range=(lo, hi * 2), width=PLOT_W, height=h, tools="xpan,xwheel_zoom,box_zoom,reset,save",
+    names = [r.name for r in rows]
+    h = int(min(2400, 110 + 26 * len(rows)))
+    wf = figure(y_range=FactorRange(*names[::-1]), x_axis_type="log", x_range=(lo, hi * 2), width=PLOT_W, height=h,
+                tools="xpan,xwheel_zoom,box_zoom,reset,save",
                 title="Predicted 95% interval width per parameter: designed motion vs reference (log scale)")
-    wf.hbar(y="y", left="left", right="right", height=0.8, color="color", legend_field="series", source=src)
-    wf.add_tools(HoverTool(tooltips=[("parameter", "@y"), ("95% width", "@text @unit")]))
+    for which, color, shift in (("reference", "#9a9a9a", 0.2), ("designed", COLORS["before"], -0.2)):
+        vals = [getattr(r, which) for r in rows]
+        src = ColumnDataSource({"y": names, "right": [x if math.isfinite(x) else hi for x in vals],
+                                "left": [lo] * len(vals), "text": [_pretty_width(x) for x in vals],
+                                "unit": [r.unit or "-" for r in rows]})
+        wf.hbar(y=dodge("y", shift, range=wf.y_range), left="left", right="right", height=0.38, color=color,
+                legend_label=which, source=src, name=which)
+    wf.add_tools(HoverTool(tooltips=[("", "$name"), ("parameter", "@y"), ("95% width", "@text @unit")]))
     wf.xaxis.axis_label = "predicted 95% interval width (in the parameter's unit)"
-    wf.yaxis.major_label_text_font_size = "0pt"  # the series are in the legend; the parameters label the groups
-    wf.yaxis.group_text_font_size = "8pt"
+    wf.yaxis.major_label_text_font_size = "8pt"
     wf.legend.location = "bottom_right"
     wf.toolbar.logo = None
     R.roots["widths"] = wf
@@ -380,13 +392,13 @@ def html_excite(v: ExciteView, outdir: Path) -> Path:
     B = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
          f"<title>franka-vs excite: {_esc(', '.join(d['effects']))}</title>", f"<style>{CSS}</style>", js, script,
          "</head><body>", f"<h1>Designed excitation: {_esc(v.question())}</h1>",
-         f'<p class="muted">{_esc(d["criterion"])}-optimal, {mo["duration_s"]:g} s ({mo["periods"]} periods of '
+         f'<p class="muted">{_esc(d["criterion"])}-optimal, {mo["duration_s"]:g} s ({_periods(mo)} of '
          f'{mo["period_s"]:.3g} s between {mo["rest_s"]:g} s rests), designed in {v.seconds:.1f} s '
          f'({d["criterion_evaluations"]} criterion evaluations). Reference: {_esc(d["reference"])}. Noise model: '
          f'{_esc(d["noise_model"])}. Drag to pan, wheel or box to zoom, hover for values.</p>',
          '<div class="verdict">' + "".join(f"<p>{_esc(s)}</p>" for s in v.summary_lines())
          + "".join(f"<p>{_esc(a)}</p>" for a in v.ambiguity_lines()) + "</div>",
-         "<h2>Run it</h2><pre>" + "\n".join(f"{_esc(cmd)}    # {_esc(what)}" for what, cmd in v.commands())
+         "<h2>Run it</h2><pre>" + "\n".join(f"# {_esc(what)}\n{_esc(cmd)}" for what, cmd in v.commands())
          + "</pre><p class='muted'>The scripts take the robot's address as their only argument and write the "
          "recording next to themselves (never over an earlier one); the same file runs against "
          "<code>franka-vs serve</code> and the robot.</p>",
