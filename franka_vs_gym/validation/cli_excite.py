@@ -158,10 +158,14 @@ def main(args: argparse.Namespace) -> int:
             (folder / name).write_text(text)
         (folder / "excite.json").write_text(json.dumps(out, indent=1))
         if report_dir is not None:  # from what was just written: the design's dict and trajectory.csv's rows
-            from franka_vs_gym.validation.report.excite import excite_report
+            from franka_vs_gym.validation.cli_common import alongside
+            from franka_vs_gym.validation.report.excite import html_excite, markdown_excite, view
 
             progress("writing the report: report.html, report.md and figures", verbose)
-            excite_report(out, table, report_dir, folder=args.output, seconds=d.seconds)
+            v = view(out, table, args.output, d.seconds)
+            join = alongside(lambda: markdown_excite(v, report_dir))  # a second process where a CPU is free
+            html_excite(v, report_dir)
+            join()
     progress(f"written: {args.output}/trajectory.csv, play_excitation_pylibfranka.py, play_excitation_franky.py, "
              "excite.json" + (f"; report {args.report}/report.html" if args.report else ""), verbose)
     if args.json:
