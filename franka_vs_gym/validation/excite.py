@@ -652,7 +652,11 @@ def design_excitation(effects: list[str], *, separate: list[list[str]] | None = 
             "peak_ddq_over_limit": np.round((np.abs(ddq) / full.ddq_max).max(axis=0), 3).tolist(),
             "peak_dddq_over_limit": np.round((np.abs(dddq) / full.dddq_max).max(axis=0), 3).tolist(),
             "lowest_flange_m": round(float(kin.heights(q[::20])[:, 0].min()), 3),
-            "lowest_end_effector_m": round(float(kin.heights(q[::20])[:, 1].min()), 3)}
+            "lowest_end_effector_m": round(float(kin.heights(q[::20])[:, 1].min()), 3),
+            # the robot's own limits the fractions refer to (what a report draws the motion against)
+            "robot_limits": {"q_min_rad": full.q_min.tolist(), "q_max_rad": full.q_max.tolist(),
+                             "dq_max_rad_per_s": full.dq_max.tolist(), "ddq_max_rad_per_s2": full.ddq_max.tolist(),
+                             "dddq_max_rad_per_s3": full.dddq_max.tolist()}}
     seconds = time.perf_counter() - t0
     progress(f"designed in {seconds:.1f} s ({n_eval[0]} criterion evaluations)", verbose)
     return Design(motion, names, separate, criterion, ref_cols.names, ref_cols.owner, widths, widths_ref, ref_what,
@@ -678,9 +682,10 @@ def trajectory_table(motion: FourierMotion, rate: float = 1000.0) -> np.ndarray:
     return np.column_stack([t, q, dq, ddq])
 
 
-def trajectory_csv(motion: FourierMotion, rate: float = 1000.0) -> str:
+def trajectory_csv(motion: FourierMotion, rate: float = 1000.0, table: np.ndarray | None = None) -> str:
+    """trajectory.csv's text: the rows of :func:`trajectory_table` (or the given ``table`` of them)."""
     head = ",".join(["time"] + [f"{n}[{j}]" for n in ("q_d", "dq_d", "ddq_d") for j in range(7)])
-    rows = trajectory_table(motion, rate) + 0.0  # (no negative zeros)
+    rows = (trajectory_table(motion, rate) if table is None else table) + 0.0  # (no negative zeros)
     body = "\n".join(",".join(f"{v:.9g}" for v in r) for r in rows)
     return head + "\n" + body + "\n"
 
