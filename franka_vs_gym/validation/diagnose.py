@@ -873,6 +873,8 @@ def diagnose(log: MeasurementLog | ProcessedLog | str, model: Any = None, *, rig
                   rmse_sel, unexplained, assumptions_of(data, cfg, tool), notes, residual, data, ambiguous, changes)
     if fx is not data:
         d.assumptions["effects_analysed_at_hz"] = fx.settings.rate
+    if band_evidence:
+        d.assumptions["evidence"] = f"scored in the motion band (below the {fx.settings.cutoff:g} Hz cutoff)"
     if select and chosen:
         d.contributions = {t.effect.name: c for t, c in zip(chosen, eng.contributions(cur), strict=True)}
     return d
