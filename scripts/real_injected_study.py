@@ -166,6 +166,7 @@ def main() -> int:
     ap.add_argument("--cases", type=int, default=1, help="injected copies per kind (seeds 0..cases-1)")
     ap.add_argument("--kinds", default=",".join(KINDS))
     ap.add_argument("--rates", default=",".join(RATES))
+    ap.add_argument("--band", action="store_true", help="diagnose with band_evidence (scores in the motion band)")
     ap.add_argument("-o", "--output", default=None, help="write the per-case results as JSON")
     ap.add_argument("--merge", nargs="+", default=None, metavar="JSON",
                     help="print the table of earlier runs' JSON outputs (e.g. one run per rate) instead of running")
@@ -183,7 +184,7 @@ def main() -> int:
     t_start = time.time()
     base = {}
     for r in rates:
-        base[r] = diagnose(every_kth(log, RATES[r]), tool="none")
+        base[r] = diagnose(every_kth(log, RATES[r]), tool="none", band_evidence=args.band)
         print(f"untouched {r}: {sorted(named(base[r]).items())} explained {base[r].explained}", file=sys.stderr)
     rows = []
     for kind in kinds:
@@ -191,7 +192,7 @@ def main() -> int:
             inj, truth = inject(log, kind, seed, noise=noise)
             for r in rates:
                 t0 = time.process_time()
-                d = diagnose(every_kth(inj, RATES[r]), tool="none")
+                d = diagnose(every_kth(inj, RATES[r]), tool="none", band_evidence=args.band)
                 res = score_case(base[r], d, truth)
                 res.update(kind=kind, seed=seed, rate=r, truth=truth, cpu_s=round(time.process_time() - t0, 2))
                 rows.append(res)

@@ -111,3 +111,44 @@ def test_payload_named_before_link_inertials_at_1_khz(gaz):
     # untouched log about 0.27 kg centred inside link 7)
     assert 0.5 * truth["mass_kg"] <= p["mass_kg"] <= truth["mass_kg"] + 0.35, (p["mass_kg"], truth["mass_kg"])
     assert p["com_flange_m"][2] > -0.03
+
+
+def test_an_offset_is_named_an_offset_beside_an_asymmetric_step_at_30_hz(gaz):
+    """An offset on one joint and a Coulomb step on another added at once (30 Hz): the offset's joint gets
+    `torque_offset` (the simpler of the two laws the rate cannot tell apart, the ambiguity said), not the asymmetric
+    step that a law chosen for several joints would give it; the Coulomb joint gets a step law; no other joint's
+    laws change from the untouched recording's answer."""
+    from franka_vs_gym.validation.injected import inject
+
+    log, noise = gaz
+    new, truth = inject(log, "offset+coulomb", 0, noise=noise)
+    (j_off,), (j_step,) = (t["joints"] for t in truth)
+    d, base = _diagnose(new, 33), _diagnose(log, 33)
+
+    def laws(x):
+        return {(s.effect, j) for s in x.selection if s.effect != "gravity_tilt" for j in s.joints}
+
+    got = laws(d)
+    assert ("torque_offset", j_off) in got and ("asymmetric_friction", j_off) not in got, got
+    assert any(n.endswith("_friction") and n != "viscous_friction" and j == j_step for n, j in got), got
+    assert {x for x in got if x[1] not in (j_off, j_step)} == {x for x in laws(base) if x[1] not in (j_off, j_step)}
+
+
+def test_band_evidence_gives_one_answer_at_every_rate_and_names_a_1_khz_injection(gaz):
+    """Scored in the motion band (``band_evidence``), the untouched recording gets the same named laws at 1 kHz,
+    100 Hz and 30 Hz (by default 1 kHz names four more: its broadband noise counted as evidence), and viscous
+    friction added on one joint at 1 kHz is named there with nothing else new."""
+    from franka_vs_gym.validation.diagnose import diagnose
+    from franka_vs_gym.validation.injected import every_kth, inject
+
+    log, noise = gaz
+
+    def laws(lg, k):
+        d = diagnose(every_kth(lg, k), tool="none", band_evidence=True)
+        return {(s.effect, j) for s in d.selection for j in (s.joints if s.effect != "gravity_tilt" else [-1])}
+
+    base = {k: laws(log, k) for k in (1, 10, 33)}
+    assert base[1] == base[10] == base[33], base
+    new, (truth,) = inject(log, "viscous", 0, noise=noise)
+    (j,) = truth["joints"]
+    assert laws(new, 1) - base[1] == {("viscous_friction", j)}

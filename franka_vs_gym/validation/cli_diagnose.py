@@ -41,6 +41,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--effects", default=None, metavar="E1,E2|FILE.py",
                         help="candidate effects (default: the whole library); a .py file is a plug-in whose Effect "
                              "classes are ranked with the library's")
+    parser.add_argument("--band-evidence", action="store_true",
+                        help="score effects in the motion band (below the cleaning cutoff): one answer at 1 kHz, 100 "
+                             "and 30 Hz on real logs, fewer small laws named (docs/workbench.md, section 5 step 2)")
 
 
 def main(args: argparse.Namespace) -> int:
@@ -54,7 +57,8 @@ def main(args: argparse.Namespace) -> int:
         report_tmp, mcap_tmp = stage_views(args, outputs)
         with progress_line(args.verbose):
             d = diagnose(load_from(args), args.model, rigid_body=args.rigid_body, effects=effects,
-                         settings=settings_from(args), verbose=verbose, tool=args.tool, robot=args.robot)
+                         settings=settings_from(args), verbose=verbose, tool=args.tool, robot=args.robot,
+                         band_evidence=args.band_evidence)
             model_warnings = d.config.plausibility_warnings()
             if report_tmp is not None or mcap_tmp is not None:
                 from franka_vs_gym.validation.compare import compare

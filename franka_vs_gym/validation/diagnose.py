@@ -10,7 +10,12 @@ Method (all on the inverse-dynamics residual ``r = tau_J - tau_model`` of the ba
    integrated autocorrelation time ``tau_int = 1 + 2 sum_k rho_k`` of the held-out residual (summed while rho_k > 0)
    gives ``N_eff = N / tau_int``. The score of an effect is a BIC-like evidence
    ``sum_j N_eff_j ln(MSE0_j / MSE1_j) - k ln(N_eff)`` (k its number of parameters); per-joint effects are scored
-   and kept joint by joint (a joint is kept when its own score exceeds ``JOINT_SCORE_MIN``).
+   and kept joint by joint (a joint is kept when its own score exceeds ``JOINT_SCORE_MIN``). Both are taken in the
+   motion band with ``band_evidence`` (below the cleaning cutoff where every effect lives: ``MSE`` less the
+   torque's power above the cutoff, ``N_eff`` of the low-passed residual; see
+   :mod:`~franka_vs_gym.validation.selection`). The broadband noise above the cutoff tells no effect from another;
+   counted as evidence (the default) it lets a 1 kHz log name laws that remove a tenth of a noise floor of the
+   robot's own unmodelled structure, which the same log at 100 or 30 Hz does not.
 3. **Significance.** An effect is *significant* when its score exceeds ``SCORE_MIN`` **and** it removes an error of
    practical size: on at least one joint, the RMS of what it removes, ``sqrt(MSE0 - MSE1)``, is at least
    ``PRACTICAL`` times the measurement noise floor. A residual already at the noise floor therefore yields no
@@ -315,10 +320,12 @@ class _Selector:
         return all(any(t is f for f in self.forced) for t in base)
 
     def _neff(self, sf: SetFit) -> np.ndarray:
-        return np.maximum(np.asarray(n_eff(self.eng.residual(sf))), 2.0)
+        return self.eng.band_neff(sf)
 
     def _gain(self, mse0: np.ndarray, mse1: np.ndarray, neff: np.ndarray) -> np.ndarray:
-        return neff * np.log(np.maximum(mse0, 1e-30) / np.maximum(mse1, 1e-30))
+        """Held-out evidence per joint of going from ``mse0`` to ``mse1`` (7,), in the motion band
+        (:meth:`Engine.band`)."""
+        return neff * np.log(self.eng.band(mse0) / self.eng.band(mse1))
 
     def try_add(self, base: list[Term], base_fit: SetFit, neff: np.ndarray, e: Effect) -> Candidate:
         eng, noise = self.eng, self.noise
@@ -481,9 +488,65 @@ class _Selector:
                 chosen, cur = self._swap(chosen, cur, forced)
                 chosen, cur = self._backward(chosen, cur, keep=forced)
         if select and len(chosen) > len(forced):
+            chosen, cur = self._simplest_laws(chosen, cur, forced)
+            n_before = len(chosen)
             chosen, cur = self._payload_first(chosen, cur)
+            if len(chosen) > n_before:  # a flange body split off the link inertials: what is left earns its place
+                body = [t for t in chosen if t.effect.name == "payload"]
+                chosen, cur = self._backward(chosen, cur, keep=forced + body)
             chosen, cur = self._prune_joints(chosen, cur)
         return ranking, chosen, cur
+
+    def _simplest_laws(self, chosen: list[Term], cur: SetFit, forced: list[Term]) -> tuple[list[Term], SetFit]:
+        """On each joint of a selected per-joint law, a confusable law (:data:`CONFUSABLE`) with fewer parameters
+        takes its place when the richer law's held-out evidence there is not ``AMBIGUOUS`` above it: laws the log
+        does not tell apart are named by the simpler one (the ambiguity is still reported). A law chosen for
+        several joints at once is so judged on each joint alone: an asymmetric step selected for two joints' real
+        friction does not name a third joint's torque offset asymmetric friction (an offset and a step of the
+        same joint are one asymmetric law away from rest)."""
+        lib = {e.name: e for e in self.effects}
+        for _ in range(7):  # one move per pass, until none is left
+            move = None
+            neff = self._neff(cur)
+            ln_n = np.log(neff)
+            for i, t in enumerate(chosen):
+                if t in forced or not t.effect.per_joint or not t.joints:
+                    continue
+                alts = [lib[a] for a, _ in CONFUSABLE.get(t.effect.name, []) if a in lib
+                        and lib[a].n_params < t.effect.n_params]
+                for j in t.joints:
+                    js = [x for x in t.joints if x != j]
+                    rest = chosen[:i] + ([Term(t.effect, t.shape, js)] if js else []) + chosen[i + 1:]
+                    sf_rest = None
+                    for alt in alts:
+                        k = next((m for m, u in enumerate(rest) if u.effect is alt), None)
+                        if k is not None and j in (rest[k].joints or []):
+                            continue
+                        if sf_rest is None:
+                            sf_rest = self.eng.fit(rest)
+                            e_sel = float(self._gain(sf_rest.mse_cv, cur.mse_cv, neff)[j]
+                                          - t.effect.n_params * ln_n[j])
+                        if k is None:
+                            target = self.eng.residual(sf_rest)
+                            trial = rest + [Term(alt, alt.shape(self.ctx, target), [j])]
+                            k = len(rest)
+                        else:
+                            trial = rest[:k] + [Term(alt, rest[k].shape, sorted(rest[k].joints + [j]))] + rest[k + 1:]
+                        sf = self.eng.fit(trial)
+                        e_alt = float(self._gain(sf_rest.mse_cv, sf.mse_cv, neff)[j] - alt.n_params * ln_n[j])
+                        if (e_alt > JOINT_SCORE_MIN and e_alt > e_sel - AMBIGUOUS
+                                and j not in alt.problems(self.ctx, sf.fits[k])):
+                            move = (trial, sf, t.effect.name, alt.name, j)
+                            break
+                    if move:
+                        break
+                if move:
+                    break
+            if move is None:
+                break
+            progress(f"simplest law: {move[3]} in place of {move[2]} on joint {move[4]}", self.verbose)
+            chosen, cur = move[0], move[1]
+        return chosen, cur
 
     def _payload_first(self, chosen: list[Term], cur: SetFit) -> tuple[list[Term], SetFit]:
         """A rigid body at the flange before a change of the link inertials: when ``link_inertials`` is selected
@@ -607,8 +670,7 @@ class _Selector:
                 js = [x for x in chosen[i].joints if x != j]
                 trial = chosen[:i] + [Term(t.effect, chosen[i].shape, js)] + chosen[i + 1:]
                 sf = self.eng.fit(trial)
-                g = float(neff[j] * np.log(max(sf.mse_cv[j], 1e-30) / max(cur.mse_cv[j], 1e-30))
-                          - t.effect.n_params * np.log(neff[j]))
+                g = float(self._gain(sf.mse_cv, cur.mse_cv, neff)[j] - t.effect.n_params * np.log(neff[j]))
                 removed = np.sqrt(max(sf.mse_cv[j] - cur.mse_cv[j], 0.0))
                 if g < JOINT_SCORE_MIN or removed < PRACTICAL * self.noise[j]:
                     chosen, cur = trial, sf
@@ -668,8 +730,7 @@ class _Selector:
                     else:
                         trial = rest[:k] + [Term(alt, rest[k].shape, sorted(rest[k].joints + [j]))] + rest[k + 1:]
                     sf_alt = eng.fit(trial)
-                    m0 = max(float(sf_rest.mse_cv[j]), 1e-30)
-                    e_sel, e_alt = (float(neff[j] * np.log(m0 / max(float(m1[j]), 1e-30)) - kp * np.log(neff[j]))
+                    e_sel, e_alt = (float(self._gain(sf_rest.mse_cv, m1, neff)[j] - kp * np.log(neff[j]))
                                     for m1, kp in ((cur.mse_cv, t.effect.n_params), (sf_alt.mse_cv, alt.n_params)))
                     if e_alt > JOINT_SCORE_MIN and e_alt > e_sel - AMBIGUOUS:
                         found.setdefault((t.effect.name, alt.name), []).append((j, e_sel, e_alt, why))
@@ -746,9 +807,11 @@ def resolve_effects(effects: list[str] | None, registry: EffectRegistry = REGIST
 
 def diagnose(log: MeasurementLog | ProcessedLog | str, model: Any = None, *, rigid_body: bool = False,
              effects: list[str] | None = None, settings: CleanSettings | None = None, folds: int = FOLDS,
-             select: bool = True, verbose: bool = False, tool: str | None = None, robot: Any = None) -> Diagnosis:
+             select: bool = True, verbose: bool = False, tool: str | None = None, robot: Any = None,
+             band_evidence: bool = False) -> Diagnosis:
     """Rank the candidate effects the model ``model`` (default: the log's baseline) lacks on ``log``, select the set
-    that explains the residual (in context, with a backward pass), and test what remains for structure."""
+    that explains the residual (in context, with a backward pass), and test what remains for structure.
+    ``band_evidence``: score in the motion band (method step 2)."""
     from franka_vs_gym.validation.structure import assumptions_of, test_structure
 
     progress("cleaning the log", verbose)
@@ -766,7 +829,7 @@ def diagnose(log: MeasurementLog | ProcessedLog | str, model: Any = None, *, rig
     if tool == "unknown":  # the tool is a payload of unknown mass, centre of mass and inertia
         forced = [Term(get_effect("payload"), {})]
         cands = [e for e in cands if e.name != "payload"]
-    eng = Engine(ctx, y, fl)
+    eng = Engine(ctx, y, fl, band=band_evidence)
     sel = _Selector(ctx, eng, noise, cands, verbose)
     ranking, chosen, cur = sel.run(select, forced=forced)
     changes: list[ModelChange] = []
@@ -810,6 +873,8 @@ def diagnose(log: MeasurementLog | ProcessedLog | str, model: Any = None, *, rig
                   rmse_sel, unexplained, assumptions_of(data, cfg, tool), notes, residual, data, ambiguous, changes)
     if fx is not data:
         d.assumptions["effects_analysed_at_hz"] = fx.settings.rate
+    if band_evidence:
+        d.assumptions["evidence"] = f"scored in the motion band (below the {fx.settings.cutoff:g} Hz cutoff)"
     if select and chosen:
         d.contributions = {t.effect.name: c for t, c in zip(chosen, eng.contributions(cur), strict=True)}
     return d
