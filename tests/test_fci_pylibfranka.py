@@ -219,7 +219,8 @@ def test_serve_command_line():
         p.wait(timeout=20)
     assert p.returncode == 0
     for args, msg in ((["--robot", "ur5"], "unknown robot"), (["--host", "10.255.255.1"], "cannot bind"),
-                      (["--q0", "0", "0", "0", "0", "0", "0", "0"], "joint limits")):
+                      (["--q0", "0", "0", "0", "0", "0", "0", "0"], "joint limits"),
+                      (["--table", "-0.3"], "--table -0.3"), (["--table", "nan"], "--table nan")):
         r = subprocess.run([sys.executable, "-m", "franka_vs_gym.cli", "serve", *args], capture_output=True,
                            text=True, timeout=60)
         assert r.returncode == 2 and msg in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr

@@ -102,6 +102,10 @@ class FCIServer:
         values) or a :class:`~franka_vs_gym.fci.truth.Truth`: the plant carries it, the robot's own model (``model``:
         what ``load_model``, ``set_load``, the internal controllers and the gravity compensation use) does not.
     verbose : print the ready line and connection events.
+    table_height : a raised table in front of the robot with its top at this height (m, base frame) instead of the
+        table under it (:func:`~franka_vs_gym.assets.mjcf.raised_table_xml`; 0.59 m is the bare flange's height at
+        the neutral pose).
+    tool : replace the model's tool: "none" (the bare flange: no hand, no gripper) or "franka_hand".
     rotor_inertia : the plant carries the robot's effective armature (``RobotDescription.rotor_inertia``, the motors
         as a torque controller feels them; default True, as the robot; see ``FrankaSim``).
 
@@ -118,7 +122,9 @@ class FCIServer:
                  record: str | Path | None = None,
                  port: int = codec.ROBOT_PORT,
                  gripper_port: int = codec.GRIPPER_PORT, max_missed_commands: int | None = None,
-                 verbose: bool = True, truth: Any = None, rotor_inertia: bool = True) -> None:
+                 verbose: bool = True, truth: Any = None, rotor_inertia: bool = True,
+                 table_height: float | None = None, tool: str | None = None) -> None:
+        from franka_vs_gym.assets.mjcf import raised_table_xml
         from franka_vs_gym.sim import FrankaSim
 
         self.host, self.port, self.gripper_port = host, int(port), int(gripper_port)
@@ -132,6 +138,14 @@ class FCIServer:
                 if p.exists():
                     raise FileExistsError(f"{p} exists; choose a new log name (nothing is overwritten)")
         self.record_path = record
+        if tool is not None:  # the model's tool replaced ("none": the bare flange, as libfranka's force example wants)
+            from franka_vs_gym.model.config import Tool, resolve_config
+
+            model = resolve_config(model, self.description).copy(tool=Tool.named(tool))
+        if table_height is not None:  # a raised table in front of the robot instead of the one under it
+            extra_worldbody = raised_table_xml(table_height) + extra_worldbody
+            table = False
+        self.table_height = table_height
         kwargs: dict[str, Any] = {"camera": camera, "tags": tags, "table": table, "extra_worldbody": extra_worldbody}
         if q0 is not None:
             kwargs["q0"] = q0
