@@ -41,12 +41,17 @@ def row(name: str, args: tuple, key: str, robot: str, lockstep: bool, host: str)
     extra = dict(tool="none", table_height=FORCE_TABLE, q0=FORCE_Q0) if name == "force_control" else {}
     with FCIServer(host, lockstep=lockstep, camera=False, verbose=False, robot=robot, **extra) as srv:
         t0 = time.monotonic()
+        out = None
         try:
             out = run_example(name, srv.host, *args, timeout=600)
             check(out)
             verdict, err = "pass", f"{out[key]:.3g}"
-        except AssertionError as e:
-            verdict, err = "FAIL", str(e).splitlines()[0][:80]
+        except AssertionError as e:  # the reason in one line: the assertion's text, or the example's own numbers
+            text = str(e).strip().splitlines()
+            why = text[0][:100] if text else ""
+            if out is not None:
+                why = ", ".join(f"{k} {v:.3g}" for k, v in out.items() if isinstance(v, float) and k != "wall_s")
+            verdict, err = "FAIL", why
         wall = time.monotonic() - t0
         stats = srv.motion_stats
     rt = ""
