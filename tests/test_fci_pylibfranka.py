@@ -199,6 +199,26 @@ def test_real_time_missed_deadlines(stall, reflex):
         assert min(out["rates"]) < 1.0  # the stall shows
 
 
+@pytest.mark.parametrize("extrapolate", [True, False])
+def test_real_time_missed_motion_commands(extrapolate):
+    """Real time, a joint position client that misses cycles (sleeps 2.5 ms every 250 cycles, its clock following the
+    robot's): the robot continues the desired motion with constant acceleration for a cycle without a command (the
+    FCI's packet-loss model, libfranka's rate_limiting.h) and takes each command at the time the client meant it
+    for, so the motion ends without a reflex. Holding the last command and checking each command against the cycle
+    before instead makes the command after a miss jump (the velocity of two cycles in one):
+    joint_motion_generator_velocity_discontinuity."""
+    # a tolerance of 200 missed cycles: a loaded test machine must not end the motion with the communication reflex
+    with FCIServer(loopback_host(27), camera=False, verbose=False, max_missed_commands=200) as srv:
+        if not extrapolate:  # the robot as it was: the last command held, each command checked against the cycle before
+            srv.robot._extrapolate = lambda: None
+            srv.robot._to_command_time = lambda answered: None
+        out = run_client(CLIENTS / "late_joint_motion.py", srv.host, "0.0025")
+    if extrapolate:  # the client missed cycles (it saw periods of more than 1 ms) and the motion went on
+        assert out["raised"] is None and out["long_periods"] >= 3 and out["cycles"] > 4000, out
+    else:  # the first missed cycle ends it
+        assert out["raised"] is not None and "velocity_discontinuity" in out["raised"], out
+
+
 def test_serve_command_line():
     """`franka-vs serve` prints one ready line, serves a client, stops on SIGINT; bad input is one line, exit 2."""
     import signal
@@ -219,7 +239,8 @@ def test_serve_command_line():
         p.wait(timeout=20)
     assert p.returncode == 0
     for args, msg in ((["--robot", "ur5"], "unknown robot"), (["--host", "10.255.255.1"], "cannot bind"),
-                      (["--q0", "0", "0", "0", "0", "0", "0", "0"], "joint limits")):
+                      (["--q0", "0", "0", "0", "0", "0", "0", "0"], "joint limits"),
+                      (["--table", "-0.3"], "--table -0.3"), (["--table", "nan"], "--table nan")):
         r = subprocess.run([sys.executable, "-m", "franka_vs_gym.cli", "serve", *args], capture_output=True,
                            text=True, timeout=60)
         assert r.returncode == 2 and msg in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr

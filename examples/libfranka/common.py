@@ -63,6 +63,19 @@ def set_default_behavior(robot: pylibfranka.Robot) -> None:
     robot.set_cartesian_impedance([3000, 3000, 3000, 300, 300, 300])
 
 
+DEFAULT_CUTOFF_FREQUENCY = 100.0  # Hz, lowpass_filter.h kDefaultCutoffFrequency
+
+
+def lowpass(command: np.ndarray, last: np.ndarray, cutoff_frequency: float = DEFAULT_CUTOFF_FREQUENCY,
+            sample_time: float = 1e-3) -> np.ndarray:
+    """libfranka's first-order low-pass (lowpass_filter.cpp lowpassFilter), which ``franka::Robot::control`` applies
+    to every torque command by default (cutoff 100 Hz, against the last command the robot reports, ``tau_J_d``);
+    pylibfranka's ``start_torque_control`` loop does not, so the ports whose C++ example relies on it apply it here:
+    ``gain = T / (T + 1 / (2 pi f_c))`` (0.386 at 1 kHz and 100 Hz), ``y = gain x + (1 - gain) y_last``."""
+    gain = sample_time / (sample_time + 1.0 / (2.0 * math.pi * cutoff_frequency))
+    return gain * np.asarray(command) + (1.0 - gain) * np.asarray(last)
+
+
 def limit_rate(max_derivatives: np.ndarray, desired: np.ndarray, last: np.ndarray) -> np.ndarray:
     """examples_common.cpp limitRate: each value moves at most ``max_derivatives * 1 ms`` from ``last``."""
     step = np.clip((desired - last) / 1e-3, -max_derivatives, max_derivatives) * 1e-3

@@ -218,6 +218,19 @@ def _tag_xml(t: TagSpec) -> tuple[str, str]:
     return asset, body
 
 
+def raised_table_xml(height: float, name: str = "table") -> str:
+    """A rigid table in front of the robot with its top at ``height`` (m, robot base frame), as raw MJCF for a
+    scene's ``extra_worldbody``: a box 0.8 m deep (x from 0.15 m) and 1.0 m wide standing on z = -0.02 m, clear of
+    the robot's base and shoulder, so the hand or the bare flange can press on it (libfranka's force-control
+    example needs the last joint resting on a horizontal rigid surface)."""
+    h = float(height)
+    if not (np.isfinite(h) and 0.0 < h < 1.2):
+        raise ValueError(f"table height {height!r} m: give the table top's height above the robot base, 0 < h < 1.2")
+    half = (h + 0.02) / 2
+    return (f'<geom name="{name}" type="box" size="0.4 0.5 {half:.9g}" pos="0.55 0 {h - half:.9g}" '
+            f'material="table_mat" {ENV_COLLISION}/>')
+
+
 def scene_xml(scene: SceneSpec) -> str:
     """The complete MJCF of a scene."""
     if not scene.robots:

@@ -23,6 +23,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--q0", type=float, nargs=7, metavar="Q", help="start joint position, 7 values in rad")
     p.add_argument("--scene", choices=SCENES, default="table",
                    help="table (default), tag (8 cm AprilTag id 0 on the table) or empty (no table)")
+    p.add_argument("--table", type=float, metavar="HEIGHT", dest="table_height",
+                   help="a raised rigid table in front of the robot with its top at HEIGHT m above the base, instead "
+                        "of the scene's table (e.g. 0.59: the bare flange touches it at the neutral pose; libfranka's "
+                        "force_control example)")
+    p.add_argument("--tool", choices=("franka_hand", "none"),
+                   help="the tool on the flange, replacing the model's: franka_hand or none (the bare flange)")
     p.add_argument("--record", metavar="LOG", help="write the session as a workbench log (.csv or .npz + .json)")
     p.add_argument("--no-camera", action="store_true", help="no wrist camera in the plant")
     p.add_argument("--truth", metavar="FILE",
@@ -42,13 +48,16 @@ def main(args: argparse.Namespace) -> int:
         raise UserError(f"--robot/--rotor-inertia: {e}") from None
     if args.q0 is not None and not all(math.isfinite(v) for v in args.q0):
         raise UserError("--q0 must be 7 finite joint angles in rad")
+    if args.table_height is not None and not (math.isfinite(args.table_height) and 0.0 < args.table_height < 1.2):
+        raise UserError(f"--table {args.table_height}: the table top's height above the robot base, 0 < HEIGHT < 1.2 m")
     tags = None
     if args.scene == "tag":
         from franka_vs_gym.assets.mjcf import TagSpec
 
         tags = [TagSpec()]
     server = FCIServer(args.host, lockstep=args.lockstep, model=args.model, robot=robot, q0=args.q0, tags=tags,
-                       camera=not args.no_camera, record=args.record, table=args.scene != "empty", truth=args.truth)
+                       camera=not args.no_camera, record=args.record, table=args.scene != "empty", truth=args.truth,
+                       table_height=args.table_height, tool=args.tool)
     try:
         server.serve_forever()
     except OSError as e:  # address in use / not available: one line, not a traceback

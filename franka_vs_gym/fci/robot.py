@@ -148,6 +148,7 @@ class FCIRobot:
         self._envelope = (velocity_envelope(self.desc) if self.desc.name in POSITION_BASED_VELOCITY_LIMITS
                           else None)
         self.dt = sim.dt
+        self._cmd_dt = self.dt  # the time a motion command spans in the client's clock (see _to_command_time)
         tool = self.model.config.tool
         self.F_T_NE = tool.flMe.copy()
         self.m_ee, self.F_x_Cee, self.I_ee = tool.body.mass, tool.body.com.copy(), tool.body.inertia.copy()
@@ -185,6 +186,7 @@ class FCIRobot:
         self._win_i = 0
         self._success_sum = len(self.success_window)
         self.missed_in_row = 0
+        self.worst_missed = 0
         self.max_missed_commands = MAX_MISSED_COMMANDS
         self.tau_J_prev = sim.get_force_torque(JOINT_STATE)
         self._reset_desired()
@@ -238,6 +240,8 @@ class FCIRobot:
         self.ddelbow_c = np.zeros(2)
         self.tau_J_d = np.zeros(7)
         self._first_command = True
+        self._answered: int | None = None  # the state the last motion command answered (its message id)
+        self._after_command: tuple | None = None  # the desired motion right after that command
 
     # ------------------------------------------------------------------ settings (TCP setters)
     def set_joint_impedance(self, K_theta: np.ndarray) -> None:
@@ -276,6 +280,7 @@ class FCIRobot:
         self.ctrl_mode = _CTRL_FROM_MOVE[controller]
         self.last_motion_errors[:] = False
         self.missed_in_row = 0
+        self.worst_missed = 0  # the motion's longest run of cycles without a command (real time)
         self._reset_desired()
 
     def finish_motion(self) -> None:
@@ -347,7 +352,7 @@ class FCIRobot:
                          f"commanded joint {j} jerk {dddq_d[j]:.0f} rad/s^3, limit {self.dddq_max[j]}")
 
     def _advance_joint(self, q_new: np.ndarray, prefix: str) -> None:
-        dt = self.dt
+        dt = self._cmd_dt
         dq_new = (q_new - self.q_d) / dt
         ddq_new = (dq_new - self.dq_d) / dt
         dddq_new = (ddq_new - self.ddq_d) / dt
@@ -382,8 +387,45 @@ class FCIRobot:
             q = q + step
         return q
 
+    def _extrapolate(self) -> None:
+        """A motion generator's cycle without a command: the desired motion goes on with constant acceleration, as
+        the FCI does when a packet is lost (libfranka's rate_limiting.h, ``kTolNumberPacketsLost``: "FCI assumes a
+        constant acceleration model"), so a command that arrives a cycle late, computed for the later time, continues
+        the trajectory instead of jumping from a held one. Joint space; a Cartesian generator's pose follows the
+        extrapolated joints (forward kinematics) and its twist the constant acceleration."""
+        dt = self.dt
+        self.dq_d = self.dq_d + self.ddq_d * dt
+        self.q_d = self.q_d + self.dq_d * dt
+        if self.mg_mode in (MotionGeneratorMode.CARTESIAN_POSITION, MotionGeneratorMode.CARTESIAN_VELOCITY):
+            self.O_dP_EE_c = self.O_dP_EE_c + self.O_ddP_EE_c * dt
+            self.O_T_EE_c = self.O_T_EE_of(self.q_d)
+            self.delbow_c = self.delbow_c + self.ddelbow_c * dt
+            self.elbow_c = np.array([self.q_d[2], self.elbow_c[1]])
+
+    def _desired(self) -> tuple:
+        return (self.q_d, self.dq_d, self.ddq_d, self.O_T_EE_c, self.O_dP_EE_c, self.O_ddP_EE_c, self.elbow_c,
+                self.delbow_c)
+
+    def _to_command_time(self, answered: int) -> None:
+        """Put the desired motion where a command answering state ``answered`` continues it, in the client's time.
+        A command answering state n is the motion generator's value one cycle after state n. The desired motion
+        restarts from the last command (answering state k), whatever the server extrapolated meanwhile for cycles
+        without a command, and the new command spans the n - k cycles since then (its velocity, acceleration and
+        jerk are differences over that span, as the client's own clock has them: a client that skipped a state,
+        its ``period`` 2 ms, is checked on its 2 ms grid, and a command one cycle late takes the place of the
+        extrapolated cycle). In lock-step, and in real time while the client keeps up, n = k + 1: one cycle, as
+        before."""
+        if self._answered is None or self._after_command is None:
+            return
+        span = answered - self._answered
+        if span < 1 or span > self.max_missed_commands + 1:
+            return
+        (self.q_d, self.dq_d, self.ddq_d, self.O_T_EE_c, self.O_dP_EE_c, self.O_ddP_EE_c, self.elbow_c,
+         self.delbow_c) = self._after_command
+        self._cmd_dt = span * self.dt
+
     def _cartesian_checks(self, T_new: np.ndarray) -> None:
-        dt, c, tol = self.dt, self.cart, 1.0 + LIMIT_TOLERANCE
+        dt, c, tol = self._cmd_dt, self.cart, 1.0 + LIMIT_TOLERANCE
         v = _pose_err(self.O_T_EE_c, T_new) / dt  # [translation; rotation vector in O] per step
         a = (v - self.O_dP_EE_c) / dt
         j = (a - self.O_ddP_EE_c) / dt
@@ -404,7 +446,7 @@ class FCIRobot:
         if mg == MotionGeneratorMode.JOINT_POSITION:
             self._advance_joint(np.array(cmd.q_c), "joint_motion_generator_")
         elif mg == MotionGeneratorMode.JOINT_VELOCITY:
-            self._advance_joint(self.q_d + self.dt * np.asarray(cmd.dq_c), "joint_motion_generator_")
+            self._advance_joint(self.q_d + self._cmd_dt * np.asarray(cmd.dq_c), "joint_motion_generator_")
         elif mg in (MotionGeneratorMode.CARTESIAN_POSITION, MotionGeneratorMode.CARTESIAN_VELOCITY):
             if mg == MotionGeneratorMode.CARTESIAN_POSITION:
                 T = np.asarray(cmd.O_T_EE_c).reshape(4, 4, order="F").copy()
@@ -415,8 +457,8 @@ class FCIRobot:
             else:
                 tw = np.asarray(cmd.O_dP_EE_c)
                 T = self.O_T_EE_c.copy()
-                T[:3, 3] += tw[:3] * self.dt
-                T[:3, :3] = _expm_so3(tw[3:] * self.dt) @ T[:3, :3]
+                T[:3, 3] += tw[:3] * self._cmd_dt
+                T[:3, :3] = _expm_so3(tw[3:] * self._cmd_dt) @ T[:3, :3]
             self._cartesian_checks(T)
             if cmd.valid_elbow:
                 elbow = float(cmd.elbow_c[0])
@@ -427,8 +469,8 @@ class FCIRobot:
             else:
                 q_new = self._ik(T, None)
             new_elbow = np.array([q_new[2], self.elbow_c[1]])
-            d1 = (new_elbow - self.elbow_c) / self.dt
-            self.ddelbow_c = (d1 - self.delbow_c) / self.dt
+            d1 = (new_elbow - self.elbow_c) / self._cmd_dt
+            self.ddelbow_c = (d1 - self.delbow_c) / self._cmd_dt
             self.delbow_c, self.elbow_c = d1, new_elbow
             self.O_T_EE_c = T
             self._advance_joint(q_new, "cartesian_motion_generator_joint_")
@@ -442,7 +484,13 @@ class FCIRobot:
             return self._joint_impedance(q, dq, self.q_hold, np.zeros(7), None)
         if cmd is not None:
             if self.mg_mode != MotionGeneratorMode.NONE:
-                self._apply_motion(cmd)
+                self._to_command_time(cmd.message_id)
+                try:
+                    self._apply_motion(cmd)
+                finally:
+                    self._cmd_dt = self.dt
+                self._answered = cmd.message_id
+                self._after_command = self._desired()
             if self.ctrl_mode == ControllerMode.EXTERNAL_CONTROLLER:
                 tau = np.array(cmd.tau_J_d, dtype=float)
                 if not np.isfinite(tau).all():
@@ -454,8 +502,11 @@ class FCIRobot:
                                  f"joint {j} torque rate {rate[j]:.0f} Nm/s, limit {self.dtau_max[j]}")
                 self.tau_J_d = tau
                 return tau
-        elif self.ctrl_mode == ControllerMode.EXTERNAL_CONTROLLER:
-            return self.tau_J_d  # the last torque is held
+        else:  # a cycle without a command (real time: the client missed it)
+            if self.mg_mode != MotionGeneratorMode.NONE:
+                self._extrapolate()
+            if self.ctrl_mode == ControllerMode.EXTERNAL_CONTROLLER:
+                return self.tau_J_d  # the last torque is held
         if self.ctrl_mode == ControllerMode.CARTESIAN_IMPEDANCE:
             T = self.O_T_EE_c @ self.EE_T_K  # goal of the stiffness frame
             v = self.O_dP_EE_c.copy()
@@ -542,12 +593,16 @@ class FCIRobot:
             j = int(np.argmax(r))
             raise Reflex(["joint_velocity_violation"], f"joint {j} at {dq[j]:.3f} rad/s, limit {self.dq_max[j]}")
 
-    def count_command(self, received: bool) -> None:
-        """Real-time bookkeeping: whether this cycle's command arrived in time."""
+    def count_command(self, received: bool, silent: int | None = None) -> None:
+        """Real-time bookkeeping: whether this cycle's command arrived in time; ``silent``: the cycles of wall time
+        since the client last owed a command (the server may have run fewer cycles when the machine ran it late;
+        the client's silence counts in wall time, as the robot counts it)."""
         self._success_sum += int(received) - int(self.success_window[self._win_i])
         self.success_window[self._win_i] = received
         self._win_i = (self._win_i + 1) % len(self.success_window)
-        self.missed_in_row = 0 if received else self.missed_in_row + 1
+        self.missed_in_row = 0 if received else max(self.missed_in_row + 1, silent or 0)
+        if self.missed_in_row > self.worst_missed:
+            self.worst_missed = self.missed_in_row
         if self.missed_in_row > self.max_missed_commands and self.robot_mode == RobotMode.MOVE:
             self.enter_reflex(("communication_constraints_violation",),
                               f"{self.missed_in_row} cycles in a row without a command")

@@ -29,6 +29,7 @@ import socket
 import struct
 import threading
 import time
+from collections import deque
 from pathlib import Path
 from typing import Any
 
@@ -57,7 +58,10 @@ _TICK = 0.001  # s of wall time between idle states (and the real-time control p
 # Lock-step, between a Move and its first command: frozen states keep the client from waiting forever, but every
 # extra one the client drains changes the time step it sees, so they are rare.
 _START_PHASE_PERIOD = 0.05
-_MAX_LATE = 0.002  # s: real-time cycles later than this are dropped (plant time falls behind wall time)
+# s: a real-time cycle that starts later than this is dropped with those it overran (plant time falls behind wall
+# time); below a cycle, so the server never runs two cycles back to back: each state it sends gets its cycle for the
+# client's answer, as on the robot, and an overloaded machine shows as a slower plant, not as missed commands
+_MAX_LATE = 0.0005
 _HAND_STEPS_PER_TICK = 25  # lock-step physics steps per wall-time tick while only the hand moves
 _CHUNK = 60000  # rows per block of a --record buffer (1 min at 1 kHz, 27 MB)
 
@@ -102,6 +106,10 @@ class FCIServer:
         values) or a :class:`~franka_vs_gym.fci.truth.Truth`: the plant carries it, the robot's own model (``model``:
         what ``load_model``, ``set_load``, the internal controllers and the gravity compensation use) does not.
     verbose : print the ready line and connection events.
+    table_height : a raised table in front of the robot with its top at this height (m, base frame) instead of the
+        table under it (:func:`~franka_vs_gym.assets.mjcf.raised_table_xml`; 0.59 m is the bare flange's height at
+        the neutral pose).
+    tool : replace the model's tool: "none" (the bare flange: no hand, no gripper) or "franka_hand".
     rotor_inertia : the plant carries the robot's effective armature (``RobotDescription.rotor_inertia``, the motors
         as a torque controller feels them; default True, as the robot; see ``FrankaSim``).
 
@@ -118,7 +126,9 @@ class FCIServer:
                  record: str | Path | None = None,
                  port: int = codec.ROBOT_PORT,
                  gripper_port: int = codec.GRIPPER_PORT, max_missed_commands: int | None = None,
-                 verbose: bool = True, truth: Any = None, rotor_inertia: bool = True) -> None:
+                 verbose: bool = True, truth: Any = None, rotor_inertia: bool = True,
+                 table_height: float | None = None, tool: str | None = None) -> None:
+        from franka_vs_gym.assets.mjcf import raised_table_xml
         from franka_vs_gym.sim import FrankaSim
 
         self.host, self.port, self.gripper_port = host, int(port), int(gripper_port)
@@ -132,6 +142,14 @@ class FCIServer:
                 if p.exists():
                     raise FileExistsError(f"{p} exists; choose a new log name (nothing is overwritten)")
         self.record_path = record
+        if tool is not None:  # the model's tool replaced ("none": the bare flange, as libfranka's force example wants)
+            from franka_vs_gym.model.config import Tool, resolve_config
+
+            model = resolve_config(model, self.description).copy(tool=Tool.named(tool))
+        if table_height is not None:  # a raised table in front of the robot instead of the one under it
+            extra_worldbody = raised_table_xml(table_height) + extra_worldbody
+            table = False
+        self.table_height = table_height
         kwargs: dict[str, Any] = {"camera": camera, "tags": tags, "table": table, "extra_worldbody": extra_worldbody}
         if q0 is not None:
             kwargs["q0"] = q0
@@ -177,6 +195,11 @@ class FCIServer:
         self.deadlines_met = 0
         self.deadlines_total = 0
         self.late_cycles = 0  # real-time cycles the server itself could not run in time (dropped)
+        self.late_cycles_moving = 0  # of which while a motion ran
+        self.motion_stats: list[dict[str, Any]] = []  # real time: one entry per finished motion (see _motion_ended)
+        self._motion_start = (0, 0, 0)  # (deadlines_total, deadlines_met, late_cycles_moving) at the motion's start
+        self._last_applied_id = 0  # real time: message id answered by the last command applied
+        self._owed_since: float | None = None  # real time: when the first state the client has not answered went out
         self._renderers: dict[tuple[int, int], Any] = {}
 
     def _hidden_truth(self, truth: Any, model: Any, kwargs: dict[str, Any]) -> tuple[Any, FCIRobot]:
@@ -292,7 +315,7 @@ class FCIServer:
         self._sel = sel
         self._ready.set()
         next_tick = time.perf_counter()
-        pending: RobotCommand | None = None
+        pending: deque[RobotCommand] = deque()  # real time: commands received since the last cycle
         try:
             while self._running:
                 now = time.perf_counter()
@@ -305,7 +328,8 @@ class FCIServer:
                             if self.lockstep:
                                 self._lockstep_command(cmd)
                             else:
-                                pending = cmd
+                                pending.append(cmd)
+                                self._owed_since = None  # the client is answering
                             cmd = self._recv_command()
                     elif tag == "gudp":
                         try:
@@ -321,13 +345,15 @@ class FCIServer:
                 if now >= next_tick:
                     next_tick += _TICK
                     if now - next_tick > _MAX_LATE:  # the server itself fell behind (machine overloaded): the
-                        self.late_cycles += int((now - next_tick) / _TICK)  # lost cycles are dropped, not
-                        next_tick = now + _TICK  # replayed back to back (that would count as client misses)
+                        lost = int((now - next_tick) / _TICK)  # lost cycles are dropped, not replayed back to back
+                        self.late_cycles += lost  # (that would count as client misses): the plant's time falls
+                        if self.robot.moving:  # behind wall time by the dropped cycles, the client is not blamed
+                            self.late_cycles_moving += lost
+                        next_tick = now + _TICK
                     if self.lockstep:
                         self._lockstep_tick()
                     else:
-                        self._realtime_tick(pending)
-                        pending = None
+                        self._realtime_tick(self._next_command(pending))
         except BaseException as e:  # reported by stop()
             self._error = e
         finally:
@@ -404,13 +430,30 @@ class FCIServer:
             self._send_state(r.fill_state())
         self._send_gripper_state()
 
+    def _next_command(self, pending: deque[RobotCommand]) -> RobotCommand | None:
+        """Real time: this cycle's command, the newest received since the last cycle (as the robot takes the newest
+        packet). A command lost in between (a client that answered two states within one of the server's cycles)
+        is a cycle the robot extrapolates in the client's time (FCIRobot._to_command_time): the trajectory stays
+        whole and no latency builds up."""
+        cmd = None
+        while pending:
+            c = pending.popleft()
+            if c.message_id > self._last_applied_id or not self.robot.moving:
+                cmd = c
+        if cmd is not None:
+            self._last_applied_id = cmd.message_id
+        return cmd
+
     def _realtime_tick(self, cmd: RobotCommand | None) -> None:
         r = self.robot
         if r.moving:
             got = cmd is not None and cmd.message_id == self.message_id
             self.deadlines_total += 1
             self.deadlines_met += got
-            r.count_command(got or cmd is not None)
+            silent = None
+            if cmd is None and self._owed_since is not None:  # cycles of wall time the client has owed an answer
+                silent = int((time.perf_counter() - self._owed_since) / _TICK)
+            r.count_command(got or cmd is not None, silent)
             if not r.moving:  # communication reflex
                 self._answer_move(MoveStatus.REFLEX_ABORTED)
         reasons = self._physics_step(cmd if r.moving else None)
@@ -419,6 +462,8 @@ class FCIServer:
 
     def _send_state(self, st) -> None:
         self.message_id += 1
+        if self._owed_since is None and not self.lockstep and self.robot.moving:
+            self._owed_since = time.perf_counter()  # from now on the client owes a command
         conn = self.robot_conn
         if conn is not None and conn.udp_addr is not None:
             try:
@@ -531,7 +576,33 @@ class FCIServer:
     def _answer_move(self, status: MoveStatus) -> None:
         if self.move_id is not None and self.move_conn is not None:
             self.move_conn.send(codec.status_response(Command.MOVE, self.move_id, status))
+            if not self.lockstep:
+                self._motion_ended(status)
         self.move_id, self.move_conn, self.commanded = None, None, False
+
+    def _motion_started(self) -> None:
+        self._last_applied_id = 0
+        self._owed_since = None
+        self._motion_start = (self.deadlines_total, self.deadlines_met, self.late_cycles_moving)
+
+    def _motion_ended(self, status: MoveStatus) -> None:
+        """Real time: the finished motion's communication statistics, as the robot keeps them for
+        ``control_command_success_rate`` and ``communication_constraints_violation``: cycles run, commands that
+        answered their own cycle's state, commands late by a cycle or more, cycles without any command, and the
+        cycles the server itself dropped because the machine ran it late (its plant time lags wall time by as many
+        milliseconds; the robot, a real-time system, never drops one). Printed with ``verbose``, kept in
+        :attr:`motion_stats`."""
+        total0, met0, dropped0 = self._motion_start
+        cycles, in_time = self.deadlines_total - total0, self.deadlines_met - met0
+        st = {"status": MoveStatus(status).name.lower(), "cycles": cycles, "in_time": in_time,
+              "success_rate": in_time / cycles if cycles else 1.0, "max_missed_in_row": self.robot.worst_missed,
+              "server_dropped": self.late_cycles_moving - dropped0}
+        self.motion_stats.append(st)
+        if self.verbose:
+            print(f"franka-vs serve: motion {st['status']}: {cycles} cycles, {in_time} commands in their cycle "
+                  f"({100 * st['success_rate']:.1f} %), at most {st['max_missed_in_row']} cycles in a row without a "
+                  f"command (reflex above {self.robot.max_missed_commands}), {st['server_dropped']} cycles dropped "
+                  f"by the server (machine too slow)", flush=True)
 
     def _robot_command(self, conn: _Conn, command: int, cid: int, payload: bytes) -> None:
         r = self.robot
@@ -567,6 +638,7 @@ class FCIServer:
                     return
                 r.start_motion(req.controller_mode, req.motion_generator_mode)
                 self.move_id, self.move_conn, self.commanded = cid, conn, False
+                self._motion_started()
                 self._send_state(r.fill_state())  # the new modes are on the wire before "motion started"
                 conn.send(codec.status_response(cmd, cid, MoveStatus.MOTION_STARTED))
                 self._send_state(r.state)  # for a client that took "motion started" first
