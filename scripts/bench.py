@@ -125,21 +125,28 @@ def _median_frame_ms(n: int) -> float:
 
 
 def bench_envs(quick: bool) -> dict:
+    import os
+
     from franka_vs_gym import envs
 
+    load_before = os.getloadavg()
     res = envs.bench(n_steps=100 if quick else 500, async_steps=100 if quick else 500)
+    res["load_average"] = {"before": load_before, "after": os.getloadavg()}
+    print(f"\nload average (1, 5, 15 min) before {', '.join(f'{x:.2f}' for x in load_before)}, after "
+          f"{', '.join(f'{x:.2f}' for x in res['load_average']['after'])} on {os.cpu_count()} cores")
     for r in res["envs"].values():
         r["target"] = 1.25 if r["substeps"] >= 50 else 1.5
     rows = []
     for env_id, r in res["envs"].items():
         rows.append((env_id, r["steps_per_s"], r["us_per_step"], r["substeps"], r["physics_us_per_step"], r["ratio"],
                      f"<= {r['target']:g} " + ("yes" if r["ratio"] <= r["target"] else "NO"),
-                     r["robot_step_us_per_step"],
+                     r["ratio_cpu"], r["robot_step_us_per_step"],
                      r["ratio_vs_robot_step"]))
-    table("Environments (features observations): env step vs the raw mujoco.mj_step substeps it contains, and vs "
-          "FrankaSim stepping (mj_step + the plant's friction law), same run",
+    table("Environments (features observations): env step vs the raw mujoco.mj_step substeps it contains (wall "
+          "clock, and the thread's CPU time of the same blocks), and vs FrankaSim stepping (mj_step + the plant's "
+          "friction law), same run",
           rows, ("env", "steps/s", "us/step", "substeps", "raw mj_step us", "ratio to raw", "target",
-                 "FrankaSim stepping us", "ratio to FrankaSim stepping"))
+                 "ratio to raw (CPU time)", "FrankaSim stepping us", "ratio to FrankaSim stepping"))
     from franka_vs_gym.envs.benchmark import bench_step_parts
 
     res["parts"] = {env_id: bench_step_parts(env_id, rounds=3 if quick else 7) for env_id in res["envs"]}

@@ -31,11 +31,14 @@ CONFIGS: dict[str, list[dict[str, Any]]] = {
         dict(action_type="cartesian_velocity", feature_noise=0.5, joint_noise=1e-3, velocity_noise=1e-3),
         dict(link_mass_range=(0.8, 1.2), friction_scale_range=(0.5, 1.5), payload_mass_range=(0, 0.5),
              control_period=0.04, camera_period=0.03),
-        dict(action_type="torque", time_limit=1.0), dict(observation_type="features+image", time_limit=1.0)],
+        dict(action_type="torque", time_limit=1.0), dict(observation_type="features+image", time_limit=1.0),
+        dict(limit_rate=False, robot="fr3")],
     "FrankaPBVS-v0": [{}, dict(observation_type="state", payload_mass_range=(0, 0.5), payload_declared=False)],
     "FrankaTorqueTracking-v0": [{}, dict(friction_scale_range=(0.5, 1.5), link_mass_range=(0.8, 1.2)),
                                 dict(clip_actions=True, time_limit=1.0, scale=1.0)],
     "FrankaVisualTorque-v0": [{}, dict(observation_type="state"), dict(feature_noise=0.5, link_mass_range=(0.8, 1.2))],
+    "FrankaIBVSEyeToHand-v0": [{}, dict(action_type="torque", robot="fr3")],
+    "FrankaPBVSEyeToHand-v0": [{}],
 }
 
 

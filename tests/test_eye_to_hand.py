@@ -164,6 +164,32 @@ def test_scene_matches_mujoco_placement(robot):
 
 
 @pytest.mark.parametrize("robot", ["fer", "fr3"])
+def test_compiled_truth_matches_pinocchio(robot):
+    """The compiled eye-to-hand truth (franka_vs_gym/sim/_task.c, the hand's chain carrying the tag) equals the
+    record of cMo = cMf fMe(q) eMo from pinocchio's kinematics and the numpy projection, along random motions."""
+    from franka_vs_gym.envs.kernels import REC, pose_records
+    from franka_vs_gym.sim import plant
+
+    if plant.tag_truth is None:
+        pytest.skip("the compiled plant is not built")
+    env = gym.make(IDS[0], robot=robot)
+    u = env.unwrapped
+    worst = 0.0
+    for seed in range(2):
+        env.reset(seed=seed)
+        for _ in range(10):
+            env.step(env.action_space.sample())
+            assert u._plan.geo_or_none is not None and u._plan.geo[122] == 1.0
+            q = u.sim.q
+            ref = np.zeros((1, REC))
+            pose_records((u.cMf @ u.sim.model.fMe(q) @ u.eMo)[None], ref, tag_size=u.tag_size,
+                         intrinsics=u.intrinsics, features_desired=u.features_desired)
+            worst = max(worst, float(np.abs(u._truth_now() - ref[0]).max()))
+    assert worst < 1e-9, worst
+    env.close()
+
+
+@pytest.mark.parametrize("robot", ["fer", "fr3"])
 @pytest.mark.parametrize("env_id, policy", [(IDS[0], IBVSEyeToHandPolicy), (IDS[1], PBVSEyeToHandPolicy)])
 def test_policies_converge_on_both_robots(env_id, policy, robot):
     from franka_vs_gym.envs import evaluate

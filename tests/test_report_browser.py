@@ -76,8 +76,12 @@ def reports(tmp_path_factory) -> dict[str, Path]:
     assert cli(["fit", str(p), "--add", "viscous_friction,gravity_tilt", "-o", str(tmp / "cal.json"), "--report",
                 str(tmp / "fit"), "--quiet"]) == 0
     assert cli(["compare", str(p), "--report", str(tmp / "cmp"), "--quiet"]) == 0
+    # a designed excitation: identify a payload and tell viscous friction from a delay (a short search)
+    assert cli(["excite", "--effects", "payload", "--separate", "viscous_friction,delay", "--duration", "8",
+                "--rest", "0.5", "--evaluations", "30", "-o", str(tmp / "next"), "--report", str(tmp / "exc"),
+                "--quiet"]) == 0
     return {"diagnose": tmp / "diag" / "report.html", "fit": tmp / "fit" / "report.html",
-            "compare": tmp / "cmp" / "report.html"}
+            "compare": tmp / "cmp" / "report.html", "excite": tmp / "exc" / "report.html"}
 
 
 # per rendered plot: its title, how many glyph renderers, how many data points each displays
@@ -181,11 +185,63 @@ def test_report_renders_every_plot_with_data(kind, reports, browser):
         browser.set_window_size(1280, 1000)
 
 
+def _joint_buttons(browser):
+    return browser.execute_script("""
+        const acc = [];
+        function walk(n) { if (!n) return; if (n.tagName === 'BUTTON' && /^joint [0-6]$/.test(n.textContent.trim()))
+          acc.push(n); if (n.shadowRoot) walk(n.shadowRoot); for (const c of n.children || []) walk(c); }
+        walk(document.body); return acc;""")
+
+
+def test_excite_report_renders_motion_limits_and_widths(reports, browser):
+    """The designed excitation's report: the motion per joint against its position, velocity and acceleration
+    limits and the predicted widths (designed and reference) render with data; the joint selector swaps the joint's
+    motion in; the commands to play it are on the page."""
+    import json as _json
+
+    path = reports["excite"]
+    assert path.stat().st_size < 5e6
+    design = _json.loads((path.parent.parent / "next" / "excite.json").read_text())
+    _load(browser, path)
+    assert browser.execute_script("return typeof Bokeh") == "object", "Bokeh did not load from the file"
+    plots = browser.execute_script(PLOT_STATE)
+    titles = [p["title"] for p in plots]
+    for what in ("position", "velocity", "acceleration"):
+        p = next(p for p in plots if f"designed {what} and the robot's limits" in p["title"])
+        # the designed trace (thousands of samples, decimated) and the limit lines (5 points: two segments)
+        assert len(p["counts"]) >= 3 and max(p["counts"]) > 100 and 5 in p["counts"], (what, p)
+    widths = next(p for p in plots if "interval width" in p["title"])
+    assert widths["counts"] == [len(design["predicted_ci95_width"])] * 2, widths  # reference and designed bars
+    ink = browser.execute_script(CANVAS_INK)
+    assert len(ink) >= 4 and min(ink) > 0.01, ink
+    buttons = _joint_buttons(browser)
+    assert len(buttons) == 7
+    shown = next(t for t in titles if "designed position" in t)
+    other = next(b for b in buttons if b.text.strip() not in shown)
+    other.click()
+    time.sleep(0.5)
+    after = browser.execute_script(PLOT_STATE)
+    pos = next(p for p in after if "designed position" in p["title"])
+    assert other.text.strip() in pos["title"] and max(pos["counts"]) > 100
+    text = browser.execute_script("return document.body.innerText")
+    assert "franka-vs serve" in text and "play_excitation_pylibfranka.py" in text and "ROBOT_ADDRESS" in text
+    assert "viscous_friction and delay" in text  # what it tells apart
+    assert not _errors(browser), _errors(browser)
+    shots = os.environ.get("FRANKA_VS_SCREENSHOTS")
+    if shots:
+        _load(browser, path)
+        browser.set_window_size(1280, 1500)
+        time.sleep(1.0)
+        browser.save_screenshot(str(Path(shots) / "report_excite.png"))
+        browser.set_window_size(1280, 1000)
+
+
 def test_report_is_self_contained(reports):
     """No network: the page names no http(s) resource to load."""
-    text = reports["diagnose"].read_text()
     import re
 
-    loads = re.findall(r'<(?:script|link)[^>]+(?:src|href)="(https?://[^"]+)"', text)
-    assert loads == []
-    assert np.isfinite(reports["diagnose"].stat().st_size)
+    for kind in ("diagnose", "excite"):
+        text = reports[kind].read_text()
+        loads = re.findall(r'<(?:script|link)[^>]+(?:src|href)="(https?://[^"]+)"', text)
+        assert loads == [], kind
+        assert np.isfinite(reports[kind].stat().st_size)

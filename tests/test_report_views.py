@@ -107,3 +107,91 @@ def test_units_from_parameter_names():
     assert value_text(row) == "j0 0.1 [0.09, 0.11], j2 0.3 [0.2, 0.4] Nm s/rad"
     assert value_text(ParamRow("gravity_tilt", "tilt", "deg", 0.31, [0.25, 0.37])) == "0.31 [0.25, 0.37] deg"
     assert json.dumps(value_text(ParamRow("payload", "mass", "kg", 1.2)))  # plain value, no interval
+
+
+def test_excite_report_shows_what_excite_computed(tmp_path, capsys):
+    """``excite --report``: every parameter's predicted widths in report.md are excite.json's (read, not computed
+    again), the motion drawn is trajectory.csv's, the commands name the written scripts, and the PNGs exist."""
+    from franka_vs_gym.validation.report.excite import view
+
+    out, rep = tmp_path / "next", tmp_path / "rep"
+    assert cli(["excite", "--effects", "armature", "--separate", "coulomb_friction,torque_offset", "--duration", "8",
+                "--rest", "0.5", "--evaluations", "20", "-o", str(out), "--report", str(rep), "--quiet"]) == 0
+    assert f"report: {rep / 'report.html'}" in capsys.readouterr().out
+    design = json.loads((out / "excite.json").read_text())
+    md = (rep / "report.md").read_text()
+    widths = design["predicted_ci95_width"]
+    assert len(widths) == 21  # armature, coulomb_friction, torque_offset: 7 joints each
+    for name, w in widths.items():
+        m = re.search(rf"^\| {re.escape(name)} \| ([^|]+) \| ([^|]+) \| ([^|]+) \|", md, flags=re.M)
+        assert m, name
+        for cell, value in zip(m.groups()[1:], (w["designed"], w["reference"]), strict=True):
+            assert (cell.strip() == "not identifiable") if value is None else \
+                abs(float(cell) - value) <= 5e-3 * abs(value), (name, cell, value)
+    assert "| armature[0] | kg m^2 |" in md and "| coulomb_friction[3] | Nm |" in md
+    assert "coulomb_friction and torque_offset" in md
+    for s in design["summary"]:
+        assert f"{s['median_width_ratio_reference_over_designed']:.3g}x narrower" in md
+    assert f"python {out}/play_excitation_pylibfranka.py 127.0.0.1" in md and (out / "play_excitation_pylibfranka.py"
+                                                                               ).exists()
+    assert "franka-vs serve --lockstep" in md and "--add armature,coulomb_friction,torque_offset" in md
+    assert (rep / "excitation_limits.png").stat().st_size > 10_000 and (rep / "predicted_widths.png").exists()
+    html = (rep / "report.html").read_text()
+    assert (rep / "report.html").stat().st_size < 5e6 and "Bokeh" in html
+    # the view reads trajectory.csv's rows: peak velocity over the robot's limit is excite's own figure
+    table = np.loadtxt(out / "trajectory.csv", delimiter=",", skiprows=1)
+    v = view(design, table, out)
+    peak = np.abs(v.signal(1)).max(axis=0) / v.robot["dq_max_rad_per_s"]
+    assert np.allclose(peak, design["limits"]["peak_dq_over_limit"], atol=2e-3)
+    assert (peak <= design["limits"]["fraction_of_limits"] + 1e-6).all()
+    # a second run into the same report folder is refused (nothing the user wrote is overwritten)
+    assert cli(["excite", "--effects", "armature", "--duration", "8", "--rest", "0.5", "--evaluations", "5", "-o",
+                str(tmp_path / "next2"), "--report", str(rep), "--quiet"]) != 0
+    assert "exists" in capsys.readouterr().err
+    assert not (tmp_path / "next2").exists()
+
+
+def test_design_parameter_names_and_units():
+    from franka_vs_gym.validation.report.excite import parameter
+
+    assert parameter("viscous_friction[3]") == ("viscous_friction", "F_v", 3, "Nm s/rad")
+    assert parameter("asymmetric_friction.c1[0]") == ("asymmetric_friction", "F_minus", 0, "Nm")
+    assert parameter("payload.m_kg") == ("payload", "m", None, "kg")
+    assert parameter("payload.m*c_x_kgm") == ("payload", "m*c_x", None, "kg m")
+    assert parameter("payload.Ixy_kgm2") == ("payload", "Ixy", None, "kg m^2")
+    assert parameter("sigmoid_friction.phi2_s_per_rad[5]") == ("sigmoid_friction", "phi2", 5, "s/rad")
+    assert parameter("gravity_tilt.dg_x") == ("gravity_tilt", "dg_x", None, "m/s^2")
+    assert parameter("delay.delay_s") == ("delay", "delay", None, "s")
+
+
+def test_alongside_runs_the_work_and_raises_its_error_here(tmp_path):
+    """The report's PNGs are written by a forked child where a second CPU is free: the work is done (in a child
+    when it can be), and a failure there is raised in the caller as if it had run there."""
+    import os
+    import threading
+
+    from franka_vs_gym.validation.cli_common import alongside
+
+    marker = tmp_path / "pid"
+    alongside(lambda: marker.write_text(str(os.getpid())))()
+    assert marker.exists()
+    if len(os.sched_getaffinity(0)) >= 2 and threading.active_count() == 1:
+        assert int(marker.read_text()) != os.getpid()  # it ran in a child
+
+    def bad():
+        raise ValueError("figure failed")
+
+    with pytest.raises(ValueError, match="figure failed"):
+        alongside(bad)()
+
+
+def test_excite_report_refuses_a_design_without_limits(tmp_path):
+    from franka_vs_gym.errors import UserError
+    from franka_vs_gym.validation.report.excite import excite_report
+
+    with pytest.raises(UserError, match="robot_limits"):
+        excite_report({"limits": {"fraction_of_limits": 0.5}}, np.zeros((10, 22)), tmp_path / "r", tmp_path)
+    with pytest.raises(UserError, match="22 columns"):
+        excite_report({"limits": {"robot_limits": {"q_min_rad": [0] * 7}}}, np.zeros((10, 5)), tmp_path / "r",
+                      tmp_path)
+    assert not (tmp_path / "r").exists()

@@ -1,4 +1,5 @@
-"""The visual tasks' compiled kernels (franka_vs_gym/sim/_task.c) and the compiled step of a torque-action visual env.
+"""The visual tasks' compiled kernels (franka_vs_gym/sim/_task.c) and the compiled step of a torque- or joint-velocity-
+action env.
 
 The truth kernel is checked against an independent computation (pinocchio's forward kinematics and log3, the numpy
 projection of franka_vs_gym.vision.tags); the compiled step against the general Python path of the same env, bit for
@@ -15,6 +16,7 @@ import pytest
 import franka_vs_gym  # noqa: F401
 from franka_vs_gym.envs import kernels as K
 from franka_vs_gym.model.geometry import rot_x, rot_y, rot_z
+from franka_vs_gym.policies import IBVSEyeToHandPolicy, IBVSPolicy, PBVSEyeToHandPolicy, PBVSPolicy
 from franka_vs_gym.sim import plant
 from franka_vs_gym.vision.tags import tag_corners
 
@@ -196,6 +198,23 @@ def _uniform(u, obs, rng, t):
     return rng.uniform(-1, 1, 7).astype(np.float32)
 
 
+def _random_velocity(scale):
+    """Uniformly random joint velocities, scale x dq_max (physical actions), as float32 or (every 7th) float64."""
+    def policy(u, obs, rng, t):
+        a = (rng.uniform(-1, 1, 7) * scale * u.dq_max).astype(np.float32)
+        return a.astype(np.float64) if t % 7 == 3 else a
+    return policy
+
+
+def _scripted(cls):
+    """A scripted visual-servo policy (joint velocities) through the env's action space."""
+    def policy(u, obs, rng, t):
+        if not hasattr(u, "policy_for_test"):
+            u.policy_for_test = cls(model=u.sim.model).with_action_scale(u.action_scale)
+        return u.policy_for_test.predict(obs)[0]
+    return policy
+
+
 def _tracker_normalized(u, obs, rng, t):
     """_tracker through the normalized action space (its torque divided by the env's scale)."""
     return u.to_action(_tracker(u, obs, rng, t))
@@ -227,6 +246,23 @@ def _tracker_normalized(u, obs, rng, t):
     ("FrankaTorqueTracking-v0", {"action_scale": "normalized"}, _tracker_normalized, 600, {"success"}),
     ("FrankaVisualTorque-v0", {"limit_rate": False}, _random(0.5), 300, {"joint_velocity_violation"}),
     ("FrankaTorqueTracking-v0", {"limit_rate": False}, _tracker, 600, {"success"}),
+    # joint velocity actions (the visual tasks' default): the limiter and the feed-forward friction in the command
+    ("FrankaIBVS-v0", {"action_scale": "normalized"}, _uniform, 400, set()),
+    ("FrankaIBVS-v0", {"action_scale": "normalized", "robot": "fr3"}, _uniform, 300, set()),
+    ("FrankaPBVS-v0", {"action_scale": "normalized"}, _uniform, 300, set()),
+    ("FrankaIBVS-v0", {"action_scale": "normalized"}, _scripted(IBVSPolicy), 400, {"success"}),
+    ("FrankaPBVS-v0", {"action_scale": "normalized", "observation_type": "state"}, _scripted(PBVSPolicy), 400,
+     {"success"}),
+    ("FrankaIBVS-v0", {"limit_rate": False}, _random_velocity(1.0), 300, {"joint_velocity_violation"}),
+    ("FrankaIBVS-v0", {"limit_rate": False}, _random_velocity(0.3), 300, set()),
+    ("FrankaIBVS-v0", {"action_scale": "normalized", "link_mass_range": (0.8, 1.2), "payload_mass_range": (0.0, 1.0),
+                       "friction_scale_range": (0.5, 1.5)}, _uniform, 300, set()),
+    # the eye-to-hand tasks (the truth kernel with the tag on the hand, the camera's pose written once per episode)
+    ("FrankaIBVSEyeToHand-v0", {"action_scale": "normalized"}, _uniform, 300, set()),
+    ("FrankaIBVSEyeToHand-v0", {"action_scale": "normalized"}, _scripted(IBVSEyeToHandPolicy), 300, {"success"}),
+    ("FrankaPBVSEyeToHand-v0", {"action_scale": "normalized", "robot": "fr3"}, _scripted(PBVSEyeToHandPolicy), 300,
+     {"success"}),
+    ("FrankaPBVSEyeToHand-v0", {"action_type": "torque", "control_period": 0.01}, _random(0.05), 200, set()),
 ])
 def test_compiled_step_gives_the_general_paths_bits(env_id, kwargs, policy, steps, ends):
     """Observations, rewards, ends and infos of the compiled step equal the general path's, bit for bit, across
@@ -241,6 +277,27 @@ def test_compiled_step_gives_the_general_paths_bits(env_id, kwargs, policy, step
             got.add("success" if r[4]["is_success"] else (r[4]["failure"] or "time limit").split(":")[0])
     assert ends <= got, got
     assert taken >= 0.6 * steps, taken  # (mid-period camera frames and failing steps take the general path)
+
+
+def test_velocity_step_leaves_another_friction_law_to_the_general_path():
+    """Joint velocity actions with a model whose friction is not the sigmoid alone (a viscous term): its
+    feed-forward is only computed by the model, so every step takes the general path, with the same results."""
+    import dataclasses
+
+    from franka_vs_gym.model.config import resolve_config
+
+    cfg = resolve_config(None, None)
+    cfg = dataclasses.replace(cfg, friction=dataclasses.replace(cfg.friction, viscous=np.full(7, 0.05)))
+    kw = {"action_scale": "normalized", "model": cfg}
+    a, taken = _rollout("FrankaIBVS-v0", kw, _uniform, 60, True)
+    b, _ = _rollout("FrankaIBVS-v0", kw, _uniform, 60, False)
+    assert taken == 0
+    _assert_same(a, b)
+    env = gym.make("FrankaIBVS-v0", **kw)
+    env.reset(seed=0)
+    assert env.unwrapped.sim.feedforward_friction() is None
+    assert gym.make("FrankaIBVS-v0").unwrapped.sim.feedforward_friction()[0].shape == (7,)  # the default law
+    env.close()
 
 
 def test_compiled_step_leaves_other_actions_to_the_general_path():

@@ -1,9 +1,12 @@
-"""A single environment's control period in compiled code (``franka_vs_gym/sim/_task.c``), for torque actions.
+"""A single environment's control period in compiled code (``franka_vs_gym/sim/_task.c``), for torque and joint
+velocity actions.
 
-A step of the common configuration (joint-torque actions inside the action space, the compiled plant with the
-robot's reflexes armed, commands passed as given or through the plant's rate limiter, no observation noise) is two
-compiled calls around ``mujoco.mj_step``: the command (``visual_pre``: the action checked, multiplied by the action
-scale, saturated at tau_max and written where ``FrankaSim.set_force_torque`` writes it) and the period's end (the
+A step of the common configuration (joint-torque or joint-velocity actions inside the action space, the compiled
+plant with the robot's reflexes armed, commands passed as given or through the plant's rate limiter, no observation
+noise) is two compiled calls around ``mujoco.mj_step``: the command (``visual_pre``: the action checked, multiplied
+by the action scale, then saturated at tau_max and written where ``FrankaSim.set_force_torque`` writes it, or
+scaled within the velocity servo's limit and written, with the model's feed-forward friction, where
+``FrankaSim.set_velocity`` writes it) and the period's end (the
 reflex check of the state the period ends with, the task's quantities, the observation packed and clipped into a
 fresh float32 buffer, a joint at its failure bound or a contact flagged). Python then ends the step as the general
 path does (``FrankaEnv._finish_step``). Anything else (another action form, a diverging state, a reflex, noise,
@@ -23,8 +26,9 @@ import mujoco
 import numpy as np
 
 from franka_vs_gym.envs.kernels import GEO, REC
-from franka_vs_gym.sim import FORCE_TORQUE, SimulationDiverged, plant
+from franka_vs_gym.sim import FORCE_TORQUE, VELOCITY, SimulationDiverged, plant
 from franka_vs_gym.sim.reflexes import ControlException
+from franka_vs_gym.sim.robot import VELOCITY_COMMAND_SCALE
 
 
 class CompiledStep:
@@ -48,9 +52,12 @@ class CompiledStep:
         self.views = pack._views
         sim = env.sim
         # the configuration the compiled step covers (the per-step conditions are in eligible)
-        self.fast = (fast and plant.visual_pre is not None and env.action_type == "torque"
-                     and not env.joint_noise and not env.velocity_noise and set(pack.keys) <= set(self.KEYS)
+        self.fast = (fast and plant.visual_pre is not None and env.action_type in ("torque", "joint_velocity")
+                     and not env.joint_noise and not env.velocity_noise
+                     and set(pack.keys) <= set(self.KEYS) | set(getattr(env, "_static_keys", ()))
                      and type(env).__module__.startswith("franka_vs_gym.envs."))
+        self.velocity = env.action_type == "joint_velocity"
+        self.control_state = VELOCITY if self.velocity else FORCE_TORQUE
         I = self.I
         lay = sim.batch_layout()
         I[0] = lay.first_joint
@@ -62,20 +69,25 @@ class CompiledStep:
         I[16 + len(self.KEYS):24] = -1
         I[24] = S
         I[25] = -1
+        I[26] = 2 if self.velocity else 1
+        I[27] = lay.ctrl_velocity.start
+        I[28] = 0
         # the rate limiter's target in the data's userdata (where set_force_torque leaves a rate-limited command)
         self._lim_index = lay.reflex_record + plant.L0 + 4 if lay.reflex_record >= 0 else -1
         self._sim = sim
         self.act_scale[:] = 1.0
-        if env.action_type == "torque":
+        if env.action_type in ("torque", "joint_velocity"):
             self.act_lo[:], self.act_hi[:] = env._act_lo_tol, env._act_hi_tol
             if env.action_scale is not None:
                 self.act_scale[:] = env.action_scale
         self.tau_max[:] = sim.tau_max
+        self.dq_cap[:] = sim.dq_max * VELOCITY_COMMAND_SCALE  # (FrankaSim.set_velocity's product, the same bits)
+        self._ff: Any = None  # the feed-forward friction the block holds (FrankaSim.feedforward_friction)
         self.q_lo[:], self.q_hi[:] = env._q_lo_fail, env._q_hi_fail
         self.n_substeps = env.n_substeps
         self.model, self.data = env.world.model, env.world.data
         self.m_addr, self.d_addr = self.model._address, self.data._address
-        self._tau_cmd, self._tau_applied = sim.torque_command_views()
+        self._cmd_views = sim.velocity_command_views() if self.velocity else sim.torque_command_views()
 
     def _bind(self) -> None:
         """The named views of the float64 block P (the layout of franka_vs_gym/sim/_task.c)."""
@@ -91,8 +103,10 @@ class CompiledStep:
         self.depth_d, self.pose_d, self.cost = P[o + 42:o + 46], P[o + 46:o + 52], P[o + 52:o + 53]
         self.cost_now = P[o + 53:o + 54]
         self.act_scale = P[o + 54:o + 61]
+        self.dq_cap = P[o + 61:o + 68]
+        self.friction = P[o + 68:o + 96].reshape(4, 7)  # phi1, phi2, phi2 phi3, offset
         w0 = plant.TASK_P_FIXED
-        if o + 61 != w0:
+        if o + 96 != w0:
             raise RuntimeError("the step plan's layout differs from franka_vs_gym/sim/_task.c's")
         self.work, self.low, self.high = P[w0:w0 + S], P[w0 + S:w0 + 2 * S], P[w0 + 2 * S:w0 + 3 * S]
 
@@ -105,13 +119,27 @@ class CompiledStep:
 
     def eligible(self, env: Any) -> bool:
         """Whether the next control period can run in the compiled step."""
-        return env.sim.runs_inside_mj_step(FORCE_TORQUE)
+        return env.sim.runs_inside_mj_step(self.control_state)
+
+    def _feedforward(self) -> bool:
+        """Joint velocity actions: the block's feed-forward friction made current (FrankaSim.set_velocity's: none
+        with the friction off, the model's sigmoid law); False when the model's law is another one (the general path
+        then computes it)."""
+        ff = self._sim.feedforward_friction()
+        if ff is not self._ff:
+            self._ff = ff
+            if ff:
+                self.friction[:] = ff
+            self.I[28] = 1 if ff else 0
+        return ff is not None
 
     def command(self, env: Any, action: Any) -> bool:
         """The action into the controls and the period's physics; False (nothing done) when the action is not a
         plain vector inside the action space (the general path then checks it, clips it or names the problem)."""
         self.I[25] = self._lim_index if self._sim.rate_limiter_active else -1
-        if plant.visual_pre(self.P, self.I, self.d_addr, action, self._tau_cmd, self._tau_applied) < 0:
+        if self.velocity and not self._feedforward():
+            return False
+        if plant.visual_pre(self.P, self.I, self.d_addr, action, *self._cmd_views) < 0:
             return False
         env._reflex = None
         env._action = self.action

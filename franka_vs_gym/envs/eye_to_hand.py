@@ -19,7 +19,7 @@ from gymnasium import spaces
 from franka_vs_gym.assets.mjcf import CameraSpec, TagSpec, mat2quat
 from franka_vs_gym.envs.base import _nonneg, _positive
 from franka_vs_gym.envs.ibvs import FrankaIBVSEnv
-from franka_vs_gym.envs.kernels import pose_records
+from franka_vs_gym.envs.kernels import camera_geometry, pose_records
 from franka_vs_gym.envs.pbvs import FrankaPBVSEnv
 from franka_vs_gym.envs.visual import VisualServoEnv
 from franka_vs_gym.model.config import resolve_config
@@ -32,6 +32,8 @@ from franka_vs_gym.model.geometry import (
     pose_vector,
     rot_z,
 )
+from franka_vs_gym.sim import plant
+from franka_vs_gym.vision.tags import tag_corners
 
 #: The tag's pose in the end-effector frame e of the Franka Hand: on a plate on the hand's front face (+x_e, 4.5 cm
 #: from the hand's axis, 7.5 cm above the fingertips' centre e), facing forward (tag z = x_e), upright when the
@@ -89,6 +91,8 @@ class EyeToHandEnv(VisualServoEnv):
         """Place the fixed camera (ViSP frame c) at fMc in the robot base frame."""
         self.fMc = np.array(fMc, dtype=np.float64)
         self.cMf = inverse_pose(self.fMc)
+        self._plan.fMo[:] = self.cMf  # the static pose of the eye-to-hand truth kernel (see _camera_geometry)
+        self._truth_k = -1
         self._camera_pose = pose_vector(self.fMc)
         wMc = self.sim.get_wMf() @ self.fMc
         self._m.cam_pos[self._cam_id] = wMc[:3, 3]
@@ -106,13 +110,31 @@ class EyeToHandEnv(VisualServoEnv):
         """Pose of the end effector in the fixed camera's frame (4, 4), now or at joint position q."""
         return self.cMf @ self.sim.get_fMe(q)
 
+    #: the calibrated camera placement, written once per episode
+    _static_keys = ("camera_pose",)
+
+    def _camera_geometry(self) -> np.ndarray | None:
+        """The compiled truth kernel's eye-to-hand geometry block: the hand's chain carrying the tag (eMo); the step
+        plan's static pose is the fixed camera's cMf (written by _set_camera), so the kernel gives cMo = cMf fMe(q)
+        eMo (franka_vs_gym/sim/_task.c)."""
+        return camera_geometry(self.sim.model, self.eMo, tag_corners(self.tag_size), self.intrinsics,
+                               self.features_desired, eye_to_hand=True)
+
     def _truth_now(self) -> np.ndarray:
-        """The truth record of the tag seen by the fixed camera: cMo = cMf fMe(q) eMo (pinocchio's kinematics)."""
+        """The truth record of the tag seen by the fixed camera: cMo = cMf fMe(q) eMo, by the compiled truth kernel
+        (the robot's kinematic chain as the eye-in-hand tasks') or, without it, with pinocchio's kinematics and
+        numpy (the same formulas)."""
         if self._truth_k != self._k:
-            cMo = self.cMf @ self.sim.model.fMe(np.ascontiguousarray(self.sim.joint_views()[0])) @ self.eMo
-            pose_records(cMo[None], self._truth_scratch, tag_size=self.tag_size, intrinsics=self.intrinsics,
-                         features_desired=self.features_desired)
-            self._truth_rec[:] = self._truth_scratch[0]
+            plan = self._plan
+            plan.refresh(self)
+            q = np.ascontiguousarray(self.sim.joint_views()[0])
+            if plan.geo_or_none is not None and plant.tag_truth is not None:
+                plant.tag_truth(plan.geo, q, plan.fMo, plan.truth)
+            else:
+                cMo = self.cMf @ self.sim.model.fMe(q) @ self.eMo
+                pose_records(cMo[None], self._truth_scratch, tag_size=self.tag_size, intrinsics=self.intrinsics,
+                             features_desired=self.features_desired)
+                self._truth_rec[:] = self._truth_scratch[0]
             self._truth_k = self._k
         return self._truth_rec
 

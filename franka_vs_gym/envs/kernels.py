@@ -181,15 +181,18 @@ def torque_penalty(tau: np.ndarray, tau_max: np.ndarray, cost: float):
 # (t, theta u) and the feature error ||s - s*|| (||s*|| + 1 when not visible).
 REC = 36
 R_FEATURES, R_DEPTH, R_VISIBLE, R_CMO, R_POSE, R_ERROR = slice(0, 8), slice(8, 12), 12, slice(13, 29), slice(29, 35), 35
-GEO = 122  # numbers of a geometry block (the chain, the tag's corners, the camera, the desired features)
+GEO = 123  # numbers of a geometry block (the chain, the tag's corners, the camera, the desired features, the setup)
 
 
-def camera_geometry(model, eMc: np.ndarray, corners: np.ndarray, intrinsics, features_desired: np.ndarray
-                    ) -> np.ndarray | None:
+def camera_geometry(model, eMc: np.ndarray, corners: np.ndarray, intrinsics, features_desired: np.ndarray,
+                    eye_to_hand: bool = False) -> np.ndarray | None:
     """The geometry block (GEO,) of the compiled truth kernel for a robot's kinematic model (a FrankaModel: its
     seven joint placements and the end effector e, then the camera mount eMc), the tag's corners (4, 3) in the tag
     frame, the camera's intrinsics and the desired features (8,); None when the chain is not seven revolute joints
-    about their z axes with e on the last (the truth is then computed with the model itself)."""
+    about their z axes with e on the last (the truth is then computed with the model itself).
+
+    ``eye_to_hand=True``: the hand carries the tag, ``eMc`` is then the tag's pose eMo in e, and the static pose
+    the kernel is given with each q is the fixed camera's cMf (cMo = cMf fMe(q) eMo) instead of the tag's fMo."""
     pm = model.model
     if pm.nq != 7 or pm.njoints != 8 or any(pm.joints[j].shortname() != "JointModelRZ" for j in range(1, 8)):
         return None
@@ -208,6 +211,7 @@ def camera_geometry(model, eMc: np.ndarray, corners: np.ndarray, intrinsics, fea
     f, c, hi = intrinsics.pixel_arrays
     geo[108:114] = (f[0], f[1], c[0], c[1], hi[0], hi[1])
     geo[114:122] = features_desired
+    geo[122] = 1.0 if eye_to_hand else 0.0
     return geo
 
 
@@ -216,7 +220,8 @@ def truth_records(geo: np.ndarray | None, q: np.ndarray, fMo: np.ndarray, out: n
     """The truth records (N, REC) written into ``out`` for joint positions q (N, 7) and tag poses fMo (N, 4, 4)
     in the robot base frame: the compiled kernel with the geometry block ``geo`` when it exists, else (no compiled
     extension, or a chain it does not cover) the same quantities from the end-effector poses ``fMe`` (N, 4, 4) and
-    the camera mount, tag size, intrinsics and desired features given (numpy and pinocchio, the same formulas)."""
+    the camera mount, tag size, intrinsics and desired features given (numpy and pinocchio, the same formulas).
+    (An eye-to-hand geometry block, see :func:`camera_geometry`, takes the camera's cMf in place of fMo.)"""
     if geo is not None and plant.tag_truth is not None:
         plant.tag_truth(geo, q, fMo, out)
         return out

@@ -106,6 +106,16 @@ class VisualServoEnv(FrankaEnv):
         """The MuJoCo camera that sees the tag."""
         return self.sim.camera_name()
 
+    def _camera_geometry(self) -> np.ndarray | None:
+        """The compiled truth kernel's geometry block of this scene (:func:`~franka_vs_gym.envs.kernels.
+        camera_geometry`: the wrist camera on the robot's chain), made again when the robot's kinematic model or
+        camera mount changes (``FrankaSim.kinematics_key``); the step plan's static pose (``_fMo``) goes with it."""
+        return camera_geometry(self.sim.model, self.sim.get_eMc(), tag_corners(self.tag_size), self.intrinsics,
+                               self.features_desired)
+
+    #: observation keys a task writes into the packer once per episode (the compiled step packs them as they stand)
+    _static_keys: tuple[str, ...] = ()
+
     # ------------------------------------------------------------------ camera (franka_vs_gym.vision)
     def _setup_camera(self) -> None:
         """The camera model, detector and renderers are franka_vs_gym.vision's; features are measured with the
@@ -408,8 +418,7 @@ class StepPlan(CompiledStep):
         key = sim.kinematics_key()
         if self._key is not None and key[0] is self._key[0] and key[1] is self._key[1]:
             return
-        geo = camera_geometry(sim.model, sim.get_eMc(), tag_corners(env.tag_size), env.intrinsics,
-                              env.features_desired)
+        geo = env._camera_geometry()
         if geo is None:
             self.geo_or_none = None
         else:

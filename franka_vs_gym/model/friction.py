@@ -103,6 +103,8 @@ def compile_friction(phi1: np.ndarray, phi2: np.ndarray, phi3: np.ndarray, visco
     if has_sig and visc is None and coul is None and strb is None:
         def sigmoid_only(dq: np.ndarray) -> np.ndarray:
             return p1 * expit(p2 * dq + p2p3) - off
+        # (phi1, phi2, phi2 phi3, offset) (7,) each: the law p1 expit(p2 dq + p2p3) - off, for compiled callers
+        sigmoid_only.sigmoid_coefficients = (p1, p2, p2p3, off)
         return sigmoid_only
 
     def general(dq: np.ndarray) -> np.ndarray:

@@ -316,7 +316,7 @@ static PyMethodDef methods[] = {
     {"torque_cost", (PyCFunction)(void (*)(void))fvs_torque_cost, METH_FASTCALL,
      "torque_cost(tau, tau_max, cost, out): cost * mean((tau / tau_max)^2) of each row."},
     {"visual_pre", (PyCFunction)(void (*)(void))fvs_visual_pre, METH_FASTCALL,
-     "visual_pre(P, I, data_address, action, tau_cmd, tau_applied): a visual env's torque command (see _task.c)."},
+     "visual_pre(P, I, data_address, action, cmd, applied): an env's torque or joint velocity command (see _task.c)."},
     {"visual_post", (PyCFunction)(void (*)(void))fvs_visual_post, METH_FASTCALL,
      "visual_post(P, I, model_address, data_address, out, flags): a visual env's step after its physics."},
     {"tracking", (PyCFunction)(void (*)(void))fvs_tracking, METH_FASTCALL,

@@ -8,12 +8,15 @@
  *
  * The geometry block ``geo`` (FVS_GEO numbers) describes one robot, camera and tag:
  *   [0, 96)    the chain: the placement of each of the seven revolute-z joints in its parent (R row-major 9, t 3)
- *              and, last, the camera frame c in the seventh joint's frame (R 9, t 3);
+ *              and, last, the frame the hand carries in the seventh joint's frame (R 9, t 3): the camera c (eye in
+ *              hand) or the tag o (eye to hand);
  *   [96, 108)  the tag's corners (4 x 3) in the tag frame o, in detection order;
  *   [108, 114) fx, fy, cx, cy, width - 0.5, height - 0.5 (pixels);
- *   [114, 122) the desired features s* (8).
+ *   [114, 122) the desired features s* (8);
+ *   [122]      0: eye in hand (the static pose given with q is the tag's fMo, cMo = (fMc(q))^-1 fMo), 1: eye to
+ *              hand (the static pose is the fixed camera's cMf, cMo = cMf fMo(q)).
  *
- * A truth record (FVS_REC numbers) holds, for the joint position q and the tag pose fMo in the base frame f:
+ * A truth record (FVS_REC numbers) holds, for the joint position q and the static pose (fMo, or cMf eye to hand):
  *   [0, 8) features (x, y of the four corners; zeros when the tag is behind the camera or not facing it),
  *   [8, 12) corner depths Z (m), [12] visible (1 or 0), [13, 29) cMo (4 x 4), [29, 35) the pose vector of cMo
  *   (t, theta u), [35] the feature error ||s - s*|| (||s*|| + 1 when the tag is not visible).
@@ -31,7 +34,7 @@
 
 #include "_task.h"
 
-#define FVS_GEO 122
+#define FVS_GEO 123
 #define FVS_REC 36
 
 /* ------------------------------------------------------------------------------------------------ geometry */
@@ -100,26 +103,38 @@ static void log3(const double* R, double* out) {
   out[0] = f * q[1], out[1] = f * q[2], out[2] = f * q[3];
 }
 
-/* One truth record (see the file's comment) for the joint position q (7) and the tag pose fMo (16). */
-static void truth_row(const double* geo, const double* q, const double* fMo, double* rec) {
+/* One truth record (see the file's comment) for the joint position q (7) and the static pose S (16): the tag's
+ * fMo (eye in hand) or the camera's cMf (eye to hand). */
+static void truth_row(const double* geo, const double* q, const double* S, double* rec) {
   double R[9] = {1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0}, t[3] = {0.0, 0.0, 0.0};
   for (int k = 0; k < 7; k++) {
     const double* P = geo + 12 * k;
     compose(R, t, P, P + 9);
     rotate_z(R, q[k]);
   }
-  compose(R, t, geo + 84, geo + 93); /* fMc */
-  /* cMo = (fMc)^-1 fMo = [R^T Ro, R^T (to - t)] */
-  double Ro[9], d[3], Rc[9], tc[3];
+  compose(R, t, geo + 84, geo + 93); /* fMc (eye in hand) or fMo (eye to hand) */
+  double Rs[9], Rc[9], tc[3];
   for (int i = 0; i < 3; i++) {
-    Ro[3 * i] = fMo[4 * i], Ro[3 * i + 1] = fMo[4 * i + 1], Ro[3 * i + 2] = fMo[4 * i + 2];
-    d[i] = fMo[4 * i + 3] - t[i];
+    Rs[3 * i] = S[4 * i], Rs[3 * i + 1] = S[4 * i + 1], Rs[3 * i + 2] = S[4 * i + 2];
   }
-  for (int i = 0; i < 3; i++) {
-    for (int j = 0; j < 3; j++) {
-      Rc[3 * i + j] = (R[i] * Ro[j] + R[3 + i] * Ro[3 + j]) + R[6 + i] * Ro[6 + j];
+  if (geo[122] != 0.0) { /* cMo = cMf fMo = [Rs R, Rs t + ts] */
+    for (int i = 0; i < 3; i++) {
+      for (int j = 0; j < 3; j++) {
+        Rc[3 * i + j] = (Rs[3 * i] * R[j] + Rs[3 * i + 1] * R[3 + j]) + Rs[3 * i + 2] * R[6 + j];
+      }
+      tc[i] = ((Rs[3 * i] * t[0] + Rs[3 * i + 1] * t[1]) + Rs[3 * i + 2] * t[2]) + S[4 * i + 3];
     }
-    tc[i] = (R[i] * d[0] + R[3 + i] * d[1]) + R[6 + i] * d[2];
+  } else { /* cMo = (fMc)^-1 fMo = [R^T Ro, R^T (to - t)] */
+    double d[3];
+    for (int i = 0; i < 3; i++) {
+      d[i] = S[4 * i + 3] - t[i];
+    }
+    for (int i = 0; i < 3; i++) {
+      for (int j = 0; j < 3; j++) {
+        Rc[3 * i + j] = (R[i] * Rs[j] + R[3 + i] * Rs[3 + j]) + R[6 + i] * Rs[6 + j];
+      }
+      tc[i] = (R[i] * d[0] + R[3 + i] * d[1]) + R[6 + i] * d[2];
+    }
   }
   double* M = rec + 13;
   for (int i = 0; i < 3; i++) {
@@ -285,7 +300,9 @@ enum {
   P_COST = P_POSE_D + 6,    /* torque cost coefficient */
   P_COST_NOW = P_COST + 1,  /* this step's torque cost */
   P_ACT_SCALE = P_COST_NOW + 1, /* physical value of an action of 1 (7; ones for physical actions) */
-  P_WORK = P_ACT_SCALE + 7, /* work (S), low (S), high (S) */
+  P_DQ_CAP = P_ACT_SCALE + 7, /* joint velocity commands: the servo's limit per joint (7, rad/s) */
+  P_FRIC = P_DQ_CAP + 7, /* joint velocity commands: the feed-forward friction phi1, phi2, phi2 phi3, offset (7 each) */
+  P_WORK = P_FRIC + 28, /* work (S), low (S), high (S) */
 };
 enum {
   I_J0 = 0,    /* first joint (reflex record) */
@@ -296,7 +313,10 @@ enum {
                   visible (-1 when absent) */
   I_S = 24,    /* work size S */
   I_LIM = 25,  /* userdata index of the rate limiter's target (7; -1: the command goes to the controls) */
-  I_SIZE = 26,
+  I_MODE = 26, /* the action: 2 joint velocity, anything else joint torque */
+  I_CTRL_VEL = 27, /* first velocity-servo actuator (joint velocity actions) */
+  I_FRIC = 28, /* joint velocity actions: 1 the sigmoid feed-forward friction of P_FRIC, 0 none */
+  I_SIZE = 29,
 };
 
 int fvs_plan_sizes(int* p_fixed, int* i_size) {
@@ -305,15 +325,21 @@ int fvs_plan_sizes(int* p_fixed, int* i_size) {
   return FVS_REC;
 }
 
-/* visual_pre(P, I, data_address, action, tau_cmd, tau_applied) -> 0: the action (a float32 or float64 vector of 7
- * inside the bounds) times the action scale is copied to P's action (the physical torque), saturated at tau_max
- * into tau_cmd and either the torque actuators' controls and tau_applied or, rate-limited (I_LIM >= 0), the
- * limiter's target in userdata (the plant's callback then writes the controls at every physics step), and its
- * torque cost computed; -1: nothing was done (the caller takes the general path). */
+/* visual_pre(P, I, data_address, action, cmd, applied) -> 0: the action (a float32 or float64 vector of 7 inside
+ * the bounds) times the action scale is copied to P's action (the physical command), then
+ *  - joint torque: saturated at tau_max into cmd (the commanded torque) and either the torque actuators' controls
+ *    and applied (the last applied torque) or, rate-limited (I_LIM >= 0), the limiter's target in userdata (the
+ *    plant's callback then writes the controls at every physics step), and its torque cost computed;
+ *  - joint velocity (I_MODE 2): scaled down uniformly when a joint exceeds the servo's limit (the largest
+ *    |dq_k| / cap_k above 1 divides every joint), into cmd (the velocity target) and either the velocity servos'
+ *    controls and applied (the velocity reference) or the limiter's target, and the feed-forward friction
+ *    phi1 / (1 + exp(-(phi2 dq + phi2 phi3))) - offset (or 0) into the torque actuators' controls, as
+ *    FrankaSim.set_velocity with the model's sigmoid friction law;
+ * -1: nothing was done (the caller takes the general path). */
 PyObject* fvs_visual_pre(PyObject* self, PyObject* const* args, Py_ssize_t nargs) {
   (void)self;
   if (nargs != 6) {
-    PyErr_SetString(PyExc_TypeError, "visual_pre(P, I, data_address, action, tau_cmd, tau_applied)");
+    PyErr_SetString(PyExc_TypeError, "visual_pre(P, I, data_address, action, cmd, applied)");
     return NULL;
   }
   Py_buffer a;
@@ -384,6 +410,37 @@ PyObject* fvs_visual_pre(PyObject* self, PyObject* const* args, Py_ssize_t nargs
   }
   double* tau_cmd = (double*)tc.buf;
   double* tau_applied = (double*)ta.buf;
+  if (I[I_MODE] == 2) {
+    if (I[I_CTRL_VEL] < 0) {
+      PyErr_SetString(PyExc_ValueError, "visual_pre: no velocity actuators in the plan");
+      PyBuffer_Release(&pb), PyBuffer_Release(&ib), PyBuffer_Release(&tc), PyBuffer_Release(&ta);
+      return NULL;
+    }
+    double u[7], ratio = 0.0;
+    for (int k = 0; k < 7; k++) {
+      u[k] = v[k] * P[P_ACT_SCALE + k];
+      P[P_ACTION + k] = u[k];
+      const double r = fabs(u[k]) / P[P_DQ_CAP + k];
+      ratio = r > ratio ? r : ratio;
+    }
+    const double* F = P + P_FRIC;
+    for (int k = 0; k < 7; k++) {
+      const double dq = ratio > 1.0 ? u[k] / ratio : u[k];
+      tau_cmd[k] = dq;
+      if (I[I_LIM] >= 0) {
+        d->userdata[I[I_LIM] + k] = dq;
+      } else {
+        tau_applied[k] = dq;
+        d->ctrl[I[I_CTRL_VEL] + k] = dq;
+      }
+      /* phi1 expit(phi2 dq + phi2 phi3) - offset, expit(x) = 1 / (1 + exp(-x)) */
+      d->ctrl[I[I_CTRL] + k] = I[I_FRIC] == 1 ? F[k] * (1.0 / (1.0 + exp(-(F[7 + k] * dq + F[14 + k])))) - F[21 + k]
+                                              : 0.0;
+    }
+    P[P_COST_NOW] = 0.0;
+    PyBuffer_Release(&pb), PyBuffer_Release(&ib), PyBuffer_Release(&tc), PyBuffer_Release(&ta);
+    return PyLong_FromLong(0);
+  }
   for (int k = 0; k < 7; k++) {
     const double hi = P[P_TAU_MAX + k];
     const double u = v[k] * P[P_ACT_SCALE + k];

@@ -81,8 +81,8 @@ RTAG = 1179013960.0  # jnt_user[:, RCOL] of a joint whose robot's reflexes the p
 RSLOT = 66  # userdata numbers per robot (its reflex record, then its rate limiter's state from L0)
 L0 = 13  # the rate limiter's part of a robot's record (see _plant.c)
 TASK_REC = 36  # numbers in a truth record of the visual tasks' kernels (franka_vs_gym/sim/_task.c)
-TASK_P_FIXED = 271  # numbers of a visual env's step plan before its observation work vectors (_task.c)
-TASK_I_SIZE = 26  # integers of a visual env's step plan (_task.c)
+TASK_P_FIXED = 307  # numbers of a visual env's step plan before its observation work vectors (_task.c)
+TASK_I_SIZE = 29  # integers of a visual env's step plan (_task.c)
 
 _native: Any = None
 _reason: str | None = None

@@ -906,6 +906,22 @@ class FrankaSim:
         :meth:`commands_from_controls`."""
         return self._tau_cmd, self._reflexes._tau_applied
 
+    def velocity_command_views(self) -> tuple[np.ndarray, np.ndarray]:
+        """The arrays ``set_velocity`` leaves a joint velocity command in (the velocity target and, with
+        ``command_rates="pass"``, the reflexes' velocity reference, (7,) each, rad/s): compiled code that writes a
+        joint velocity command itself (see :meth:`runs_inside_mj_step`) writes them as well."""
+        return self._reflexes._v_target, self._reflexes._v_ref
+
+    def feedforward_friction(self) -> tuple[np.ndarray, ...] | None:
+        """What ``set_velocity`` adds to the motors' controls as the joint controller's feed-forward friction, for
+        compiled code that writes a joint velocity command itself: ``()`` when the friction is off (zero torque), the
+        coefficients (phi1, phi2, phi2 phi3, offset) (7,) each when the model's friction law is the sigmoid alone
+        (tau = phi1 / (1 + exp(-(phi2 dq + phi2 phi3))) - offset), None for another law (only the model computes
+        it). The same objects while the law is the same (compare by identity)."""
+        if not self._friction_enabled:
+            return ()
+        return getattr(self.model._friction, "sigmoid_coefficients", None)
+
     def kinematics_key(self) -> tuple[Any, Any]:
         """Two objects that are replaced whenever the robot's kinematic model (a new tool or payload rebuilds it)
         or its camera mount changes: geometry computed from ``get_fMe``/``get_eMc`` is current while both are the
@@ -924,7 +940,8 @@ class FrankaSim:
                 and r._hold is None
                 and not r._relaxed and not r._check_tau and not r.errors and r._ud[0] == ARMED
                 and not self._delay_steps and self._meas_fifo is None and not w._active and not w._post_hooks
-                and len(w._checks) == 1 and self._state == RobotState(control_state))
+                and len(w._checks) == 1
+                and (control_state is self._state or self._state == RobotState(control_state)))  # (enum call skipped)
 
     @property
     def limits_commands_in_plant(self) -> bool:

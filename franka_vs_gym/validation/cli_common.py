@@ -72,13 +72,51 @@ def write_views(res, report_dir: Path | None, mcap_file: Path | None, *, diagnos
     from franka_vs_gym.validation import report
     from franka_vs_gym.validation.compare import progress
 
+    join = None
     if report_dir is not None:
         progress("writing the report: report.html, report.md and figures", verbose)
-        report.markdown_report(res, report_dir, diagnosis=diagnosis, fit=fit, overwrite=True)
+        # report.md and its PNGs (matplotlib) in a second process while this one writes report.html (Bokeh) and the
+        # MCAP log, where a second CPU is free
+        join = alongside(lambda: report.markdown_report(res, report_dir, diagnosis=diagnosis, fit=fit,
+                                                        overwrite=True))
         report.html_report(res, report_dir, diagnosis=diagnosis, fit=fit, model_file=model_file, overwrite=True)
     if mcap_file is not None:
         progress("writing the MCAP log", verbose)
         report.write_mcap(mcap_file, res, diagnosis=diagnosis, fit=fit, summary=summary)
+    if join is not None:
+        join()
+
+
+def alongside(work):
+    """Run ``work()`` in a forked child while the caller goes on, when this process may use two or more CPUs and
+    runs no other thread (a fork copies only the calling thread); else run it here and now. Returns ``join()``: it
+    waits for the child, and if the child failed runs ``work()`` here, so that its error is raised as usual (the
+    child only ever writes files ``work`` writes anyway)."""
+    import os
+    import sys
+    import threading
+
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    if not hasattr(os, "fork") or cpus < 2 or threading.active_count() > 1:
+        work()
+        return lambda: None
+    sys.stdout.flush()
+    sys.stderr.flush()
+    pid = os.fork()
+    if pid == 0:  # the child: do the work, exit without running the parent's cleanup or flushing its buffers
+        code = 1
+        try:
+            work()
+            code = 0
+        finally:
+            os._exit(code)
+
+    def join() -> None:
+        _, status = os.waitpid(pid, 0)
+        if not (os.WIFEXITED(status) and os.WEXITSTATUS(status) == 0):
+            work()  # again here: the same result, or the error as the caller would have seen it
+
+    return join
 
 
 def say_outputs(args: argparse.Namespace) -> list[str]:

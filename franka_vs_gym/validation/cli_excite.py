@@ -6,6 +6,7 @@ DIR receives ``trajectory.csv`` (time, q_d[i], dq_d[i], ddq_d[i] at 1 kHz), ``pl
 ``play_excitation_franky.py`` (``python SCRIPT ROBOT_ADDRESS``: the same script runs against ``franka-vs serve`` and
 a real robot; the recording goes next to the script) and ``excite.json`` (the design: predicted 95 % interval
 widths of the designed motion next to those of the reference, the limits it keeps, the motion's coefficients).
+``--report DIR`` writes the design's report (:mod:`franka_vs_gym.validation.report.excite`).
 """
 
 from __future__ import annotations
@@ -56,6 +57,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--evaluations", type=int, default=None, metavar="N",
                         help="stop the search after N criterion evaluations (the same design on any machine); the "
                              "time budget still applies")
+    parser.add_argument("--report", metavar="DIR", default=None,
+                        help="write the design's report into DIR: report.html (one interactive file, opens offline: "
+                             "the motion against the limits, the predicted widths against the reference, what it "
+                             "tells apart, the commands to run it), report.md and PNG figures")
     parser.add_argument("--json", action="store_true", help="print the design as one JSON object on stdout")
     parser.add_argument("--force", action="store_true", help="replace an existing output folder")
     parser.add_argument("--quiet", action="store_true", help="no progress messages on stderr")
@@ -102,7 +107,7 @@ def main(args: argparse.Namespace) -> int:
     from franka_vs_gym.errors import UserError
     from franka_vs_gym.io import OutputSet
     from franka_vs_gym.validation.compare import as_processed, progress
-    from franka_vs_gym.validation.excite import design_excitation, scripts, trajectory_csv
+    from franka_vs_gym.validation.excite import design_excitation, scripts, trajectory_csv, trajectory_table
 
     verbose = not args.quiet
     effects = [e.strip() for e in (args.effects or "").split(",") if e.strip()]
@@ -131,6 +136,7 @@ def main(args: argparse.Namespace) -> int:
     inputs = [Path(p) for p in (args.log, args.model, args.from_) if p]
     with OutputSet(force=args.force, inputs=inputs) as outputs:
         folder = outputs.folder(args.output, what="excitation folder")
+        report_dir = outputs.folder(args.report, what="report folder") if args.report else None
         if args.log:
             from franka_vs_gym.validation.logs import load_log
 
@@ -146,12 +152,22 @@ def main(args: argparse.Namespace) -> int:
         except ValueError as e:
             raise UserError(str(e)) from None
         out = d.to_dict()
-        (folder / "trajectory.csv").write_text(trajectory_csv(d.motion))
+        table = trajectory_table(d.motion)
+        (folder / "trajectory.csv").write_text(trajectory_csv(d.motion, table=table))
         for name, text in scripts(d).items():
             (folder / name).write_text(text)
         (folder / "excite.json").write_text(json.dumps(out, indent=1))
+        if report_dir is not None:  # from what was just written: the design's dict and trajectory.csv's rows
+            from franka_vs_gym.validation.cli_common import alongside
+            from franka_vs_gym.validation.report.excite import html_excite, markdown_excite, view
+
+            progress("writing the report: report.html, report.md and figures", verbose)
+            v = view(out, table, args.output, d.seconds)
+            join = alongside(lambda: markdown_excite(v, report_dir))  # a second process where a CPU is free
+            html_excite(v, report_dir)
+            join()
     progress(f"written: {args.output}/trajectory.csv, play_excitation_pylibfranka.py, play_excitation_franky.py, "
-             "excite.json", verbose)
+             "excite.json" + (f"; report {args.report}/report.html" if args.report else ""), verbose)
     if args.json:
         print(json.dumps({**out, "output": str(args.output)}))
         return 0
@@ -175,5 +191,7 @@ def main(args: argparse.Namespace) -> int:
           "over the table")
     print(f"record it: python {args.output}/play_excitation_pylibfranka.py ROBOT_ADDRESS "
           "(or play_excitation_franky.py)")
+    if args.report:
+        print(f"report: {Path(args.report) / 'report.html'} (open in a browser)")
     sys.stdout.flush()
     return 0

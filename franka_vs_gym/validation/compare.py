@@ -60,6 +60,7 @@ def progress(msg: str, enabled: bool = True) -> None:
     if _Progress.bar is None:
         from tqdm import tqdm
 
+        tqdm.monitor_interval = 0  # the line is updated at each stage: no monitor thread (writers may fork later)
         _Progress.bar = tqdm(total=None, bar_format="{desc} [{elapsed}]", file=sys.stderr, leave=False,
                              dynamic_ncols=True, mininterval=0)
     _Progress.bar.set_description_str(text)

@@ -109,6 +109,13 @@ class FourierMotion:
         dddq = (-(cs * w ** 3) @ self.a.T + (sn * w ** 3) @ self.b.T) * moving
         return q, dq * moving, ddq * moving, dddq
 
+    @staticmethod
+    def from_dict(d: dict[str, Any]) -> FourierMotion:
+        """The motion of :meth:`to_dict` (the ``motion`` of ``excite.json``)."""
+        return FourierMotion(np.asarray(d["centre_rad"], dtype=float), np.asarray(d["a_rad"], dtype=float),
+                             np.asarray(d["b_rad"], dtype=float), float(d["period_s"]), int(d["periods"]),
+                             float(d["rest_s"]))
+
     def to_dict(self) -> dict[str, Any]:
         return {"form": "q_j(t) = centre_j + sum_l a_jl sin(w_l s) + b_jl (cos(w_l s) - 1), "
                         "w_l = 2 pi l / period, s = clip(t - rest, 0, periods x period)",
@@ -136,6 +143,36 @@ def generic_motion(duration: float, seed: int = 0) -> SampledMotion:
     from franka_vs_gym.validation.hidden import fourier_trajectory
 
     return SampledMotion(fourier_trajectory(np.random.default_rng(seed), duration), duration)
+
+
+def generic_playable(like: FourierMotion, config: ModelConfig | None = None, seed: int = 1, v_peak: float = 0.9,
+                     room: float = 0.8, fraction: float = 0.5, pos_margin: float = 0.2,
+                     clearance: float = 0.15) -> FourierMotion:
+    """The generic excitation as a motion the robot can play: rest to rest with ``like``'s period, periods and rests,
+    the generators' centre pose (the neutral pose +- 0.3 rad per joint) and random Fourier coefficients with their
+    1/l roll-off (:func:`~franka_vs_gym.validation.hidden.fourier_trajectory`), each joint scaled to a peak speed of ``v_peak``
+    rad/s and at most ``room`` rad from the centre, then shrunk as a whole into the same limits and table
+    clearance as a design (:func:`max_scale`). Play it next to a designed motion of the same duration (through
+    ``franka-vs serve`` or on the robot) to see what the design gains in fitted intervals, not only predicted ones."""
+    from franka_vs_gym.model.franka_model import FrankaModel
+
+    cfg = config if config is not None else ModelConfig()
+    model = FrankaModel(cfg)
+    rng = np.random.default_rng(seed)
+    ll = np.arange(1, like.harmonics + 1)
+    lim = Limits.of(model, fraction, pos_margin, clearance)
+    centre = np.clip(cfg.robot.neutral() + rng.uniform(-0.3, 0.3, 7), lim.q_min + 0.3, lim.q_max - 0.3)
+    m = FourierMotion(centre, rng.normal(0, 1, (7, like.harmonics)) / ll,
+                      rng.normal(0, 1, (7, like.harmonics)) / ll, like.period, like.periods, like.rest).constrained()
+    t = like.rest + np.linspace(0.0, like.period, 400, endpoint=False)
+    q, dq, _, _ = m.sample(t)
+    s = np.minimum(v_peak / np.abs(dq).max(axis=0), room / np.abs(q - m.centre).max(axis=0))
+    m = FourierMotion(m.centre, m.a * s[:, None], m.b * s[:, None], m.period, m.periods, m.rest)
+    t_check = np.linspace(0.0, m.duration, int(m.duration * 200) + 1)
+    f = max_scale(m, lim, Kinematics(model), t_check, t_check[::8])
+    if f <= 0.0:
+        raise ValueError("the centre pose is not within the limits and clear of the table: no generic motion about it")
+    return m.scaled(0.999 * f) if f < 1.0 else m
 
 
 # ---------------------------------------------------------------------------------------------- information
@@ -615,7 +652,11 @@ def design_excitation(effects: list[str], *, separate: list[list[str]] | None = 
             "peak_ddq_over_limit": np.round((np.abs(ddq) / full.ddq_max).max(axis=0), 3).tolist(),
             "peak_dddq_over_limit": np.round((np.abs(dddq) / full.dddq_max).max(axis=0), 3).tolist(),
             "lowest_flange_m": round(float(kin.heights(q[::20])[:, 0].min()), 3),
-            "lowest_end_effector_m": round(float(kin.heights(q[::20])[:, 1].min()), 3)}
+            "lowest_end_effector_m": round(float(kin.heights(q[::20])[:, 1].min()), 3),
+            # the robot's own limits the fractions refer to (what a report draws the motion against)
+            "robot_limits": {"q_min_rad": full.q_min.tolist(), "q_max_rad": full.q_max.tolist(),
+                             "dq_max_rad_per_s": full.dq_max.tolist(), "ddq_max_rad_per_s2": full.ddq_max.tolist(),
+                             "dddq_max_rad_per_s3": full.dddq_max.tolist()}}
     seconds = time.perf_counter() - t0
     progress(f"designed in {seconds:.1f} s ({n_eval[0]} criterion evaluations)", verbose)
     return Design(motion, names, separate, criterion, ref_cols.names, ref_cols.owner, widths, widths_ref, ref_what,
@@ -641,9 +682,10 @@ def trajectory_table(motion: FourierMotion, rate: float = 1000.0) -> np.ndarray:
     return np.column_stack([t, q, dq, ddq])
 
 
-def trajectory_csv(motion: FourierMotion, rate: float = 1000.0) -> str:
+def trajectory_csv(motion: FourierMotion, rate: float = 1000.0, table: np.ndarray | None = None) -> str:
+    """trajectory.csv's text: the rows of :func:`trajectory_table` (or the given ``table`` of them)."""
     head = ",".join(["time"] + [f"{n}[{j}]" for n in ("q_d", "dq_d", "ddq_d") for j in range(7)])
-    rows = trajectory_table(motion, rate) + 0.0  # (no negative zeros)
+    rows = (trajectory_table(motion, rate) if table is None else table) + 0.0  # (no negative zeros)
     body = "\n".join(",".join(f"{v:.9g}" for v in r) for r in rows)
     return head + "\n" + body + "\n"
 
@@ -813,5 +855,5 @@ def scripts(design: Design, stem: str = "excitation") -> dict[str, str]:
     return out
 
 
-__all__ = ["Design", "FourierMotion", "design_excitation", "effect_widths", "generic_motion", "predicted_widths",
-           "scripts", "trajectory_csv", "trajectory_table"]
+__all__ = ["Design", "FourierMotion", "design_excitation", "effect_widths", "generic_motion", "generic_playable",
+           "predicted_widths", "scripts", "trajectory_csv", "trajectory_table"]

@@ -20,7 +20,7 @@ import numpy as np
 
 # parameter-name suffix -> unit shown (the workbench writes units into the names: viscous_Nms_per_rad, mass_kg, ...)
 UNITS = (("_Nms_per_rad", "Nm s/rad"), ("_rad_per_s", "rad/s"), ("_s_per_rad", "s/rad"), ("_m_per_s2", "m/s^2"),
-         ("_kgm2", "kg m^2"), ("_Nm", "Nm"), ("_kg", "kg"), ("_deg", "deg"), ("_m", "m"), ("_s", "s"))
+         ("_kgm2", "kg m^2"), ("_kgm", "kg m"), ("_Nm", "Nm"), ("_kg", "kg"), ("_deg", "deg"), ("_m", "m"), ("_s", "s"))
 JOINT_LIST = 7
 
 

@@ -83,7 +83,9 @@ class _Section:
 
     def trace(self, label: str, per_joint: list[tuple[np.ndarray, np.ndarray] | None], color: str, kind: str = "line",
               width: float = 1.3, alpha: float = 1.0, j0: int = 0, decimate: bool = True) -> None:
-        """A trace given as (x, y) per joint (None: nothing on that joint)."""
+        """A trace given as (x, y) per joint (None: nothing on that joint). The joints' samples are stored as plain
+        float32 arrays in the joint selector's arguments (no data-source model per joint: fewer models to build and
+        serialise); the displayed source holds the shown joint's."""
         from bokeh.models import ColumnDataSource
 
         store = []
@@ -97,8 +99,8 @@ class _Section:
                 elif kind == "scatter":
                     idx = thin(len(x), MAX_SCATTER)
                     x, y = x[idx], y[idx]
-            store.append(ColumnDataSource({"x": x.astype(np.float32), "y": y.astype(np.float32)}))
-        disp = ColumnDataSource(dict(store[j0].data))
+            store.append({"x": x.astype(np.float32), "y": y.astype(np.float32)})
+        disp = ColumnDataSource(dict(store[j0]))
         if kind == "line":
             self.fig.line("x", "y", source=disp, color=color, line_width=width, alpha=alpha, legend_label=label,
                           name=label)
@@ -156,7 +158,7 @@ class _Report:
             "xlabels": [s.x_labels for s in self.sections],
             "bands": [s.band for s in bands], "noise": [s.band_noise for s in bands]}, code="""
             const j = cb_obj.active;
-            for (let i = 0; i < disp.length; i++) { disp[i].data = Object.assign({}, store[i][j].data); }
+            for (let i = 0; i < disp.length; i++) { disp[i].data = {x: store[i][j].x, y: store[i][j].y}; }
             for (let i = 0; i < figs.length; i++) {
                 figs[i].title.text = titles[i][j];
                 for (const ax of figs[i].below) { ax.axis_label = xlabels[i][j]; }
