@@ -235,7 +235,9 @@ def evaluate_student(venv: Any, student: Student, seeds: list[int]) -> dict[str,
             "failures": failures}
 
 
-def plot_curve(curve: list[dict[str, Any]], path: Path, force: bool, title: str) -> None:
+def plot_curve(curve: list[dict[str, Any]], path: Path, force: bool, title: str, chosen: int | None = None) -> None:
+    """Held-out success against labelled states and wall time; ``chosen``: the curve row of the saved agent
+    (marked)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -248,11 +250,15 @@ def plot_curve(curve: list[dict[str, Any]], path: Path, force: bool, title: str)
     for ax, key, label in ((axes[0], "samples", "labelled states (env steps)"),
                            (axes[1], "wall_min", "wall-clock time (min)")):
         ax.plot([r[key] for r in curve], rates, "o-", color="tab:blue")
+        if chosen is not None:
+            ax.plot([curve[chosen][key]], [rates[chosen]], "*", ms=16, color="tab:orange", label="saved agent")
         ax.axhline(90, color="tab:gray", ls="--", lw=1)
         ax.set_xlabel(label)
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("held-out success (%)")
-    axes[0].set_ylim(-2, 102)
+    axes[0].set_ylim(-2, 106)
+    if chosen is not None:
+        axes[0].legend(loc="lower right")
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     atomic_write(path, lambda fh: fig.savefig(fh, format="png", dpi=110), force=force, what="curve PNG")
@@ -297,6 +303,7 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
     obs, _ = venv.reset(seed=train_seed)
     curve: list[dict[str, Any]] = []
     best: tuple[float, Any] | None = None
+    chosen = 0  # the curve row of the saved agent (the first best held-out success)
     reached: dict[str, float | None] = {"0.90": None, "0.95": None}
     print(f"DAgger on {args.env_id} from {args.image_width}x{args.image_height} images, {args.n_envs} robots, "
           f"torch threads {args.threads}, batch threads {args.batch_threads}", flush=True)
@@ -333,6 +340,7 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
             line += f"  | held-out success {r['success_rate']:.2f} failures {r['failures'] or 'none'}"
             if best is None or r["success_rate"] > best[0]:
                 best = (r["success_rate"], copy.deepcopy(student.model.policy.state_dict()))
+                chosen = len(curve) - 1
             print(line, flush=True)
             if r["success_rate"] >= args.stop:
                 break
@@ -357,6 +365,7 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
             "n_envs": args.n_envs,
             "training": {"method": "DAgger on the scripted IBVS teacher (labels only; the agent sees image, q, dq)",
                          "iterations": curve[-1]["iteration"] + 1, "samples": curve[-1]["samples"],
+                         "saved_iteration": curve[chosen]["iteration"], "saved_samples": curve[chosen]["samples"],
                          "wall_s": round(wall, 1), "cpu_s": round(cpu, 1), "eval_wall_s": round(eval_wall, 1),
                          "wall_s_to_0.90": reached["0.90"], "wall_s_to_0.95": reached["0.95"],
                          "cores": f"1 process: torch {args.threads} thread(s), physics batch {args.batch_threads} "
@@ -370,7 +379,7 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
     atomic_write(paths["json"], json.dumps(meta, indent=2), force=args.force, what="agent JSON")
     plot_curve(curve, paths["png"], args.force,
                f"{args.env_id} from {args.image_width}x{args.image_height} images: DAgger student, held-out "
-               f"success on {args.eval_episodes} episodes")
+               f"success on {args.eval_episodes} episodes", chosen)
     print(f"saved {paths['zip']} ({paths['zip'].stat().st_size / 1e6:.2f} MB), {paths['json']}, {paths['png']}; "
           f"training {wall / 60:.1f} min wall, {cpu / 60:.1f} min CPU", flush=True)
     return meta

@@ -3,6 +3,7 @@
 
     python scripts/time_to_solve.py                        # FrankaIBVS-v0, features agent (PPO, native vector env)
     python scripts/time_to_solve.py --task panda-reach     # panda-gym's PandaReach-v3, its documented SB3 recipe
+    python scripts/time_to_solve.py --task ibvs-pixels     # FrankaIBVS-v0 from the camera image (DAgger student)
     python scripts/time_to_solve.py --json result.json     # also write the result (the file must not exist)
 
 "From nothing" starts the clock before the environments and the untrained model are made; it stops when a periodic
@@ -19,6 +20,10 @@ with all 100 held-out episodes stepped together on the same native vector env (t
 needs ``pip install panda-gym``): panda-gym's documented recipe, ``DDPG(policy="MultiInputPolicy", env)`` with
 SB3's defaults and a 30 000-step budget (panda-gym's "Train with stable-baselines3" page), evaluated on 100
 episodes the same way (deterministic actions, success = ``info["is_success"]`` at the episode's end).
+FrankaIBVS-v0 from the camera image (``--task ibvs-pixels``): ``baselines/train_pixels.py``'s DAgger student
+(64x48 image, q, dq; the scripted IBVS teacher's actions as labels), its held-out evaluation every 3 iterations
+(12 000 labelled states with 16 robots), stopped at ``--goal``; the saved agent is confirmed with
+``franka_vs_gym.evaluate``.
 """
 
 from __future__ import annotations
@@ -213,23 +218,58 @@ def run_panda(args: argparse.Namespace) -> dict[str, Any]:
             "eval_wall_s": round(clock.eval_wall, 1), "curve": curve}
 
 
+def run_ibvs_pixels(args: argparse.Namespace) -> dict[str, Any]:
+    """The image agent: ``baselines/train_pixels.py`` (DAgger on the scripted IBVS teacher; its own clock starts
+    before anything is made and its held-out evaluations, every ``--eval-every`` DAgger iterations, are inside it),
+    stopped at the first evaluation at ``--goal``."""
+    import importlib.util
+    import tempfile
+
+    spec = importlib.util.spec_from_file_location(
+        "train_pixels", Path(__file__).resolve().parents[1] / "baselines" / "train_pixels.py")
+    tp = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tp)
+    every = max(1, round(args.eval_every / (args.n_envs * 250))) if args.eval_every_set else 3
+    with tempfile.TemporaryDirectory() as tmp:
+        out = args.save or str(Path(tmp) / "ibvs_pixels")
+        targs = tp.build_parser().parse_args([
+            "--out", out, "--n-envs", str(args.n_envs), "--seed", str(args.seed), "--eval-seed", str(args.eval_seed),
+            "--eval-episodes", str(args.eval_episodes), "--eval-every", str(every), "--stop", str(args.goal),
+            "--budget", str(args.budget), "--threads", str(args.threads),
+            "--batch-threads", str(args.batch_threads or 1)])
+        meta = tp.train(targs)
+    curve = meta["curve"]
+    first = next((r for r in curve if r["success_rate"] >= args.goal), None)
+    row = first or curve[-1]
+    return {"task": "FrankaIBVS-v0 image agent (64x48 image, q, dq)", "algo": "DAgger on IBVSPolicy, SB3 PPO policy",
+            "hyperparameters": meta["training"]["hyperparameters"] | {"eval_every_iterations": every},
+            "n_envs": args.n_envs, "vector_env": "native (mujoco.batch), features+image (features as labels only)",
+            "solved": first is not None, "steps": row["samples"], "wall_s": row["wall_s"], "cpu_s": row["cpu_s"],
+            "eval_wall_s": meta["training"]["eval_wall_s"], "curve": curve,
+            "confirmation_franka_vs_gym_evaluate": {k: meta["evaluation"][k] for k in (
+                "success_rate", "mean_time_to_converge", "failures")}}
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--task", choices=["ibvs", "panda-reach"], default="ibvs")
+    ap.add_argument("--task", choices=["ibvs", "panda-reach", "ibvs-pixels"], default="ibvs")
     ap.add_argument("--env-id", default="FrankaIBVS-v0", help=argparse.SUPPRESS)
     ap.add_argument("--goal", type=float, default=0.95, help="success rate to reach (default 0.95)")
     ap.add_argument("--seed", type=int, default=0, help="training seed (default 0)")
     ap.add_argument("--eval-seed", type=int, default=10_000, help="first held-out seed (default 10000)")
     ap.add_argument("--eval-episodes", type=int, default=100)
     ap.add_argument("--eval-every", type=int, default=None,
-                    help="env steps between evaluations (default 32768 for ibvs, 5000 for panda-reach)")
-    ap.add_argument("--n-envs", type=int, default=16, help="robots in the native vector env (ibvs; default 16)")
+                    help="env steps between evaluations (default 32768 for ibvs, 5000 for panda-reach; "
+                    "ibvs-pixels: 3 DAgger iterations of 250 steps of each robot)")
+    ap.add_argument("--n-envs", type=int, default=16, help="robots in the native vector env (ibvs, ibvs-pixels; "
+                    "default 16)")
     ap.add_argument("--action-scale", type=float, default=0.5, help="rad/s of an action of 1 (ibvs; default 0.5)")
     ap.add_argument("--max-steps", type=int, default=2_000_000, help="training steps at most (ibvs)")
     ap.add_argument("--budget", type=float, default=3600.0, help="give up after this wall time, s (default 3600)")
     ap.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     ap.add_argument("--batch-threads", type=int, default=None, help="mujoco.batch threads (default min(N, CPUs))")
-    ap.add_argument("--save", default=None, help="save the solving agent here (ibvs)")
+    ap.add_argument("--save", default=None, help="save the solving agent here (ibvs; ibvs-pixels: "
+                    "<save>.zip, .json and _curve.png)")
     ap.add_argument("--json", default=None, help="write the result to this JSON file (must not exist)")
     args = ap.parse_args(argv)
     args.eval_every_set = args.eval_every is not None
@@ -245,7 +285,7 @@ def main(argv: list[str] | None = None) -> int:
     machine = {"cpus": os.cpu_count(), "load_at_start": _load()}
     print(f"time to solve: {args.task}, goal {args.goal:.0%} on {args.eval_episodes} held-out episodes; "
           f"{machine['cpus']} CPUs, load {machine['load_at_start']}", flush=True)
-    result = run_ibvs(args) if args.task == "ibvs" else run_panda(args)
+    result = {"ibvs": run_ibvs, "panda-reach": run_panda, "ibvs-pixels": run_ibvs_pixels}[args.task](args)
     machine["load_at_end"] = _load()
     cmd = " ".join(argv if argv is not None else sys.argv[1:])
     result.update({"goal": args.goal, "seed": args.seed, "eval_seed": args.eval_seed,

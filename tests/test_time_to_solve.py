@@ -44,7 +44,9 @@ def test_batched_evaluation_is_evaluate_episode_by_episode():
     assert r["success_rate"] == ref["success_rate"]
 
 
-@pytest.mark.parametrize("argv, match", [(["--goal", "1.5"], "--goal"), (["--n-envs", "0"], "--n-envs")])
+@pytest.mark.parametrize("argv, match", [(["--goal", "1.5"], "--goal"), (["--n-envs", "0"], "--n-envs"),
+                                         (["--task", "ibvs-pixels", "--eval-episodes", "0"], "--eval-episodes"),
+                                         (["--task", "pixels"], "--task")])
 def test_bad_arguments(argv, match, capsys):
     with pytest.raises(SystemExit) as e:
         _script().main(argv)

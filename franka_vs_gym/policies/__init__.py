@@ -5,8 +5,10 @@ shipped reinforcement-learning agent.
     from franka_vs_gym.policies import IBVSPolicy, load_agent
     policy = IBVSPolicy()                      # classical IBVS, joint-velocity actions (rad/s)
     agent = load_agent("ibvs_ppo")             # the shipped PPO agent (needs the [rl] extra)
+    pixels = load_agent("ibvs_pixels")         # the agent that sees the camera image (env kwargs: pixels.env_kwargs)
 
-The training script is ``baselines/train_sb3.py`` in the source tree (a runnable script, not an installed package).
+The training scripts are ``baselines/train_sb3.py`` and ``baselines/train_pixels.py`` in the source tree (runnable
+scripts, not an installed package).
 """
 
 from __future__ import annotations
