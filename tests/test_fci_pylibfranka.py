@@ -206,7 +206,7 @@ def test_real_time_missed_motion_commands(extrapolate):
     FCI's packet-loss model, libfranka's rate_limiting.h) and takes each command at the time the client meant it
     for, so the motion ends without a reflex. Holding the last command and checking each command against the cycle
     before instead makes the command after a miss jump (the velocity of two cycles in one):
-    joint_motion_generator_velocity_discontinuity."""
+    joint_motion_generator_velocity_discontinuity (or its acceleration discontinuity)."""
     # a tolerance of 200 missed cycles: a loaded test machine must not end the motion with the communication reflex
     with FCIServer(loopback_host(27), camera=False, verbose=False, max_missed_commands=200) as srv:
         if not extrapolate:  # the robot as it was: the last command held, each command checked against the cycle before
@@ -215,8 +215,11 @@ def test_real_time_missed_motion_commands(extrapolate):
         out = run_client(CLIENTS / "late_joint_motion.py", srv.host, "0.0025")
     if extrapolate:  # the client missed cycles (it saw periods of more than 1 ms) and the motion went on
         assert out["raised"] is None and out["long_periods"] >= 3 and out["cycles"] > 4000, out
-    else:  # the first missed cycle ends it
-        assert out["raised"] is not None and "velocity_discontinuity" in out["raised"], out
+    else:  # the first missed cycle ends it: a jump in the commanded velocity, or (when the miss falls on the first
+        # cycles, where a loaded machine usually puts it) in the acceleration it implies
+        assert out["raised"] is not None and out["cycles"] < 4000, out
+        assert any(f"joint_motion_generator_{k}_discontinuity" in out["raised"]
+                   for k in ("velocity", "acceleration")), out
 
 
 def test_serve_command_line():

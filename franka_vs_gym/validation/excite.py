@@ -150,9 +150,9 @@ def generic_playable(like: FourierMotion, config: ModelConfig | None = None, see
                      clearance: float = 0.15) -> FourierMotion:
     """The generic excitation as a motion the robot can play: rest to rest with ``like``'s period, periods and rests,
     the generators' centre pose (the neutral pose +- 0.3 rad per joint) and random Fourier coefficients with their
-    1/l roll-off (:func:`~franka_vs_gym.validation.hidden.fourier_trajectory`), each joint scaled to a peak speed of ``v_peak``
-    rad/s and at most ``room`` rad from the centre, then shrunk as a whole into the same limits and table
-    clearance as a design (:func:`max_scale`). Play it next to a designed motion of the same duration (through
+    1/l roll-off (:func:`~franka_vs_gym.validation.hidden.fourier_trajectory`), each joint scaled to a peak speed
+    of ``v_peak`` rad/s and at most ``room`` rad from the centre, then shrunk as a whole into the same limits and
+    table clearance as a design (:func:`max_scale`). Play it next to a designed motion of the same duration (through
     ``franka-vs serve`` or on the robot) to see what the design gains in fitted intervals, not only predicted ones."""
     from franka_vs_gym.model.franka_model import FrankaModel
 
