@@ -175,21 +175,33 @@ class BatchedTask:
         if self.limited:
             self._command_limited(ids, r, a)
             return
+        if self.torque and isinstance(r, slice):  # straight into the batch's controls
+            tau = np.minimum(a, self.tau_max, out=self.ctrl[:, self.motor])
+            np.maximum(tau, self.neg_tau_max, out=tau)
+            return
+        x = self._within(a)
         if self.torque:
-            if isinstance(r, slice):  # straight into the batch's controls
-                tau = np.minimum(a, self.tau_max, out=self.ctrl[:, self.motor])
-                np.maximum(tau, self.neg_tau_max, out=tau)
-                return
+            self.ctrl[ids, self.motor] = x
+            return
+        self.ctrl[ids, self.vel] = x
+        self._feedforward(ids, x)
+
+    def _within(self, a: np.ndarray) -> np.ndarray:
+        """The rows' physical command within the robot's limits: the torque saturated at tau_max, or the joint
+        velocity scaled down uniformly within the servo's limit (a new array)."""
+        if self.torque:
             tau = np.minimum(a, self.tau_max)
             np.maximum(tau, self.neg_tau_max, out=tau)
-            self.ctrl[ids, self.motor] = tau
-            return
+            return tau
         ratio = (np.abs(a) / self.dq_lim).max(axis=1)
         over = ratio > 1.0
         dq = a.copy()
         if over.any():
             dq[over] = a[over] / ratio[over, None]
-        self.ctrl[ids, self.vel] = dq
+        return dq
+
+    def _feedforward(self, ids: np.ndarray, dq: np.ndarray) -> None:
+        """The model's friction at the commanded joint velocity as the motors' feed-forward (where it is on)."""
         ff = self.friction(dq)
         ff[~self.friction_on[ids]] = 0.0
         self.ctrl[ids, self.motor] = ff
@@ -198,20 +210,10 @@ class BatchedTask:
         """The rate-limited command of the rows: the saturated torque or the scaled joint velocity (with its
         friction feed-forward in the motors' controls) into the limiter's target (the plant's callback writes the
         controls at every physics step)."""
-        if self.torque:
-            tau = np.minimum(a, self.tau_max)
-            np.maximum(tau, self.neg_tau_max, out=tau)
-            self.userdata[ids[:, None] if not isinstance(r, slice) else r, self.target] = tau
-            return
-        ratio = (np.abs(a) / self.dq_lim).max(axis=1)
-        over = ratio > 1.0
-        dq = a.copy()
-        if over.any():
-            dq[over] = a[over] / ratio[over, None]
-        self.userdata[ids[:, None] if not isinstance(r, slice) else r, self.target] = dq
-        ff = self.friction(dq)
-        ff[~self.friction_on[ids]] = 0.0
-        self.ctrl[ids, self.motor] = ff
+        x = self._within(a)
+        self.userdata[ids[:, None] if not isinstance(r, slice) else r, self.target] = x
+        if not self.torque:
+            self._feedforward(ids, x)
 
     def anomalies(self, ids: np.ndarray) -> np.ndarray:
         """After the physics: rows whose robot must re-run the step alone (a reflex recorded or crossed, a joint at
