@@ -138,6 +138,15 @@ def _load(browser, path: Path):
     time.sleep(1.0)  # let the canvases paint
 
 
+def _joint_buttons(browser):
+    """The report's joint selector buttons (inside the plotting library's shadow roots)."""
+    return browser.execute_script("""
+        const acc = [];
+        function walk(n) { if (!n) return; if (n.tagName === 'BUTTON' && /^joint [0-6]$/.test(n.textContent.trim()))
+          acc.push(n); if (n.shadowRoot) walk(n.shadowRoot); for (const c of n.children || []) walk(c); }
+        walk(document.body); return acc;""")
+
+
 def _errors(browser) -> list[str]:
     return [e["message"] for e in browser.get_log("browser") if e["level"] in ("SEVERE", "ERROR")]
 
@@ -160,11 +169,7 @@ def test_report_renders_every_plot_with_data(kind, reports, browser):
     assert len(ink) >= 5 and min(ink) > 0.01, ink  # every plot drew something
     # the joint selector swaps each joint's samples in
     before = {p["title"]: p["counts"] for p in plots}
-    buttons = browser.execute_script("""
-        const acc = [];
-        function walk(n) { if (!n) return; if (n.tagName === 'BUTTON' && /^joint [0-6]$/.test(n.textContent.trim()))
-          acc.push(n); if (n.shadowRoot) walk(n.shadowRoot); for (const c of n.children || []) walk(c); }
-        walk(document.body); return acc;""")
+    buttons = _joint_buttons(browser)
     assert len(buttons) == 7
     shown = next(p["title"] for p in plots if "measured and model torque" in p["title"])
     other = next(b for b in buttons if b.text.strip() not in shown)
@@ -183,14 +188,6 @@ def test_report_renders_every_plot_with_data(kind, reports, browser):
         time.sleep(1.0)
         browser.save_screenshot(str(Path(shots) / f"report_{kind}.png"))
         browser.set_window_size(1280, 1000)
-
-
-def _joint_buttons(browser):
-    return browser.execute_script("""
-        const acc = [];
-        function walk(n) { if (!n) return; if (n.tagName === 'BUTTON' && /^joint [0-6]$/.test(n.textContent.trim()))
-          acc.push(n); if (n.shadowRoot) walk(n.shadowRoot); for (const c of n.children || []) walk(c); }
-        walk(document.body); return acc;""")
 
 
 def test_excite_report_renders_motion_limits_and_widths(reports, browser):
