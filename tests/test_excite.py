@@ -134,7 +134,9 @@ def test_truth_file_errors(tmp_path):
     from franka_vs_gym.fci.truth import load_truth
 
     p = tmp_path / "t.json"
-    for items, msg in (([{"effect": "backlash"}], "unsupported effect 'backlash'"),
+    for items, msg in (([{"effect": "crosstalk"}], "unsupported effect 'crosstalk'"),
+                       ([{"effect": "backlash"}], "missing 'b_rad'"),
+                       ([{"effect": "elastic", "K": [1e4] * 6}], "'stiffness_Nm_per_rad' must be 7"),
                        ([{"effect": "coulomb_friction", "coulomb_Nm": [1, 2]}], "'coulomb_Nm' must be 7"),
                        ([{"effect": "payload"}], "missing 'mass_kg'"),
                        ([{"effect": "delay", "delay_s": 0.5}], "delay_s must be in [0, 0.1]")):

@@ -32,6 +32,7 @@ import numpy as np
 
 from franka_vs_gym.model.config import ModelConfig, RigidBody
 from franka_vs_gym.model.description import FRANKA_HAND, TAG_SIZE
+from franka_vs_gym.model.joint_effects import JointEffects
 
 # contype/conaffinity: arm geoms collide with the environment but not with each other.
 ARM_COLLISION = 'contype="2" conaffinity="1"'
@@ -114,7 +115,9 @@ class RobotSpec:
     config: the robot's model configuration; camera: add the wrist camera; ft_sensor: add a wrist force/torque
     sensor at the flange; undeclared_payload: a body held by the tool that the robot's gravity compensation ignores;
     rotor_inertia: put the robot's effective armature (``RobotDescription.rotor_inertia``, the motors as a torque
-    controller feels them) on its joints (the FCI server's robot does; off by default).
+    controller feels them) on its joints (the FCI server's robot does; off by default); joint_effects: the plant's
+    cogging, static friction and elastic transmission (:mod:`franka_vs_gym.model.joint_effects`; None: none): an
+    elastic joint's motor inertia sits on the motor side (not in the joint's armature).
     """
 
     prefix: str = "r0_"
@@ -125,6 +128,7 @@ class RobotSpec:
     ft_sensor: bool = False
     undeclared_payload: RigidBody | None = None
     rotor_inertia: bool = False
+    joint_effects: JointEffects | None = None
 
 
 @dataclass
@@ -159,6 +163,9 @@ def _robot_bodies(r: RobotSpec) -> tuple[str, str, str, str]:
                    f'gravcomp="1">')
         xml.append(_inertial(body))
         armature = cfg.armature[i] + (robot.rotor_inertia[i] if r.rotor_inertia else 0.0)  # (+ the motors')
+        fx = r.joint_effects
+        if fx is not None and fx.elastic[i]:
+            armature = cfg.armature[i]  # the motor is on the other side of the transmission
         xml.append(f'<joint name="{p}joint{i + 1}" range="{lo} {hi}" armature="{armature:.12g}" '
                    f'actuatorfrcrange="{-tau} {tau}" actuatorgravcomp="true" {JOINT_STOP}/>')
         xml.append(f'<geom class="fer_visual" mesh="link{i + 1}"/><geom class="fer_collision" mesh="link{i + 1}"/>')
@@ -277,10 +284,16 @@ def scene_xml(scene: SceneSpec) -> str:
     # (its reflex record), read by the compiled plant
     from franka_vs_gym.sim import plant  # (imported here: franka_vs_gym.sim imports this module)
 
+    # the joint effects' columns when any robot has them, and the elastic joints' motor records after the robots'
+    any_fx = any(r.joint_effects is not None and r.joint_effects.any() for r in scene.robots)
+    n_motor = plant.MREC * sum(int(r.joint_effects.stateful.sum()) for r in scene.robots if r.joint_effects is not None)
+    nuser = plant.ENUSER if any_fx else plant.NUSER
+    nuserdata = plant.RSLOT * len(scene.robots) + n_motor
+
     return f"""<mujoco model="franka_vs_gym">
 <compiler angle="radian" meshdir="{mesh_dir()}" inertiafromgeom="false" autolimits="true"/>
 <option timestep="{scene.timestep:.9g}" integrator="implicitfast" gravity="{_fmt(g)}"/>
-<size nuser_jnt="{plant.NUSER}" nuserdata="{plant.RSLOT * len(scene.robots)}"/>
+<size nuser_jnt="{nuser}" nuserdata="{nuserdata}"/>
 <visual><global offwidth="{scene.offwidth}" offheight="{scene.offheight}"/>
 <quality shadowsize="0"/><map znear="0.01" zfar="20"/></visual>
 <default>

@@ -686,8 +686,11 @@ class FCIRobot:
         f["dq"][:] = dq
         f["dq_d"][:] = dq_d
         f["ddq_d"][:] = ddq_d
-        f["theta"][:] = q
-        f["dtheta"][:] = dq
+        if self.sim.joint_effects is not None and self.sim.joint_effects.elastic.any():  # the motor side
+            f["theta"][:], f["dtheta"][:] = self.sim.motor_state()
+        else:
+            f["theta"][:] = q
+            f["dtheta"][:] = dq
         tau_ext = self.external_torque()
         f["tau_ext_hat_filtered"][:] = tau_ext
         if tau_ext.any():

@@ -213,7 +213,8 @@ class FCIServer:
         believed = resolve_config(model, kwargs.get("robot", self.description))
         t = truth if isinstance(truth, Truth) else load_truth(truth, believed)
         kw = {k: v for k, v in kwargs.items() if k != "robot"}
-        sim = FrankaSim(t.plant, undeclared_payload=t.payload, torque_noise=t.torque_noise, seed=t.seed, **kw)
+        sim = FrankaSim(t.plant, undeclared_payload=t.payload, torque_noise=t.torque_noise, seed=t.seed,
+                        joint_effects=t.joint_effects, **kw)
         sim.model = FrankaModel(believed)  # what the robot knows
         robot = FCIRobot(sim, self.description)
         robot.plant_gravity = FrankaModel(t.plant)  # what the plant's gravcomp bodies weigh

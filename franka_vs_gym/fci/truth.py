@@ -18,6 +18,14 @@ default 0.1, ``coulomb_vel_rad_per_s`` default 0.05), ``sigmoid_friction`` (``ph
 ``phi3_rad_per_s``: the plant's sigmoid replaced), ``link_mass`` (``link_mass_scale`` (7,) factors) and ``delay``
 (``delay_s``; ``channel`` "measurement", the default: the torque sensors report late, or "command").
 
+Joint effects (:mod:`franka_vs_gym.model.joint_effects`, in the plant's step), with the keys of the workbench's
+generators of these effects (``validation/injected.py``, ``tests/independent_logs*.py``): ``cogging``
+(``cycles_per_turn`` (or ``k``), ``amplitude_Nm`` (or ``A``), optional ``phase_rad`` and ``joints``: only those
+joints get it), ``backlash`` (``b_rad``: the total gap, the transmission passes no torque within +-b/2),
+``elastic`` (``stiffness_Nm_per_rad`` (or ``K``), ``damping_Nms_per_rad``, ``motor_inertia_kgm2``; defaults
+:data:`~franka_vs_gym.model.joint_effects.DEFAULT_STIFFNESS`, ``DEFAULT_DAMPING`` and the robot's effective
+armature) and ``static_friction`` (``breakaway_Nm``, ``stick_vel_rad_per_s`` default 0.002).
+
 The robot's model (what ``load_model``, ``set_load`` and its gravity compensation use) stays the ``--model``: the
 plant's extra mass, tilt, friction, armature, offsets and delay are effects it does not know, as on a real robot.
 """
@@ -34,9 +42,12 @@ import numpy as np
 
 from franka_vs_gym.errors import UserError
 from franka_vs_gym.model.config import Friction, ModelConfig, RigidBody
+from franka_vs_gym.model.joint_effects import DEFAULT_DAMPING, DEFAULT_STICK_VEL, DEFAULT_STIFFNESS, JointEffects
 
 SUPPORTED = ("payload", "gravity_tilt", "torque_offset", "armature", "viscous_friction", "coulomb_friction",
-             "stribeck_friction", "sigmoid_friction", "link_mass", "delay")
+             "stribeck_friction", "sigmoid_friction", "link_mass", "delay", "cogging", "backlash", "elastic",
+             "static_friction")
+JOINT_EFFECTS = ("cogging", "backlash", "elastic", "static_friction")
 
 
 @dataclass
@@ -50,6 +61,7 @@ class Truth:
     seed: int | None
     source: str
     effects: list[dict[str, Any]]
+    joint_effects: JointEffects | None = None
 
 
 def _vec(item: dict, key: str, n: int, where: str, default: Any = None) -> np.ndarray:
@@ -72,6 +84,9 @@ def add_effect(cfg: ModelConfig, payload: RigidBody | None, item: dict, where: s
     name = item.get("effect")
     if name not in SUPPORTED:
         raise UserError(f"{where}: unknown or unsupported effect {name!r}: choose from {', '.join(SUPPORTED)}")
+    if name in JOINT_EFFECTS:
+        raise UserError(f"{where}: {name} is a joint effect of the plant (FrankaSim(joint_effects=...)), not of the "
+                        "model configuration")
     fr = Friction.from_dict(cfg.friction.to_dict())
     if name == "payload":
         m = _num(item, "mass_kg", where)
@@ -135,6 +150,52 @@ def add_effect(cfg: ModelConfig, payload: RigidBody | None, item: dict, where: s
     return cfg.copy(friction=fr), payload
 
 
+def _alias(item: dict, key: str, alias: str) -> dict:
+    if key not in item and alias in item:
+        item = dict(item)
+        item[key] = item[alias]
+    return item
+
+
+def add_joint_effect(fx: dict[str, Any], item: dict, where: str) -> None:
+    """Add one joint effect (cogging, backlash, elastic, static_friction) to ``fx`` (JointEffects keyword
+    arguments, updated in place)."""
+    name = item["effect"]
+    if name in fx.get("_seen", ()):
+        raise UserError(f"{where}: {name} given twice")
+    fx.setdefault("_seen", []).append(name)
+    if name == "cogging":
+        item = _alias(_alias(item, "cycles_per_turn", "k"), "amplitude_Nm", "A")
+        A = _vec(item, "amplitude_Nm", 7, where)
+        n = _vec(item, "cycles_per_turn", 7, where)
+        ph = _vec(item, "phase_rad", 7, where, 0.0)
+        if "joints" in item:
+            js = item["joints"]
+            if not isinstance(js, list) or not all(isinstance(j, int) and 0 <= j < 7 for j in js):
+                raise UserError(f"{where}: 'joints' must be a list of joint indices 0..6, got {js!r}")
+            A = np.where(np.isin(np.arange(7), js), A, 0.0)
+        if (A < 0).any() or (n[A > 0] <= 0).any() or (n > 10000).any():
+            raise UserError(f"{where}: cogging needs amplitude_Nm >= 0 and cycles_per_turn in (0, 10000]")
+        fx.update(cogging_Nm=A, cogging_cycles_per_turn=n, cogging_phase_rad=ph)
+    elif name == "backlash":
+        b = _vec(item, "b_rad", 7, where)
+        if (b < 0).any() or (b > 0.1).any():
+            raise UserError(f"{where}: b_rad (the total gap) must be in [0, 0.1] rad, got {b.tolist()}")
+        fx["backlash_rad"] = b
+    elif name == "elastic":
+        item = _alias(_alias(item, "stiffness_Nm_per_rad", "K"), "damping_Nms_per_rad", "D")
+        K = _vec(item, "stiffness_Nm_per_rad", 7, where, list(DEFAULT_STIFFNESS))
+        D = _vec(item, "damping_Nms_per_rad", 7, where, list(DEFAULT_DAMPING))
+        if (K <= 0).any() or (D < 0).any():
+            raise UserError(f"{where}: elastic needs stiffness_Nm_per_rad > 0 and damping_Nms_per_rad >= 0")
+        fx.update(stiffness_Nm_per_rad=K, damping_Nms_per_rad=D)
+        if "motor_inertia_kgm2" in item:
+            fx["motor_inertia_kgm2"] = _vec(item, "motor_inertia_kgm2", 7, where)
+    else:  # static_friction
+        F = _vec(item, "breakaway_Nm", 7, where)
+        fx.update(breakaway_Nm=F, stick_vel=_num(item, "stick_vel_rad_per_s", where, DEFAULT_STICK_VEL))
+
+
 def load_truth(path: str | Path, model: ModelConfig) -> Truth:
     """Read ``--truth FILE`` (see the module docstring) against the robot's model ``model``. Raises UserError
     naming the problem."""
@@ -163,9 +224,21 @@ def load_truth(path: str | Path, model: ModelConfig) -> Truth:
     if not isinstance(items, list) or not all(isinstance(i, dict) for i in items):
         raise UserError(f"--truth {p}: expected a list of effects, each an object with 'effect' and its values")
     cfg, payload = model.copy(), None
+    fx: dict[str, Any] = {}
     for k, item in enumerate(items):
-        cfg, payload = add_effect(cfg, payload, item, f"--truth {p} item {k}")
-    return Truth(cfg, payload, noise, None if seed is None else int(seed), str(p), list(items))
+        where = f"--truth {p} item {k}"
+        if item.get("effect") in JOINT_EFFECTS:
+            add_joint_effect(fx, item, where)
+        else:
+            cfg, payload = add_effect(cfg, payload, item, where)
+    fx.pop("_seen", None)
+    joint = None
+    if fx:
+        try:
+            joint = JointEffects(**fx)
+        except UserError as e:
+            raise UserError(f"--truth {p}: {e}") from None
+    return Truth(cfg, payload, noise, None if seed is None else int(seed), str(p), list(items), joint)
 
 
-__all__ = ["SUPPORTED", "Truth", "add_effect", "load_truth"]
+__all__ = ["JOINT_EFFECTS", "SUPPORTED", "Truth", "add_effect", "add_joint_effect", "load_truth"]

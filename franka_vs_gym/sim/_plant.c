@@ -50,6 +50,38 @@
  * (joint velocity) controls, with the arithmetic of rate_limit.py in the same order (the same bits). A robot whose
  * brakes hold it is not limited.
  *
+ * The same callback applies the plant's joint effects that the robot's model does not know (franka_vs_gym.model.
+ * joint_effects), at a joint whose column FVS_ECOL (26) holds FVS_ETAG:
+ *
+ *   jnt_user[j][26..39] = [FVS_ETAG, cogging amplitude A (Nm), cycles per link turn n, phase (rad),
+ *                          breakaway torque F_s (Nm), stick velocity v_s (rad/s), transmission stiffness K (Nm/rad,
+ *                          0: rigid), transmission damping D (Nm s/rad), motor inertia B (kg m^2), backlash half-gap
+ *                          b (rad), joint record offset in userdata, the joint's torque motor (actuator id),
+ *                          stick stiffness k_s (Nm/rad), stick damping c (Nm s/rad)]
+ *
+ * - cogging: tau_c(x) = A sin(n x + phase), resisted by the drive like friction: -tau_c(q) is added to the link's
+ *   passive force (rigid joint; the torque sensor sees it), or -tau_c(theta) to the motor (elastic joint).
+ * - static friction (an elasto-plastic stick): the joint is tied to an anchor by a stiff spring-damper,
+ *   f = -k_s (q - anchor) - c dq, bounded by the breakaway level F_s (1 - tanh(|slip rate| / v_s)); a joint at rest
+ *   under any load below F_s holds still (deflected by load / k_s), a larger load slips it: the force is capped
+ *   and the anchor follows the joint by the excess (-k_s (q - anchor) - c dq = the cap); while sliding (the
+ *   anchor's rate, the slip rate, is the joint's) the cap decays over a few v_s and the friction law above takes
+ *   over. k_s and c come from the joint's inertia (a mode of 0.2 / dt, critically damped), so that the explicit
+ *   spring is stable.
+ * - elastic joint with backlash (Spong's model): the motor (theta, dtheta; inertia B, on the motor side) is driven
+ *   by the torque motor's command plus the gravity compensation tau_m; the link feels the transmission torque
+ *   tau_t = K dz(theta - q) + s D (dtheta - dq), dz the dead zone of half-width b (b = 0: none) and s = min(1,
+ *   |engaged deflection| / (b / 20)) (no damping through an open gap); the callback adds tau_t - tau_m to the
+ *   link's passive force (MuJoCo's actuator applies tau_m). The joint velocity servo (motion-generator modes) acts
+ *   on the link directly, as without elasticity. The motor is integrated by semi-implicit Euler with the link
+ *   (stable for sqrt(K (1/B + 1/M)) dt < 2; the Python side requires <= 1).
+ * An elastic or sticking joint's record in userdata: [initialised (0/1), t (s), theta, dtheta at t, theta, dtheta
+ *   at t + dt, the correction tau_t - tau_m of the step from t, the correction of the step before, the anchor at
+ *   t, the anchor at t + dt, the slip rate of the step before t, the slip rate of the step from t]; a call at a
+ *   new time moves "t + dt" to "t" (an mj_forward between steps recomputes from "t" and changes nothing). An
+ *   uninitialised record starts at the static deflection tau_m / K (+ b sign(tau_m)) with the link's velocity,
+ *   and the anchor at q.
+ *
  * The callback reads and writes only its arguments: it is thread-safe and never takes the GIL.
  */
 #define PY_SSIZE_T_CLEAN
@@ -69,6 +101,10 @@
 #define FVS_LCOL 17 /* first rate-limiter column (after the reflexes') */
 #define FVS_L0 13 /* the rate limiter's part of a robot's record */
 #define FVS_ARMED -1.0 /* record status of a robot whose reflexes the plant checks */
+#define FVS_ECOL 26 /* first joint-effect column (after the rate limiter's) */
+#define FVS_ETAG 1179013961.0 /* a joint with cogging, static friction or an elastic transmission */
+#define FVS_ENUSER 40 /* user numbers per joint with the joint-effect columns */
+#define FVS_MREC 12 /* userdata numbers of an elastic or sticking joint's record */
 
 static void fvs_brake(const mjModel* m, mjData* d, int j0, const mjtNum* s) {
   for (int k = 0; k < 7; k++) {
@@ -230,6 +266,83 @@ static void fvs_reflexes(const mjModel* m, mjData* d) {
   }
 }
 
+/* The joint effects of joint j (e = its user numbers from column FVS_ECOL + 1); see the header comment. */
+static void fvs_joint_effects(const mjModel* m, mjData* d, int j, const mjtNum* e) {
+  const int dof = m->jnt_dofadr[j];
+  const mjtNum v = d->qvel[dof];
+  const mjtNum q = d->qpos[m->jnt_qposadr[j]];
+  const mjtNum K = e[5], Fs = e[3];
+  mjtNum f = 0.0; /* added to the link's passive force */
+  mjtNum* r = NULL;
+  mjtNum u = 0.0;
+  if (K > 0.0 || Fs > 0.0) {
+    const int off = (int)e[9], a = (int)e[10];
+    if (off < 0 || off + FVS_MREC > m->nuserdata || a < 0 || a >= m->nu) {
+      return;
+    }
+    r = d->userdata + off;
+    u = d->ctrl[a];
+    if (m->actuator_ctrllimited[a]) {
+      u = fmin(fmax(u, m->actuator_ctrlrange[2 * a]), m->actuator_ctrlrange[2 * a + 1]);
+    }
+    if (m->jnt_actgravcomp[j]) {
+      u += d->qfrc_gravcomp[dof];
+    }
+    if (m->jnt_actfrclimited[j]) {
+      u = fmin(fmax(u, m->jnt_actfrcrange[2 * j]), m->jnt_actfrcrange[2 * j + 1]);
+    }
+    if (r[0] == 0.0) { /* start at the static deflection, the anchor at the joint */
+      const mjtNum b = e[8];
+      const mjtNum d0 = K > 0.0 ? u / K + (u > 0.0 ? b : (u < 0.0 ? -b : 0.0)) : 0.0;
+      r[0] = 1.0, r[1] = d->time;
+      r[2] = r[4] = q + d0;
+      r[3] = r[5] = v;
+      r[6] = r[7] = 0.0;
+      r[8] = r[9] = q;
+      r[10] = r[11] = 0.0;
+    } else if (d->time != r[1]) {
+      r[2] = r[4], r[3] = r[5], r[7] = r[6], r[8] = r[9], r[10] = r[11], r[1] = d->time;
+    }
+  }
+  if (Fs > 0.0) { /* static friction: the anchor spring, capped by the decaying breakaway level */
+    const mjtNum ks = e[11], c = e[12];
+    const mjtNum cap = Fs * (1.0 - tanh(fabs(r[10]) / e[4]));
+    const mjtNum fs = -ks * (q - r[8]) - c * v;
+    if (fs > cap || fs < -cap) {
+      const mjtNum fc = fs > 0.0 ? cap : -cap;
+      r[9] = q + (fc + c * v) / ks; /* the anchor moves just enough to bring the force to the cap */
+      f += fc;
+    } else {
+      r[9] = r[8];
+      f += fs;
+    }
+    r[11] = (r[9] - r[8]) / m->opt.timestep;
+  }
+  if (K > 0.0) {
+    const mjtNum D = e[6], B = e[7], b = e[8];
+    const mjtNum th = r[2], dth = r[3];
+    const mjtNum delta = th - q;
+    const mjtNum dz = delta > b ? delta - b : (delta < -b ? delta + b : 0.0);
+    mjtNum s = 1.0;
+    if (b > 0.0) {
+      s = fmin(1.0, fabs(dz) * 20.0 / b);
+    }
+    const mjtNum tau_t = K * dz + s * D * (dth - v);
+    mjtNum tau_motor = u - tau_t;
+    if (e[0] != 0.0) { /* cogging acts on the motor */
+      tau_motor -= e[0] * sin(e[1] * th + e[2]);
+    }
+    const mjtNum dth1 = dth + m->opt.timestep * tau_motor / B;
+    r[5] = dth1;
+    r[4] = th + m->opt.timestep * dth1;
+    r[6] = tau_t - u;
+    f += r[6];
+  } else if (e[0] != 0.0) { /* cogging on the rigid joint */
+    f -= e[0] * sin(e[1] * q + e[2]);
+  }
+  d->qfrc_passive[dof] += f;
+}
+
 static void fvs_passive(const mjModel* m, mjData* d) {
   const mjtSize nu = m->nuser_jnt;
   if (nu < FVS_NUSER) {
@@ -238,8 +351,12 @@ static void fvs_passive(const mjModel* m, mjData* d) {
   if (m->nuserdata >= FVS_RSLOT) {
     fvs_reflexes(m, d);
   }
+  const int effects = nu >= FVS_ENUSER;
   for (mjtSize j = 0; j < m->njnt; j++) {
     const mjtNum* u = m->jnt_user + j * nu;
+    if (effects && u[FVS_ECOL] == FVS_ETAG) {
+      fvs_joint_effects(m, d, (int)j, u + FVS_ECOL + 1);
+    }
     if (u[0] != FVS_TAG) {
       continue;
     }
@@ -348,6 +465,10 @@ PyMODINIT_FUNC PyInit__plant(void) {
       PyModule_AddIntConstant(mod, "RSLOT", FVS_RSLOT) < 0 ||
       PyModule_AddIntConstant(mod, "LCOL", FVS_LCOL) < 0 ||
       PyModule_AddIntConstant(mod, "L0", FVS_L0) < 0 ||
+      PyModule_AddIntConstant(mod, "ECOL", FVS_ECOL) < 0 ||
+      PyModule_AddObject(mod, "ETAG", PyFloat_FromDouble(FVS_ETAG)) < 0 ||
+      PyModule_AddIntConstant(mod, "ENUSER", FVS_ENUSER) < 0 ||
+      PyModule_AddIntConstant(mod, "MREC", FVS_MREC) < 0 ||
       PyModule_AddIntConstant(mod, "TASK_REC", fvs_plan_sizes(&p_fixed, &i_size)) < 0 ||
       PyModule_AddIntConstant(mod, "TASK_P_FIXED", p_fixed) < 0 ||
       PyModule_AddIntConstant(mod, "TASK_I_SIZE", i_size) < 0) {

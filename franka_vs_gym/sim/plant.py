@@ -7,7 +7,8 @@ environment step's substeps are one call into MuJoCo and ``mujoco.batch`` can st
 MuJoCo's callbacks are global to a process, so the parameters live in each model: every joint of a robot carries
 its friction parameters in its user numbers (``jnt_user``, :data:`NUSER` per joint, the scene declares
 ``<size nuser_jnt="26"/>``; columns 0-8 (:data:`FRICTION_COLS` of them) the friction law, 9-16 (from
-:data:`RCOL`) the reflexes', 17-25 (from :data:`LCOL`) the rate limiter's limits):
+:data:`RCOL`) the reflexes', 17-25 (from :data:`LCOL`) the rate limiter's limits; a scene with joint effects
+declares :data:`ENUSER` (38) and columns 26-37 (from :data:`ECOL`) hold them, see :func:`effect_rows`):
 
 ====  =====================  =========
  col   meaning                 unit
@@ -80,6 +81,10 @@ TAG = 1179013959.0  # jnt_user[:, 0] of a joint whose friction the plant applies
 RTAG = 1179013960.0  # jnt_user[:, RCOL] of a joint whose robot's reflexes the plant checks
 RSLOT = 66  # userdata numbers per robot (its reflex record, then its rate limiter's state from L0)
 L0 = 13  # the rate limiter's part of a robot's record (see _plant.c)
+ECOL = 26  # columns ECOL..ENUSER-1 (26-39): the joint effects (cogging, static friction, elastic transmission)
+ETAG = 1179013961.0  # jnt_user[:, ECOL] of a joint with joint effects
+ENUSER = 40  # user numbers per joint of a scene with joint effects (the scene declares nuser_jnt="40" then)
+MREC = 12  # userdata numbers of an elastic or sticking joint's record (after the robots' records)
 TASK_REC = 36  # numbers in a truth record of the visual tasks' kernels (franka_vs_gym/sim/_task.c)
 TASK_P_FIXED = 307  # numbers of a visual env's step plan before its observation work vectors (_task.c)
 TASK_I_SIZE = 29  # integers of a visual env's step plan (_task.c)
@@ -107,6 +112,8 @@ else:
         elif _native.TAG != TAG or _native.NUSER != NUSER or getattr(_native, "RTAG", None) != RTAG \
                 or getattr(_native, "RSLOT", None) != RSLOT or getattr(_native, "RCOL", None) != RCOL \
                 or getattr(_native, "LCOL", None) != LCOL or getattr(_native, "L0", None) != L0 \
+                or getattr(_native, "ECOL", None) != ECOL or getattr(_native, "ETAG", None) != ETAG \
+                or getattr(_native, "ENUSER", None) != ENUSER or getattr(_native, "MREC", None) != MREC \
                 or getattr(_native, "TASK_REC", None) != TASK_REC \
                 or getattr(_native, "TASK_P_FIXED", None) != TASK_P_FIXED or not hasattr(_native, "tracking_post"):
             _reason = ("the compiled plant is older than its sources (franka_vs_gym/sim/_plant.c); rebuild it "
@@ -185,6 +192,37 @@ def friction_rows(friction: Any, scale: float = 1.0, enabled: bool = True) -> np
     return rows
 
 
+def effect_rows(fx: Any, motor_inertia: Any, record_offsets: Any, motor_actuators: Any, link_inertia: Any,
+                dt: float) -> np.ndarray:
+    """The (7, ENUSER - ECOL) ``jnt_user`` columns 26-39 of a robot's seven joints for its joint effects ``fx``
+    (:class:`franka_vs_gym.model.joint_effects.JointEffects`): tag, cogging A (Nm), n (cycles per link turn),
+    phase (rad), breakaway (Nm), stick velocity (rad/s), K (Nm/rad), D (Nm s/rad), motor inertia B (kg m^2),
+    backlash half-gap (rad), the joint record's offset in userdata (-1 without one), the joint's torque motor
+    (actuator id), and the static friction's stick stiffness k_s and damping c: a mode of ``0.2 / dt``,
+    critically damped, on ``link_inertia`` (7,) kg m^2 (the smallest inertia the joint shows, ``1 / (M^-1)_jj``,
+    so that the explicit spring stays stable). A joint without any effect gets a zero row (no tag)."""
+    rows = np.zeros((7, ENUSER - ECOL))
+    el = fx.elastic
+    on = (fx.cogging_Nm > 0) | (fx.breakaway_Nm > 0) | el
+    rows[:, 0] = np.where(on, ETAG, 0.0)
+    rows[:, 1] = fx.cogging_Nm
+    rows[:, 2] = fx.cogging_cycles_per_turn
+    rows[:, 3] = fx.cogging_phase_rad
+    rows[:, 4] = fx.breakaway_Nm
+    rows[:, 5] = fx.stick_vel
+    rows[:, 6] = np.where(el, fx.stiffness_Nm_per_rad, 0.0)
+    rows[:, 7] = fx.damping_Nms_per_rad
+    rows[:, 8] = np.where(el, motor_inertia, 0.0)
+    rows[:, 9] = fx.backlash_rad / 2
+    rows[:, 10] = np.where(fx.stateful, record_offsets, -1.0)
+    rows[:, 11] = motor_actuators
+    w = 0.2 / dt
+    rows[:, 12] = np.where(fx.breakaway_Nm > 0, w * w * np.asarray(link_inertia), 0.0)
+    rows[:, 13] = np.where(fx.breakaway_Nm > 0, 2 * w * np.asarray(link_inertia), 0.0)  # critically damped
+    rows[~on] = 0.0
+    return rows
+
+
 def plant_friction_torque(model: mujoco.MjModel, data: mujoco.MjData, dofs: Any) -> np.ndarray:
     """The friction torque tau_f (Nm, (len(dofs),)) MuJoCo's callback applies at the data's velocities: the
     passive force with the callback minus without, both from ``mj_forward`` on a copy of the data."""
@@ -201,6 +239,7 @@ def plant_friction_torque(model: mujoco.MjModel, data: mujoco.MjData, dofs: Any)
     return -(with_cb - d.qfrc_passive)[np.asarray(dofs)]
 
 
-__all__ = ["FRICTION_COLS", "L0", "LCOL", "check", "NATIVE", "NUSER", "RCOL", "RSLOT", "RTAG", "TAG", "TASK_I_SIZE",
-           "TASK_P_FIXED", "TASK_REC", "friction_rows", "install", "plant_friction_torque", "tag_truth", "torque_cost",
-           "tracking", "tracking_batch", "tracking_post", "unavailable_reason", "visual_post", "visual_pre"]
+__all__ = ["check", "ECOL", "effect_rows", "ENUSER", "ETAG", "FRICTION_COLS", "friction_rows", "install", "L0", "LCOL",
+           "MREC", "NATIVE", "NUSER", "plant_friction_torque", "RCOL", "RSLOT", "RTAG", "TAG", "tag_truth",
+           "TASK_I_SIZE", "TASK_P_FIXED", "TASK_REC", "torque_cost", "tracking", "tracking_batch", "tracking_post",
+           "unavailable_reason", "visual_post", "visual_pre"]

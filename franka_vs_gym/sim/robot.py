@@ -17,6 +17,7 @@ import mujoco
 import numpy as np
 
 from franka_vs_gym.assets.mjcf import CameraSpec, RobotSpec, SceneSpec, TagSpec, mat2quat
+from franka_vs_gym.errors import UserError
 from franka_vs_gym.model.checks import as_pose, as_vector
 from franka_vs_gym.model.config import ModelConfig, RigidBody, Tool, resolve_config
 from franka_vs_gym.model.description import FER, RobotDescription
@@ -29,6 +30,7 @@ from franka_vs_gym.model.geometry import (
     pose_vector,
     twist_transform,
 )
+from franka_vs_gym.model.joint_effects import JointEffects
 from franka_vs_gym.sim import plant
 from franka_vs_gym.sim.rate_limit import rate_limits
 from franka_vs_gym.sim.reflexes import ARMED, ControlException, Reflexes, position_profile_time
@@ -143,6 +145,10 @@ class FrankaSim:
         or "check" (a command that jumps beyond those limits within one 1 ms cycle trips
         ``controller_torque_discontinuity`` or the joint motion generator's discontinuity reflexes, as a raw
         libfranka loop does).
+    joint_effects : the plant's cogging, static friction and elastic transmission with backlash
+        (:class:`~franka_vs_gym.model.joint_effects.JointEffects`; default None: none), effects the robot's model does
+        not know. With an elastic joint the motor position ``theta`` differs from ``q`` (:meth:`motor_state`) and
+        ``tau_J`` is the transmission's torque. Needs the compiled plant.
     """
 
     def __init__(self, model: Any = None, *, robot: RobotDescription | str | None = None, friction: bool = True,
@@ -151,10 +157,10 @@ class FrankaSim:
                  undeclared_payload: RigidBody | None = None, torque_noise: float = 0.0, seed: int | None = None,
                  extra_worldbody: str = "", extra_assets: str = "", reflexes: bool = True,
                  command_rates: str = "pass", cameras: list[CameraSpec] | None = None,
-                 rotor_inertia: bool = False) -> None:
+                 rotor_inertia: bool = False, joint_effects: JointEffects | None = None) -> None:
         world, spec, cfg = self._make_world(model, robot, world, prefix, camera=camera, tags=tags, table=table,
                                             cameras=cameras, timestep=timestep, ft_sensor=ft_sensor,
-                                            rotor_inertia=rotor_inertia,
+                                            rotor_inertia=rotor_inertia, joint_effects=joint_effects,
                                             undeclared_payload=undeclared_payload, extra_worldbody=extra_worldbody,
                                             extra_assets=extra_assets)
         self.world, self.prefix, self.spec = world, prefix, spec
@@ -172,6 +178,7 @@ class FrankaSim:
         # the plant's effective armature (kg m^2): the description's rotor_inertia when the spec asks for it
         self.rotor_inertia = np.array(cfg.robot.rotor_inertia if spec.rotor_inertia else (0.0,) * 7, dtype=np.float64)
         self.servo_gains = self._servo_gains(cfg)  # joint velocity servo, Nm s/rad
+        self._setup_joint_effects(cfg)
         self._torque_noise = float(torque_noise)
         if not (math.isfinite(self._torque_noise) and self._torque_noise >= 0):
             raise ValueError(f"torque_noise must be a finite number >= 0 Nm (standard deviation), got {torque_noise}")
@@ -197,7 +204,8 @@ class FrankaSim:
         if world is None:
             cfg = resolve_config(model, robot)
             spec = RobotSpec(prefix=prefix, config=cfg, camera=scene["camera"], ft_sensor=scene["ft_sensor"],
-                             undeclared_payload=scene["undeclared_payload"], rotor_inertia=scene["rotor_inertia"])
+                             undeclared_payload=scene["undeclared_payload"], rotor_inertia=scene["rotor_inertia"],
+                             joint_effects=scene["joint_effects"])
             timestep = scene["timestep"]
             if not (timestep > 0 and math.isfinite(timestep)):
                 raise ValueError(f"timestep must be > 0 s, got {timestep}")
@@ -329,6 +337,72 @@ class FrankaSim:
         self._native = plant.install()
         self._jids = jids
         self._write_plant_friction()
+
+    def _setup_joint_effects(self, cfg: ModelConfig) -> None:
+        """The spec's joint effects into the joint user numbers (columns plant.ECOL..) and the elastic joints' motor
+        records (after the robots' records in userdata, in the order of the scene's robots and joints)."""
+        fx = self.spec.joint_effects
+        self.joint_effects = fx if fx is not None and fx.any() else None
+        self._mrec: np.ndarray | None = None  # marks a robot with elastic joints (read through _motor_records)
+        self._records: np.ndarray | None = None  # the stateful joints' records (k, MREC), a view of userdata
+        self._elastic = np.zeros(7, dtype=bool)
+        if self.joint_effects is None:
+            return
+        if not self._native:
+            raise UserError("joint effects (cogging, static friction, elastic joints) need the compiled plant: "
+                            f"{plant.unavailable_reason()}")
+        m = self._m
+        B = fx.motor_inertia(cfg.robot.rotor_inertia)
+        if fx.elastic.any():
+            fx.check_stable(np.diag(self.model.mass_matrix(cfg.robot.neutral())) + cfg.armature, B, self.dt)
+        base = plant.RSLOT * len(self.world.scene.robots)
+        for r in self.world.scene.robots:
+            if r.prefix == self.prefix:
+                break
+            if r.joint_effects is not None:
+                base += plant.MREC * int(r.joint_effects.stateful.sum())
+        st, el = fx.stateful, fx.elastic
+        offsets = base + plant.MREC * (np.cumsum(st) - 1)
+        # the smallest inertia each joint shows (the others free), with the armature the plant puts on it
+        M = self.model.mass_matrix(cfg.robot.neutral()) + np.diag(m.dof_armature[self._vs])
+        link = 1.0 / np.diag(np.linalg.inv(M))
+        rows = plant.effect_rows(fx, B, offsets, np.arange(self._motor.start, self._motor.start + 7), link, self.dt)
+        m.jnt_user[self._jids, plant.ECOL:plant.ENUSER] = rows
+        self._elastic = el
+        if st.any():
+            k = int(st.sum())
+            self._records = self._d.userdata[base:base + plant.MREC * k].reshape(k, plant.MREC)
+        if el.any():
+            self._mrec = self._records[el[st]]  # (a copy of the index: read through _records)
+            actuators = self._applied_torque
+
+            def applied_torque() -> np.ndarray:  # the link side of an elastic joint feels the transmission
+                tau = np.array(actuators())
+                tau[el] += self._transmission_correction()
+                return tau
+
+            self._applied_torque = applied_torque  # type: ignore[method-assign]
+
+    def motor_state(self) -> tuple[np.ndarray, np.ndarray]:
+        """The motors' position theta (7,) rad and velocity dtheta (7,) rad/s, link-side units (libfranka's
+        ``theta``/``dtheta``): the elastic joints' motors, ``q``/``dq`` at the rigid ones."""
+        theta, dtheta = self._qpos.copy(), self._qvel.copy()
+        if self._mrec is not None:
+            r = self._motor_records()
+            now = r[:, 1] == self._d.time  # the callback already ran at this time: the state is "at t"
+            theta[self._elastic] = np.where(now, r[:, 2], r[:, 4])
+            dtheta[self._elastic] = np.where(now, r[:, 3], r[:, 5])
+        return theta, dtheta
+
+    def _transmission_correction(self) -> np.ndarray:
+        """(k,) Nm: what the elastic joints' links felt over the last physics step besides the actuators' torque
+        (the transmission's torque minus the motor's command)."""
+        r = self._motor_records()
+        return np.where(r[:, 1] == self._d.time, r[:, 7], r[:, 6])
+
+    def _motor_records(self) -> np.ndarray:
+        st = self.joint_effects.stateful  # type: ignore[union-attr]
+        return self._records[self._elastic[st]]  # type: ignore[index]
 
     def _setup_delay(self, cfg: ModelConfig) -> None:
         """The configured delay: torque commands queued ("command") or torque measurements recorded after each step
@@ -474,6 +548,8 @@ class FrankaSim:
         self._reflexes.reset()
         self._qpos[:] = q
         self._qvel[:] = 0.0 if dq is None else as_vector(dq, 7, "dq")
+        if self._records is not None:
+            self._records[:] = 0.0  # motors at the static deflection of the next step's command, anchors at q
         self._ctrl_tau[:] = 0.0
         self._ctrl_vel[:] = 0.0
         self._tau_cmd[:] = 0.0
