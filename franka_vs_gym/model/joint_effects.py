@@ -26,11 +26,11 @@ default. Per joint (7,), SI units:
 
 How sure are the numbers: none of these is published for the FER or the FR3. :data:`DEFAULT_STIFFNESS` is an order
 of magnitude for harmonic-drive joints with link-side torque sensors of this size (10^4 Nm/rad for the large, a few
-10^3 for the wrist joints; joint 7 at 1.5 10^3 so that the FR3's light last link, 0.0019 kg m^2, stays stable at
-1 ms), trust within a factor 3; with the FR3's effective armature on the motor side it puts the motor-link mode at
+10^3 for the wrist joints; joint 7 at 1.5 10^3 so that the FR3's light last link, 0.0019 kg m^2, stays stable at 1
+ms), trust within a factor 3; with the FR3's effective armature on the motor side it puts the motor-link mode at
 38-79 Hz on the FER and 38-144 Hz on the FR3 (at the neutral pose), above the 8-20 Hz link-side ringing the
-workbench's own generator of elastic logs assumes (tests/independent_logs_b.py). Choose your own from a measurement (a step response's ringing gives
-``sqrt(K (1/B + 1/M))``).
+workbench's own generator of elastic logs assumes (tests/independent_logs_b.py). Choose your own from a measurement
+(a step response's ringing gives ``sqrt(K (1/B + 1/M))``).
 """
 
 from __future__ import annotations
