@@ -159,6 +159,23 @@ def test_backlash_passes_no_torque_inside_the_gap():
     assert s.get_force_torque()[0] > 0.1 and s.get_velocity()[0] > 0
 
 
+def test_cogging_of_an_elastic_joint_acts_on_its_motor():
+    """On an elastic joint the ripple is the motor's: from rest (joint 1, no gravity load, no command) the first step
+    accelerates the motor by -A sin(n theta + phase) / B while the link feels nothing yet (zero transmission
+    torque at zero deflection)."""
+    A, n, ph, B = 0.5, 40.0, 0.7, 0.2
+    z = np.zeros(7)
+    fx = JointEffects(stiffness_Nm_per_rad=[1e4] + [0] * 6, motor_inertia_kgm2=[B] + [0.1] * 6,
+                      cogging_Nm=[A] + [0] * 6, cogging_cycles_per_turn=n, cogging_phase_rad=ph)
+    s = FrankaSim(camera=False, table=False, friction=False, joint_effects=fx)
+    _torque_mode(s, z)
+    theta0, _ = s.motor_state()
+    s.step()
+    _, dtheta = s.motor_state()
+    assert dtheta[0] == pytest.approx(-s.dt * A * math.sin(n * theta0[0] + ph) / B, rel=1e-9)
+    assert s.get_force_torque()[0] == pytest.approx(0.0, abs=1e-12)
+
+
 def test_bad_joint_effects_are_one_line_errors():
     with pytest.raises(UserError, match="too fast for a 1 ms step"):
         _one_elastic_joint(K=1.0e7, joint=6)
