@@ -26,11 +26,13 @@ default. Per joint (7,), SI units:
 
 How sure are the numbers: none of these is published for the FER or the FR3. :data:`DEFAULT_STIFFNESS` is an order
 of magnitude for harmonic-drive joints with link-side torque sensors of this size (10^4 Nm/rad for the large, a few
-10^3 for the wrist joints; joint 7 at 1.5 10^3 so that the FR3's light last link, 0.0019 kg m^2, stays stable at 1
-ms), trust within a factor 3; with the FR3's effective armature on the motor side it puts the motor-link mode at
-38-79 Hz on the FER and 38-144 Hz on the FR3 (at the neutral pose), above the 8-20 Hz link-side ringing the
-workbench's own generator of elastic logs assumes (tests/independent_logs_b.py). Choose your own from a measurement
-(a step response's ringing gives ``sqrt(K (1/B + 1/M))``).
+10^3 for the wrist joints), trust within a factor 3; with the FR3's effective armature on the motor side it puts the
+FER's motor-link modes at 38-111 Hz (neutral pose), above the 8-20 Hz link-side ringing the workbench's own generator
+of elastic logs assumes (tests/independent_logs_b.py). The FR3's last link (0.0019 kg m^2) allows at most about
+1.8 10^3 Nm/rad on joint 7 at a 1 ms step (the defaults are refused there with a message: give ``K``, ``D``).
+The robot's internal joint impedance (motion generators, 2000-3000 Nm/rad) feeds back the link position through
+the transmission: keep K well above its stiffness (with 1.5 10^3 on joint 7 a FER excitation tripped the velocity
+reflex). Choose your own from a measurement (a step response's ringing gives ``sqrt(K (1/B + 1/M))``).
 """
 
 from __future__ import annotations
@@ -43,8 +45,8 @@ import numpy as np
 
 from franka_vs_gym.errors import UserError
 
-DEFAULT_STIFFNESS = (1.0e4, 1.0e4, 1.0e4, 1.0e4, 3.0e3, 3.0e3, 1.5e3)  # Nm/rad (see the module docstring)
-DEFAULT_DAMPING = (10.0, 10.0, 10.0, 10.0, 2.0, 2.0, 1.0)  # Nm s/rad
+DEFAULT_STIFFNESS = (1.0e4, 1.0e4, 1.0e4, 1.0e4, 3.0e3, 3.0e3, 3.0e3)  # Nm/rad (see the module docstring)
+DEFAULT_DAMPING = (10.0, 10.0, 10.0, 10.0, 2.0, 2.0, 2.0)  # Nm s/rad
 DEFAULT_STICK_VEL = 2e-3  # rad/s: below this a joint is at rest for the static friction
 MAX_OMEGA_DT = 1.0  # the elastic joint's mode sqrt(K (1/B + 1/M)) dt must stay below this (semi-implicit Euler: 2)
 
