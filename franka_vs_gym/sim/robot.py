@@ -343,7 +343,7 @@ class FrankaSim:
         records (after the robots' records in userdata, in the order of the scene's robots and joints)."""
         fx = self.spec.joint_effects
         self.joint_effects = fx if fx is not None and fx.any() else None
-        self._mrec: np.ndarray | None = None  # marks a robot with elastic joints (read through _motor_records)
+        self._has_motors = False  # any elastic joint (its motor record: _motor_records())
         self._records: np.ndarray | None = None  # the stateful joints' records (k, MREC), a view of userdata
         self._elastic = np.zeros(7, dtype=bool)
         if self.joint_effects is None:
@@ -373,7 +373,7 @@ class FrankaSim:
             k = int(st.sum())
             self._records = self._d.userdata[base:base + plant.MREC * k].reshape(k, plant.MREC)
         if el.any():
-            self._mrec = self._records[el[st]]  # (a copy of the index: read through _records)
+            self._has_motors = True
             actuators = self._applied_torque
 
             def applied_torque() -> np.ndarray:  # the link side of an elastic joint feels the transmission
@@ -387,7 +387,7 @@ class FrankaSim:
         """The motors' position theta (7,) rad and velocity dtheta (7,) rad/s, link-side units (libfranka's
         ``theta``/``dtheta``): the elastic joints' motors, ``q``/``dq`` at the rigid ones."""
         theta, dtheta = self._qpos.copy(), self._qvel.copy()
-        if self._mrec is not None:
+        if self._has_motors:
             r = self._motor_records()
             now = r[:, 1] == self._d.time  # the callback already ran at this time: the state is "at t"
             theta[self._elastic] = np.where(now, r[:, 2], r[:, 4])
