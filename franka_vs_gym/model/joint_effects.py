@@ -7,10 +7,11 @@ default. Per joint (7,), SI units:
   (the link-side torque sensor sees it, as it sees the plant's friction), ``x = theta`` (the motor) on an elastic
   one. ``n`` is in cycles per *link* turn: a ripple of ``c`` cycles per motor turn behind a gear of ratio ``N``
   shows ``n = c N`` per link turn. A strain-wave (harmonic) gear's dominant ripple comes at two cycles per turn of
-  its wave generator, i.e. ``2 N`` per link turn (Tuttle and Seering 1996, "A nonlinear model of a harmonic drive
-  gear transmission", IEEE T-RA 12(3)); the FER's gear ratios are not published (strain-wave gears of this size come
-  with ratios of 50-160, hence 100-320 cycles per link turn). Motor cogging (slot and pole count, tens of cycles per
-  motor turn) lands at thousands of cycles per link turn: above what a 1 ms plant resolves except at a few mrad/s.
+  its wave generator (the flexspline meshes in two opposite regions), i.e. ``2 N`` per link turn (Tuttle 1992,
+  "Understanding and modeling the behavior of a harmonic drive gear transmission", MIT AI Lab TR 1365); the FER's
+  gear ratios are not published (strain-wave gears of this size come with ratios of 50-160, hence 100-320 cycles per
+  link turn). Motor cogging (slot and pole count, tens of cycles per motor turn) lands at thousands of cycles per
+  link turn: above what a 1 ms plant resolves except at a few mrad/s.
 - **static friction** (stiction): a joint at rest holds up to ``breakaway`` (Nm) whatever loads it, and slips when
   the load exceeds it; once sliding the breakaway decays as ``breakaway (1 - tanh(|dq| / stick_vel))`` and the
   plant's friction law (Gaz et al. 2019 for the FER, fitted on moving joints) takes over. The stick is
