@@ -33,6 +33,7 @@ EXAMPLES = [
     ("joint_impedance_control", ("--run-time", "5"), "worst_tracking_rad", "rad"),
     ("cartesian_impedance_control", ("--duration", "5"), "worst_drift_m", "m"),
     ("force_control", ("--duration", "10"), "worst_distance_m", "m"),
+    ("generate_elbow_motion", (), "worst_drift_m", "m"),
     ("franky_examples", (), "worst_error", "rad or m"),
 ]
 

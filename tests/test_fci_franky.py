@@ -92,3 +92,19 @@ def test_franky_gripper_stop():
     assert "aborted" in str(out["move_result"])  # the interrupted move is answered "aborted"
     assert 0.0 < out["width_after_stop"] < 0.08
     assert out["width_later"] == out["width_after_stop"]  # the fingers stay where they stopped
+
+
+def test_real_time_elbow_motion_with_late_commands():
+    """Real time, franky's elbow motion (the hand held, the elbow out by 0.3 rad) with a control loop that stalls
+    2.5 ms every 250 cycles: commands that miss their cycle are dropped and the cycle extrapolated, as the FCI does,
+    so libfranka's low-pass (against the state's O_T_EE_c and elbow_c) filters against where the motion is and the
+    motion ends without a reflex. (Applied a cycle late instead, they tripped
+    cartesian_motion_generator_joint_velocity_discontinuity: joint 1 at 25-120 rad/s^2.)"""
+    # a tolerance of 200 missed cycles: a loaded test machine must not end the motion with the communication reflex
+    with FCIServer(loopback_host(37), camera=False, verbose=False, max_missed_commands=200) as srv:
+        out = run_client("late_elbow_motion.py", srv.host, "0.0025", "0.3")
+        stats, dropped = srv.motion_stats, srv.late_commands
+    assert out["raised"] is None, (out, stats)
+    assert out["long_periods"] + dropped >= 3, (out, dropped)  # the client did miss cycles
+    assert abs(out["elbow_end"] - out["elbow_start"] - 0.3) < 1e-3, out
+

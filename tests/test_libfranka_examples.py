@@ -66,6 +66,10 @@ def check(out: dict) -> None:
         # the example's own abort distance (1 cm) never reached; the rendered weight of 1 kg held (9.81 N)
         assert not out["aborted"] and out["worst_distance_m"] < 0.01
         assert abs(out["force_last_second_mean_n"] + 9.81) < 0.2, out
+    elif name == "generate_elbow_motion":
+        # the elbow out by pi/5 and back, the hand held at its start pose (the C++ example commands it unchanged)
+        assert out["elbow_swing_error_rad"] < 1e-3 and out["elbow_return_error_rad"] < 1e-3, out
+        assert out["worst_drift_m"] < 1e-3 and out["return_error_m"] < 1e-3 and out["robot_time_s"] >= 10.0, out
     elif name == "franky_examples":
         assert out["worst_error"] < 1e-3
         e = out["errors_by_motion"]
@@ -94,6 +98,39 @@ def test_all_motion_generators_and_franky_lockstep():
             check(run_example(name, srv.host))
     with FCIServer(loopback_host(41), lockstep=True, camera=False, verbose=False) as srv:
         check(run_example("franky_examples", srv.host))
+
+
+@pytest.mark.parametrize("robot", ["fer", "fr3"])
+def test_elbow_motion_lockstep(robot):
+    """libfranka's generate_elbow_motion (ported to franky: pylibfranka 0.21.3 sends no elbow) ends as on the robot:
+    no reflex, the elbow out by pi/5 and back within 1 mrad, the hand within 1 mm of its start pose. The plant,
+    sampled from the server's side (not what the client reports), turned joint 3 by pi/5 while its flange stayed
+    put: the elbow command reached the joints (joint 3 through the IK's square system, the flip of joint 4 kept)."""
+    with FCIServer(loopback_host(43), lockstep=True, camera=False, verbose=False, robot=robot) as srv:
+        q3, flange, done = [], [], threading.Event()
+        with srv.lock:
+            q_start = srv.robot.q.copy()
+            p_start = srv.robot.model.fMe(q_start)[:3, 3].copy()
+
+        def sample():
+            while not done.is_set():
+                with srv.lock:
+                    q = srv.robot.q.copy()
+                q3.append(q[2])
+                flange.append(np.linalg.norm(srv.robot.model.fMe(q)[:3, 3] - p_start))
+                time.sleep(0.005)
+
+        th = threading.Thread(target=sample, daemon=True)
+        th.start()
+        try:
+            out = run_example("generate_elbow_motion", srv.host)
+        finally:
+            done.set()
+            th.join()
+    check(out)
+    assert abs(max(q3) - q_start[2] - math.pi / 5) < 2e-3, (max(q3), q_start[2])
+    assert max(flange) < 1e-3, max(flange)
+    assert np.sign(out["q"][3]) == np.sign(q_start[3])
 
 
 def wakeup_latency(duration: float = 0.3) -> float:

@@ -58,10 +58,13 @@ _TICK = 0.001  # s of wall time between idle states (and the real-time control p
 # Lock-step, between a Move and its first command: frozen states keep the client from waiting forever, but every
 # extra one the client drains changes the time step it sees, so they are rare.
 _START_PHASE_PERIOD = 0.05
-# s: a real-time cycle that starts later than this is dropped with those it overran (plant time falls behind wall
-# time); below a cycle, so the server never runs two cycles back to back: each state it sends gets its cycle for the
-# client's answer, as on the robot, and an overloaded machine shows as a slower plant, not as missed commands
-_MAX_LATE = 0.0005
+# s: a real-time cycle that starts later than this after its time re-anchors the 1 ms grid at its start (whole
+# cycles it overran are counted as dropped; plant time falls behind wall time): the next cycle comes a full period
+# after this one started, so each state the server sends leaves the client the period minus the server's own
+# processing for its answer, as on the robot (the FCI's budget: round trip + client + robot processing < 1 ms), and
+# an overloaded machine shows as a slower plant, not as missed commands. (Keeping the grid for lateness up to half
+# a cycle left a Python client a median 0.24 ms, and ran cycles 0.4 ms apart: 57-62 % of its commands came late.)
+_MAX_LATE = 0.0001
 _HAND_STEPS_PER_TICK = 25  # lock-step physics steps per wall-time tick while only the hand moves
 _CHUNK = 60000  # rows per block of a --record buffer (1 min at 1 kHz, 27 MB)
 
@@ -196,8 +199,10 @@ class FCIServer:
         self.deadlines_total = 0
         self.late_cycles = 0  # real-time cycles the server itself could not run in time (dropped)
         self.late_cycles_moving = 0  # of which while a motion ran
+        self.late_commands = 0  # real time: commands that arrived after their cycle (dropped, as the FCI drops them)
         self.motion_stats: list[dict[str, Any]] = []  # real time: one entry per finished motion (see _motion_ended)
-        self._motion_start = (0, 0, 0)  # (deadlines_total, deadlines_met, late_cycles_moving) at the motion's start
+        self._motion_start = (0, 0, 0, 0)  # (deadlines_total, deadlines_met, late_cycles_moving, late_commands) at
+        # the motion's start
         self._last_applied_id = 0  # real time: message id answered by the last command applied
         self._owed_since: float | None = None  # real time: when the first state the client has not answered went out
         self._renderers: dict[tuple[int, int], Any] = {}
@@ -344,11 +349,12 @@ class FCIServer:
                         self._read_tcp(tag)
                 now = time.perf_counter()
                 if now >= next_tick:
+                    late = now - next_tick
                     next_tick += _TICK
-                    if now - next_tick > _MAX_LATE:  # the server itself fell behind (machine overloaded): the
-                        lost = int((now - next_tick) / _TICK)  # lost cycles are dropped, not replayed back to back
-                        self.late_cycles += lost  # (that would count as client misses): the plant's time falls
-                        if self.robot.moving:  # behind wall time by the dropped cycles, the client is not blamed
+                    if late > _MAX_LATE:  # the server itself started late (machine loaded): the grid restarts here,
+                        lost = int(late / _TICK)  # overrun cycles are dropped, not replayed back to back (that would
+                        self.late_cycles += lost  # count as client misses): the plant's time falls behind wall time,
+                        if self.robot.moving:  # the client is not blamed
                             self.late_cycles_moving += lost
                         next_tick = now + _TICK
                     if self.lockstep:
@@ -432,15 +438,24 @@ class FCIServer:
         self._send_gripper_state()
 
     def _next_command(self, pending: deque[RobotCommand]) -> RobotCommand | None:
-        """Real time: this cycle's command, the newest received since the last cycle (as the robot takes the newest
-        packet). A command lost in between (a client that answered two states within one of the server's cycles)
-        is a cycle the robot extrapolates in the client's time (FCIRobot._to_command_time): the trajectory stays
-        whole and no latency builds up."""
+        """Real time: this cycle's command, the one answering the newest state sent. A command answering an older
+        state missed its cycle and is dropped, as the FCI drops a packet that violates the 1 ms constraint (FCI
+        documentation, "Minimum system and network requirements": the cycle is extrapolated with constant
+        acceleration, or the last torque reused; 20 dropped in a row stop the robot). Applying it one or more
+        cycles late instead would time-shift the desired motion against the states the client has already been
+        sent: a client that low-passes its next command against the state's ``q_d`` / ``O_T_EE_c`` / ``elbow_c``
+        (libfranka's ``franka::Robot::control`` does, at 100 Hz by default) then filters against a value a cycle
+        old, which steps the commanded velocity (franky's joint waypoint and elbow motions tripped
+        ``*_velocity_discontinuity`` that way). The command after a skipped state (the client read the newer one;
+        its ``period`` is 2 ms) answers the newest state and is taken, at the client's time
+        (FCIRobot._to_command_time)."""
         cmd = None
         while pending:
             c = pending.popleft()
-            if c.message_id > self._last_applied_id or not self.robot.moving:
+            if c.message_id == self.message_id or not self.robot.moving:
                 cmd = c
+            elif self.robot.moving and c.message_id > self._last_applied_id:
+                self.late_commands += 1
         if cmd is not None:
             self._last_applied_id = cmd.message_id
         return cmd
@@ -454,7 +469,7 @@ class FCIServer:
             silent = None
             if cmd is None and self._owed_since is not None:  # cycles of wall time the client has owed an answer
                 silent = int((time.perf_counter() - self._owed_since) / _TICK)
-            r.count_command(got or cmd is not None, silent)
+            r.count_command(got, silent)
             if not r.moving:  # communication reflex
                 self._answer_move(MoveStatus.REFLEX_ABORTED)
         reasons = self._physics_step(cmd if r.moving else None)
@@ -584,25 +599,26 @@ class FCIServer:
     def _motion_started(self) -> None:
         self._last_applied_id = 0
         self._owed_since = None
-        self._motion_start = (self.deadlines_total, self.deadlines_met, self.late_cycles_moving)
+        self._motion_start = (self.deadlines_total, self.deadlines_met, self.late_cycles_moving, self.late_commands)
 
     def _motion_ended(self, status: MoveStatus) -> None:
         """Real time: the finished motion's communication statistics, as the robot keeps them for
         ``control_command_success_rate`` and ``communication_constraints_violation``: cycles run, commands that
-        answered their own cycle's state, commands late by a cycle or more, cycles without any command, and the
-        cycles the server itself dropped because the machine ran it late (its plant time lags wall time by as many
-        milliseconds; the robot, a real-time system, never drops one). Printed with ``verbose``, kept in
-        :attr:`motion_stats`."""
-        total0, met0, dropped0 = self._motion_start
+        answered their own cycle's state, commands that came after their cycle (dropped), the longest run of
+        cycles without a command in time, and the cycles the server itself dropped because the machine ran it
+        late (its plant time lags wall time by as many milliseconds; the robot, a real-time system, never drops
+        one). Printed with ``verbose``, kept in :attr:`motion_stats`."""
+        total0, met0, dropped0, late0 = self._motion_start
         cycles, in_time = self.deadlines_total - total0, self.deadlines_met - met0
         st = {"status": MoveStatus(status).name.lower(), "cycles": cycles, "in_time": in_time,
               "success_rate": in_time / cycles if cycles else 1.0, "max_missed_in_row": self.robot.worst_missed,
-              "server_dropped": self.late_cycles_moving - dropped0}
+              "server_dropped": self.late_cycles_moving - dropped0, "late_commands": self.late_commands - late0}
         self.motion_stats.append(st)
         if self.verbose:
             print(f"franka-vs serve: motion {st['status']}: {cycles} cycles, {in_time} commands in their cycle "
-                  f"({100 * st['success_rate']:.1f} %), at most {st['max_missed_in_row']} cycles in a row without a "
-                  f"command (reflex above {self.robot.max_missed_commands}), {st['server_dropped']} cycles dropped "
+                  f"({100 * st['success_rate']:.1f} %), {st['late_commands']} late (dropped), at most "
+                  f"{st['max_missed_in_row']} cycles in a row without a command in time (reflex above "
+                  f"{self.robot.max_missed_commands}), {st['server_dropped']} cycles dropped "
                   f"by the server (machine too slow)", flush=True)
 
     def _robot_command(self, conn: _Conn, command: int, cid: int, payload: bytes) -> None:

@@ -72,8 +72,10 @@ class Context:
 
             sos = signal.butter(data.settings.order, data.settings.cutoff, fs=data.settings.rate, output="sos")
             dcmd = np.gradient(signal.sosfiltfilt(sos, cmd, axis=0), data.time, axis=0)
-            r = data.tau - self.ev.gravity - cmd
-            self.cmd_residual = r - r.mean(axis=0)
+            from franka_vs_gym.validation.effects.timing import without_motor_terms
+
+            # the motors between command and link-side sensor (-I_r ddq, friction, offset) are not a residual
+            self.cmd_residual = without_motor_terms(data, data.tau - self.ev.gravity - cmd)
             self.dcmd = dcmd - dcmd.mean(axis=0)
 
     def cached(self, key: Any, make) -> Any:
