@@ -18,14 +18,27 @@ the untouched copy's answer at the same rate:
   on that joint) is not counted as a confident name.
 - ``others``: cases whose answer changed on joints the effect does not touch (laws named or dropped there).
 
+A second source (``--source serve``): recordings made through ``franka-vs serve --lockstep --record`` by a real
+client, the pylibfranka script ``franka-vs excite`` writes (the payload + viscous compound also by its franky
+script), with the effect hidden in the plant (``serve --truth``: the robot's own model does not know it), sized on
+the untouched recording's motion exactly as the injections into the Gaz log (``injected.truth_effects``); white
+torque noise of ``--serve-noise`` Nm, the same noise sequence in every recording. Scored the same way, against the
+untouched recording's answer at the same rate.
+
     python scripts/real_injected_study.py --cases 1 -o study.json        # about 5 min on one core
+    python scripts/real_injected_study.py --source serve                 # about 15 min (10 recordings of 15 s)
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
+import shutil
+import signal
+import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -36,7 +49,7 @@ sys.path.insert(0, str(ROOT))
 
 from franka_vs_gym.io import atomic_write  # noqa: E402
 from franka_vs_gym.validation.diagnose import diagnose  # noqa: E402
-from franka_vs_gym.validation.injected import KINDS, LIBRARY_KINDS, every_kth, inject  # noqa: E402
+from franka_vs_gym.validation.injected import KINDS, LIBRARY_KINDS, every_kth, inject, truth_effects  # noqa: E402
 from franka_vs_gym.validation.logs import load_log  # noqa: E402
 from franka_vs_gym.validation.signals import clean  # noqa: E402
 
@@ -47,6 +60,8 @@ ACCEPT = {"payload": {"payload"}, "gravity_tilt": {"gravity_tilt"}, "torque_offs
           "viscous_friction": {"viscous_friction"}, "coulomb_friction": STEP, "armature": {"armature"},
           "delay": {"delay"}}
 SHARED = {"payload", "gravity_tilt", "delay", "link_inertials", "link_mass"}
+SERVE_KINDS = ("payload", "tilt", "offset", "viscous", "coulomb", "armature", "delay", "payload+viscous")
+FRANKY_KINDS = {"payload+viscous"}  # played by the franky script (the others by the pylibfranka script)
 
 
 def canon(name: str) -> str:
@@ -167,43 +182,140 @@ def main() -> int:
     ap.add_argument("--kinds", default=",".join(KINDS))
     ap.add_argument("--rates", default=",".join(RATES))
     ap.add_argument("--band", action="store_true", help="diagnose with band_evidence (scores in the motion band)")
+    ap.add_argument("--evidence", default=None, choices=("band", "band_only", "full"),
+                    help="diagnose(evidence=...): the default's scores, --band's, or the whole band's (before)")
+    ap.add_argument("--source", default="gaz", help="gaz (the Gaz et al. 2019 log), serve (recordings through "
+                                                    "franka-vs serve by real clients) or gaz,serve")
+    ap.add_argument("--serve-duration", type=float, default=15.0, help="length of the served excitation, s")
+    ap.add_argument("--serve-noise", type=float, default=0.1, help="white torque noise of the served plant, Nm")
+    ap.add_argument("--host", default="127.0.22.1", help="loopback address the study's server uses")
     ap.add_argument("-o", "--output", default=None, help="write the per-case results as JSON")
     ap.add_argument("--merge", nargs="+", default=None, metavar="JSON",
                     help="print the table of earlier runs' JSON outputs (e.g. one run per rate) instead of running")
     args = ap.parse_args()
     if args.merge:
         rows = [r for p in args.merge for r in json.loads(Path(p).read_text())]
-        kinds = list(dict.fromkeys(r["kind"] for r in rows))
         rates = [r for r in RATES if any(x["rate"] == r for x in rows)]
-        table(rows, kinds, rates, args.cases)
+        for src in dict.fromkeys(r.get("source", "gaz") for r in rows):
+            sub = [x for x in rows if x.get("source", "gaz") == src]
+            print(f"\n### {src}")
+            table(sub, list(dict.fromkeys(r["kind"] for r in sub)), rates, args.cases)
         return 0
-    log = load_log(args.data)
-    noise = clean(log).noise
     kinds = [k for k in args.kinds.split(",") if k]
     rates = [r for r in args.rates.split(",") if r]
+    sources = [s for s in args.source.split(",") if s]
+    if not set(sources) <= {"gaz", "serve"}:
+        ap.error(f"--source {args.source}: gaz, serve or gaz,serve")
+    opts = {"band_evidence": args.band, "evidence": args.evidence}
     t_start = time.time()
+    rows = []
+    if "gaz" in sources:
+        rows += gaz_rows(args, kinds, rates, opts)
+    if "serve" in sources:
+        rows += serve_rows(args, [k for k in kinds if k in SERVE_KINDS], rates, opts)
+    print(f"\n{len(rows)} injected copies, {time.time() - t_start:.0f} s")
+    for src in sources:
+        sub = [x for x in rows if x["source"] == src]
+        print(f"\n### {src}")
+        table(sub, list(dict.fromkeys(x["kind"] for x in sub)), rates, args.cases)
+    if args.output:
+        atomic_write(args.output, json.dumps(rows, indent=1, default=float))
+    return 0
+
+
+def report(rows: list[dict], res: dict, kind: str, seed: int, rate: str, truth: list[dict], cpu: float,
+           source: str) -> None:
+    res.update(kind=kind, seed=seed, rate=rate, truth=truth, cpu_s=round(cpu, 2), source=source)
+    rows.append(res)
+    print(f"{source:5s} {kind:16s} seed {seed} {rate:6s}: {res['outcome']:16s} new {res['new']} gone {res['gone']} "
+          f"flags {res['flagged_joints']} amb {res['ambiguous']} changes {res['changes']} "
+          f"truth {[(t['effect'], t['joints']) for t in truth]}", file=sys.stderr, flush=True)
+
+
+def gaz_rows(args, kinds: list[str], rates: list[str], opts: dict) -> list[dict]:
+    log = load_log(args.data)
+    noise = clean(log).noise
     base = {}
     for r in rates:
-        base[r] = diagnose(every_kth(log, RATES[r]), tool="none", band_evidence=args.band)
-        print(f"untouched {r}: {sorted(named(base[r]).items())} explained {base[r].explained}", file=sys.stderr)
-    rows = []
+        base[r] = diagnose(every_kth(log, RATES[r]), tool="none", **opts)
+        print(f"gaz untouched {r}: {sorted(named(base[r]).items())} explained {base[r].explained}", file=sys.stderr)
+    rows: list[dict] = []
     for kind in kinds:
         for seed in range(args.cases):
             inj, truth = inject(log, kind, seed, noise=noise)
             for r in rates:
                 t0 = time.process_time()
-                d = diagnose(every_kth(inj, RATES[r]), tool="none", band_evidence=args.band)
-                res = score_case(base[r], d, truth)
-                res.update(kind=kind, seed=seed, rate=r, truth=truth, cpu_s=round(time.process_time() - t0, 2))
-                rows.append(res)
-                print(f"{kind:16s} seed {seed} {r:6s}: {res['outcome']:16s} new {res['new']} gone {res['gone']} "
-                      f"flags {res['flagged_joints']} amb {res['ambiguous']} changes {res['changes']} "
-                      f"truth {[(t['effect'], t['joints']) for t in truth]}", file=sys.stderr)
-    print(f"\n{len(rows)} injected copies, {time.time() - t_start:.0f} s")
-    table(rows, kinds, rates, args.cases)
-    if args.output:
-        atomic_write(args.output, json.dumps(rows, indent=1, default=float))
-    return 0
+                d = diagnose(every_kth(inj, RATES[r]), tool="none", **opts)
+                report(rows, score_case(base[r], d, truth), kind, seed, r, truth, time.process_time() - t0, "gaz")
+    return rows
+
+
+def record(design: Path, truth: dict, out: Path, host: str, client: str) -> Path:
+    """One recording through ``franka-vs serve --lockstep --record`` with ``truth`` hidden in the plant: the
+    script ``franka-vs excite`` wrote for ``client`` (pylibfranka or franky) plays the design in its own process,
+    then the server is stopped (SIGTERM) and writes the log."""
+    tf = out.with_suffix(".truth.json")
+    atomic_write(tf, json.dumps(truth))
+    env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    srv = subprocess.Popen([sys.executable, "-m", "franka_vs_gym.cli", "serve", "--lockstep", "--no-camera", "--tool",
+                            "none", "--scene", "empty", "--host", host, "--truth", str(tf), "--record", str(out)],
+                           stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
+    try:
+        said = ""
+        while "ready" not in said:
+            line = srv.stdout.readline()
+            if not line:
+                raise RuntimeError(f"franka-vs serve did not start: {said}")
+            said += line
+        r = subprocess.run([sys.executable, str(design / f"play_excitation_{client}.py"), host], capture_output=True,
+                           text=True, timeout=600, env=env)
+        if r.returncode != 0:
+            raise RuntimeError(f"the {client} script failed: {r.stderr[-2000:]}")
+    finally:
+        srv.send_signal(signal.SIGTERM)
+        srv.communicate(timeout=120)
+    if not out.exists():
+        raise RuntimeError(f"franka-vs serve wrote no log {out}")
+    return out
+
+
+def serve_rows(args, kinds: list[str], rates: list[str], opts: dict) -> list[dict]:
+    tmp = Path(tempfile.mkdtemp(prefix="real_injected_serve_"))
+    try:
+        design = tmp / "design"
+        print(f"serve: designing a {args.serve_duration:g} s excitation (franka-vs excite)", file=sys.stderr)
+        subprocess.run([sys.executable, "-m", "franka_vs_gym.cli", "excite", "--effects",
+                        "payload,gravity_tilt,viscous_friction,armature,torque_offset", "--duration",
+                        str(args.serve_duration), "--rest", "0.5", "--evaluations", "60", "--time-budget", "60",
+                        "-o", str(design), "--quiet"], check=True, capture_output=True, text=True,
+                       env={**os.environ, "PYTHONPATH": str(ROOT)})
+        noise_truth = {"torque_noise_Nm": args.serve_noise, "seed": 0}
+        clients = ["pylibfranka"] + (["franky"] if set(kinds) & FRANKY_KINDS else [])
+        log0, base = {}, {}
+        for client in clients:  # each client's untouched recording: its own motion and timing
+            log0[client] = load_log(record(design, {"effects": [], **noise_truth}, tmp / f"untouched_{client}.npz",
+                                           args.host, client))
+            for r in rates:
+                base[client, r] = diagnose(every_kth(log0[client], RATES[r]), **opts)
+                print(f"serve untouched ({client}) {r}: {sorted(named(base[client, r]).items())} explained "
+                      f"{base[client, r].explained}", file=sys.stderr)
+        noise = clean(log0["pylibfranka"]).noise
+        rows: list[dict] = []
+        for kind in kinds:
+            for seed in range(args.cases):
+                effects, truth = truth_effects(log0["pylibfranka"], kind, seed, noise=noise)
+                client = "franky" if kind in FRANKY_KINDS else "pylibfranka"
+                log = load_log(record(design, {"effects": effects, **noise_truth},
+                                      tmp / f"{kind.replace('+', '_')}_{seed}.npz", args.host, client))
+                for r in rates:
+                    t0 = time.process_time()
+                    d = diagnose(every_kth(log, RATES[r]), **opts)
+                    res = score_case(base[client, r], d, truth)
+                    res["client"] = client
+                    report(rows, res, kind, seed, r, truth, time.process_time() - t0, "serve")
+        return rows
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
 
 
 def table(rows: list[dict], kinds: list[str], rates: list[str], cases: int) -> None:

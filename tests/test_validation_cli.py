@@ -56,6 +56,22 @@ def test_diagnose_band_evidence_flag_is_the_library_call(tilt_log, capsys):
                                                                                           "ranking")}
 
 
+def test_diagnose_evidence_option_is_the_library_call_and_refuses_a_contradiction(tilt_log, capsys):
+    """``--evidence band`` gives the JSON of ``diagnose(log, evidence="band")`` (stated in its assumptions) and still
+    names the hidden tilt; ``--band-evidence`` with ``--evidence full`` is one line naming both, exit 2."""
+    from franka_vs_gym.validation.diagnose import diagnose
+
+    assert cli(["diagnose", str(tilt_log), "--json", "--evidence", "band"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    ref = json.loads(json.dumps(diagnose(load_log(tilt_log), evidence="band").to_dict()))
+    assert d["verdict"] == "gravity_tilt" and "blocked held-out test" in d["assumptions"]["evidence"]
+    assert {k: d[k] for k in ("verdict", "selected", "ranking")} == {k: ref[k] for k in ("verdict", "selected",
+                                                                                          "ranking")}
+    assert cli(["diagnose", str(tilt_log), "--band-evidence", "--evidence", "full", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--band-evidence" in err[0] and "full" in err[0]
+
+
 def test_fit_writes_model_refuses_overwrite_and_compare_uses_it(tilt_log, tmp_path, capsys):
     out = tmp_path / "calibrated.json"
     assert cli(["fit", str(tilt_log), "--add", "gravity_tilt", "-o", str(out), "--json", "--quiet"]) == 0

@@ -42,8 +42,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="candidate effects (default: the whole library); a .py file is a plug-in whose Effect "
                              "classes are ranked with the library's")
     parser.add_argument("--band-evidence", action="store_true",
-                        help="score effects in the motion band (below the cleaning cutoff): one answer at 1 kHz, 100 "
-                             "and 30 Hz on real logs, fewer small laws named (docs/workbench.md, section 5 step 2)")
+                        help="score every effect in the motion band by the information criterion alone (= --evidence "
+                             "band_only; docs/workbench.md, section 5 step 2)")
+    parser.add_argument("--evidence", choices=("band", "band_only", "full"), default=None,
+                        help="how effects are scored: full (default: every sample of the residual counts), "
+                             "band_only (= --band-evidence), band (the motion band; shared effects judged with the "
+                             "noise the set with them leaves, the 43-parameter link inertials also by the held-out "
+                             "blocks; docs/workbench.md section 5 step 2)")
 
 
 def main(args: argparse.Namespace) -> int:
@@ -58,7 +63,7 @@ def main(args: argparse.Namespace) -> int:
         with progress_line(args.verbose):
             d = diagnose(load_from(args), args.model, rigid_body=args.rigid_body, effects=effects,
                          settings=settings_from(args), verbose=verbose, tool=args.tool, robot=args.robot,
-                         band_evidence=args.band_evidence)
+                         band_evidence=args.band_evidence, evidence=args.evidence)
             model_warnings = d.config.plausibility_warnings()
             if report_tmp is not None or mcap_tmp is not None:
                 from franka_vs_gym.validation.compare import compare

@@ -56,6 +56,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from scipy import stats
 
 from franka_vs_gym.model.config import ModelConfig
 from franka_vs_gym.validation.compare import as_processed, baseline_config, progress, rmse
@@ -89,6 +90,11 @@ PAYLOAD_MIN_KG = 0.1  # a flange body lighter than this is not named beside the 
 # a body held at the flange has its centre of mass beyond the flange plane (flange z >= 0, with a margin); a flange
 # body centred inside link 7 is link 7's own error, which the link inertials keep
 PAYLOAD_COM_Z_MIN = -0.03
+#: one-sided level of the blocked held-out test that judges a candidate with more parameters than effective samples:
+#: the tail probability of a chi-square(1) statistic at SCORE_MIN (the same strength of evidence), and the Student t
+#: quantile of the F - 1 degrees of freedom of F held-out blocks
+BLOCK_LEVEL = float(stats.chi2.sf(SCORE_MIN, 1))
+EVIDENCE = ("band", "band_only", "full")  # diagnose(evidence=...): see Engine and _Selector
 AMBIGUOUS = 10.0  # held-out evidence (the score's units) within which two laws on a joint are not told apart
 # laws a log may not tell apart on a joint, and the motion that separates them
 CONFUSABLE = {
@@ -308,9 +314,14 @@ CROSSTALK = _Crosstalk()
 class _Selector:
     """In-context forward selection with a backward pass, on one Engine."""
 
-    def __init__(self, ctx: Context, eng: Engine, noise: np.ndarray, effects: list[Effect], verbose: bool) -> None:
+    def __init__(self, ctx: Context, eng: Engine, noise: np.ndarray, effects: list[Effect], verbose: bool,
+                 many_test: bool = False) -> None:
         self.ctx, self.eng, self.noise, self.effects, self.verbose = ctx, eng, noise, effects, verbose
         self.rejections: dict[str, str] = {}
+        #: the default evidence (diagnose(evidence="band")): a shared term judged with the effective sample size of
+        #: the set that contains it, a term with more parameters than effective samples also by the blocked
+        #: held-out test (_confirmed), link inertials only beyond a simpler candidate (_flange_body_first)
+        self.many_test = many_test
 
     forced: tuple[Term, ...] = ()
 
@@ -321,6 +332,52 @@ class _Selector:
 
     def _neff(self, sf: SetFit) -> np.ndarray:
         return self.eng.band_neff(sf)
+
+    def _many(self, k: int, neff: np.ndarray) -> bool:
+        """Whether a term of ``k`` parameters in a set whose residual has ``neff`` effective samples per joint
+        needs the blocked held-out test to stay (backward pass, link inertials beyond a simpler candidate): more
+        parameters than effective samples."""
+        return self.many_test and k > float(np.mean(neff))
+
+    def _confirmed(self, sf0: SetFit, sf1: SetFit, k: int, neff0: np.ndarray | None = None) -> bool:
+        """Whether a shared term of ``k`` parameters that takes ``sf0`` to ``sf1`` (and is significant with the
+        effective sample size of ``sf1``'s residual) is confirmed. It needs nothing more when it has fewer
+        parameters than ``sf0``'s residual has effective samples per joint, or when it is significant with that
+        residual's effective sample size too (the conservative count); otherwise, where the information
+        criterion's ``k ln N_eff`` (an approximation for ``N_eff >> k``) and the choice of noise model decide, the
+        blocked held-out test (:meth:`_blocked`) must pass."""
+        if not self.many_test:
+            return True
+        if neff0 is None:
+            neff0 = self._neff(sf0)
+        if k <= float(np.mean(neff0)):
+            return True
+        conservative = float(self._gain(sf0.mse_cv, sf1.mse_cv, neff0).sum()
+                             - k * np.log(max(float(np.mean(neff0)), 2.0)))
+        return conservative > SCORE_MIN or self._blocked(sf0, sf1)
+
+    def _blocked(self, sf0: SetFit, sf1: SetFit) -> bool:
+        """The blocked held-out test of going from ``sf0`` to ``sf1``. Each of the F contiguous held-out blocks
+        gives its reduction of the squared error in the motion band, summed over the joints, in two forms: pooled
+        (relative to the whole log's error before: blocks with more error weigh more) and per block (the fraction
+        of the block's own error removed: a large effect of pose-dependent size counts alike in every block). The
+        blocks are seconds long, longer than the residual's correlation, so they are nearly independent replicates
+        whatever the effective sample size. Passes when the one-sided Student t of the mean of either form exceeds
+        the quantile at ``BLOCK_LEVEL`` (F - 1 degrees of freedom)."""
+        t = self._block_t(sf0, sf1)
+        return t is not None and max(t) > float(stats.t.isf(BLOCK_LEVEL, self.eng.F - 1))
+
+    def _block_t(self, sf0: SetFit, sf1: SetFit) -> tuple[float, float] | None:
+        """Student t (pooled, per block) of the blocked held-out test (:meth:`_blocked`)."""
+        if sf0.sse_folds is None or sf1.sse_folds is None or self.eng.F < 3:
+            return None
+        n_f = np.array([len(b) for b in self.eng.folds], dtype=float)[:, None]
+        hf = n_f * self.eng.hf[None, :]
+        e0 = np.maximum(sf0.sse_folds - hf, 1e-3 * hf + 1e-30)
+        e1 = np.maximum(sf1.sse_folds - hf, 1e-3 * hf + 1e-30)
+        pooled = ((e0 - e1) / self.eng.band(sf0.mse_cv)).sum(axis=1)
+        per_block = (1.0 - e1 / e0).sum(axis=1)
+        return _student_t(pooled), _student_t(per_block)
 
     def _gain(self, mse0: np.ndarray, mse1: np.ndarray, neff: np.ndarray) -> np.ndarray:
         """Held-out evidence per joint of going from ``mse0`` to ``mse1`` (7,), in the motion band
@@ -334,9 +391,11 @@ class _Selector:
         mse0 = base_fit.mse_cv
         problems: list[str] = []
         ln_n = np.log(neff)
+        neff_now = neff  # the current residual's (for the blocked test's condition)
         if e.per_joint:
             sf_all = eng.fit(base + [Term(e, shape, list(range(7)))])
-            if self._first(base):  # ranking: the effective sample size of what would remain with the candidate alone
+            # ranking: the effective sample size of what would remain with the candidate alone
+            if self._first(base):
                 neff = np.maximum(neff, self._neff(sf_all))
                 ln_n = np.log(neff)
             js = self._gain(mse0, sf_all.mse_cv, neff) - e.n_params * ln_n
@@ -380,7 +439,9 @@ class _Selector:
             fit.joints = list(keep)
         else:
             sf = eng.fit(base + [Term(e, shape)])
-            if self._first(base):
+            # a term shared by all joints is judged with the effective sample size of what the set with it leaves
+            # (the larger model's noise: the F test's convention, and the backward pass's for every member)
+            if self._first(base) or self.many_test:
                 neff = np.maximum(neff, self._neff(sf))
             gain = self._gain(mse0, sf.mse_cv, neff)
             js = gain
@@ -398,6 +459,10 @@ class _Selector:
         if t is not None:
             params["tilt_deg"] = round(t, 4)
         significant = bool(score > SCORE_MIN and practical)
+        if significant and not e.per_joint and not self._confirmed(base_fit, sf, e.n_params, neff_now):
+                significant = False
+                problems.append(f"{e.n_params} parameters for {float(np.mean(neff_now)):.0f} effective samples per "
+                                "joint: the held-out blocks do not confirm it")
         term = Term(e, shape, list(joints) if e.per_joint else None)
         return Candidate(e.name, [e.name], list(joints), params, after, score, significant, plausible,
                          [f"{e.name}: {m}" for m in problems], removed, js, [fit], [term], sf.mse_cv)
@@ -481,6 +546,7 @@ class _Selector:
             if not pool:
                 break
             best = max(pool, key=lambda c: c.score)
+            best = self._flange_body_first(chosen, best, pool)
             chosen = chosen + best.terms
             chosen, cur = self._refresh(chosen)
             chosen, cur = self._backward(chosen, cur, keep=best.terms + forced)
@@ -490,8 +556,11 @@ class _Selector:
         if select and len(chosen) > len(forced):
             chosen, cur = self._simplest_laws(chosen, cur, forced)
             n_before = len(chosen)
+            had = [t.effect.name for t in chosen]
             chosen, cur = self._payload_first(chosen, cur)
-            if len(chosen) > n_before:  # a flange body split off the link inertials: what is left earns its place
+            if len(chosen) > n_before or (self.many_test and [t.effect.name for t in chosen] != had):
+                # a flange body split off the link inertials or took their place: what the link inertials made
+                # affordable earns its place again in the context of the flange body
                 body = [t for t in chosen if t.effect.name == "payload"]
                 chosen, cur = self._backward(chosen, cur, keep=forced + body)
             chosen, cur = self._prune_joints(chosen, cur)
@@ -548,6 +617,38 @@ class _Selector:
             chosen, cur = move[0], move[1]
         return chosen, cur
 
+    def _flange_body_first(self, chosen: list[Term], best: Candidate, pool: list[Candidate]) -> Candidate:
+        """When the link inertials are about to enter and a simpler significant plausible candidate of the same
+        round (fewer parameters: a flange body ``payload``, an ``armature``, a ``delay`` ...) is in the pool, the
+        link inertials enter only if they earn their place beyond it (the backward pass's test, and for a term
+        with more parameters than effective samples the blocked held-out test); otherwise the simpler one enters
+        (the best scoring such). Judged when they would enter, before the laws that the link inertials' residual
+        makes affordable are selected beside them: a flange body and a rotor inertia are link inertia to the joint
+        torques, and a 43-parameter change absorbs them."""
+        from franka_vs_gym.validation.effects.inertial import ArmLinkInertials, LinkInertials
+
+        if (not self.many_test or len(best.terms) != 1 or not isinstance(best.terms[0].effect, LinkInertials)
+                or isinstance(best.terms[0].effect, ArmLinkInertials)):
+            return best
+        t = best.terms[0]
+        simpler = sorted([c for c in pool if c is not best and sum(u.k() for u in c.terms) < t.k()],
+                         key=lambda c: -c.score)[:3]
+        for c in simpler:
+            sf_c = self.eng.fit(chosen + c.terms)
+            sf_cl = self.eng.fit(chosen + c.terms + [t])
+            neff = self._neff(sf_cl)
+            loss = float(self._gain(sf_c.mse_cv, sf_cl.mse_cv, neff).sum()
+                         - t.k() * np.log(max(float(neff.mean()), 2.0)))
+            removed = np.sqrt(np.maximum(sf_c.mse_cv - sf_cl.mse_cv, 0.0))
+            weak = loss < SCORE_MIN or not np.any(removed >= PRACTICAL * self.noise)
+            if not weak and self._many(t.k(), neff):
+                weak = not self._blocked(sf_c, sf_cl)
+            if weak:
+                progress(f"simpler first: {c.effect} in place of the link inertials (they add nothing confirmed "
+                         "beyond it)", self.verbose)
+                return c
+        return best
+
     def _payload_first(self, chosen: list[Term], cur: SetFit) -> tuple[list[Term], SetFit]:
         """A rigid body at the flange before a change of the link inertials: when ``link_inertials`` is selected
         and ``payload`` is a candidate, (1) the payload replaces the link inertials when the set then scores
@@ -566,7 +667,11 @@ class _Selector:
         base_score = self.set_score(chosen, cur, neff)
         alt = chosen[:i] + [Term(pay, {})] + chosen[i + 1:]
         sf = self.eng.fit(alt)
-        if self.set_score(alt, sf, neff) >= base_score - AMBIGUOUS and not pay.problems(self.ctx, sf.fits[i]):
+        # the link inertials in place of a flange body must pass the test that admitted them (a term with more
+        # parameters than effective samples: the blocked held-out test) against the set with the flange body
+        beyond = not self.many_test or self._confirmed(sf, cur, chosen[i].k())
+        if ((self.set_score(alt, sf, neff) >= base_score - AMBIGUOUS or not beyond)
+                and not pay.problems(self.ctx, sf.fits[i])):
             progress("payload first: a flange body explains the residual as well as the link inertials", self.verbose)
             return self._refresh(alt)
         arm = ArmLinkInertials(chosen[i].effect)
@@ -614,6 +719,8 @@ class _Selector:
                              - t.k() * np.log(max(float(neff_b.mean()), 2.0)))
                 removed = np.sqrt(np.maximum(sf.mse_cv - cur.mse_cv, 0.0))
                 weak = loss < SCORE_MIN or not np.any(removed >= PRACTICAL * noise)
+                if not weak and not t.effect.per_joint and self._many(t.k(), neff_b):
+                    weak = not self._blocked(sf, cur)
                 if weak and (worst_loss is None or loss < worst_loss):
                     worst, worst_loss = i, loss
             if worst is None:
@@ -741,6 +848,14 @@ class _Selector:
         return out
 
 
+def _student_t(w: np.ndarray) -> float:
+    """One-sample Student t of the mean of ``w`` against zero."""
+    sd = float(np.std(w, ddof=1))
+    if sd == 0:
+        return float("inf") if float(np.mean(w)) > 0 else 0.0
+    return float(np.mean(w)) / (sd / np.sqrt(len(w)))
+
+
 def _order(c: Candidate) -> tuple:
     return (not c.ok, not c.plausible, -c.score)
 
@@ -808,12 +923,23 @@ def resolve_effects(effects: list[str] | None, registry: EffectRegistry = REGIST
 def diagnose(log: MeasurementLog | ProcessedLog | str, model: Any = None, *, rigid_body: bool = False,
              effects: list[str] | None = None, settings: CleanSettings | None = None, folds: int = FOLDS,
              select: bool = True, verbose: bool = False, tool: str | None = None, robot: Any = None,
-             band_evidence: bool = False) -> Diagnosis:
+             band_evidence: bool = False, evidence: str | None = None) -> Diagnosis:
     """Rank the candidate effects the model ``model`` (default: the log's baseline) lacks on ``log``, select the set
     that explains the residual (in context, with a backward pass), and test what remains for structure.
-    ``band_evidence``: score in the motion band (method step 2)."""
+
+    ``evidence`` (method step 2): ``"full"`` (default) counts every sample of the residual; ``"band_only"`` (also
+    ``band_evidence=True``) scores every term in the motion band by the information criterion alone; ``"band"``
+    scores in the motion band, judges a shared term with the noise of the set that holds it, confirms a term with
+    more parameters than effective samples by the blocked held-out test and lets the link inertials enter only
+    beyond a simpler candidate."""
     from franka_vs_gym.validation.structure import assumptions_of, test_structure
 
+    if evidence is None:
+        evidence = "band_only" if band_evidence else "full"
+    elif evidence not in EVIDENCE:
+        raise ValueError(f"evidence {evidence!r}: choose from {', '.join(EVIDENCE)}")
+    elif band_evidence and evidence != "band_only":
+        raise ValueError(f"band_evidence (--band-evidence) is evidence 'band_only', not {evidence!r}")
     progress("cleaning the log", verbose)
     data = as_processed(log, settings)
     cfg = baseline_config(data.log, model, rigid_body, tool=tool, robot=robot, data=data)
@@ -829,8 +955,8 @@ def diagnose(log: MeasurementLog | ProcessedLog | str, model: Any = None, *, rig
     if tool == "unknown":  # the tool is a payload of unknown mass, centre of mass and inertia
         forced = [Term(get_effect("payload"), {})]
         cands = [e for e in cands if e.name != "payload"]
-    eng = Engine(ctx, y, fl, band=band_evidence)
-    sel = _Selector(ctx, eng, noise, cands, verbose)
+    eng = Engine(ctx, y, fl, band=evidence != "full")
+    sel = _Selector(ctx, eng, noise, cands, verbose, many_test=evidence == "band")
     ranking, chosen, cur = sel.run(select, forced=forced)
     changes: list[ModelChange] = []
     if select:
@@ -873,8 +999,12 @@ def diagnose(log: MeasurementLog | ProcessedLog | str, model: Any = None, *, rig
                   rmse_sel, unexplained, assumptions_of(data, cfg, tool), notes, residual, data, ambiguous, changes)
     if fx is not data:
         d.assumptions["effects_analysed_at_hz"] = fx.settings.rate
-    if band_evidence:
-        d.assumptions["evidence"] = f"scored in the motion band (below the {fx.settings.cutoff:g} Hz cutoff)"
+    if evidence != "full":
+        d.assumptions["evidence"] = {
+            "band": f"scored in the motion band (below the {fx.settings.cutoff:g} Hz cutoff); shared effects with "
+                    "the noise of the set that holds them; a term with more parameters than effective samples per "
+                    "joint also passes the blocked held-out test",
+            "band_only": f"scored in the motion band (below the {fx.settings.cutoff:g} Hz cutoff)"}[evidence]
     if select and chosen:
         d.contributions = {t.effect.name: c for t, c in zip(chosen, eng.contributions(cur), strict=True)}
     return d

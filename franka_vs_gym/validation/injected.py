@@ -163,6 +163,45 @@ def _outside(kind: str, base: ModelConfig, m: SimpleNamespace, tau_meas: np.ndar
     raise ValueError(f"unknown kind {kind!r}: choose from {', '.join(KINDS)}")
 
 
+def truth_effects(log: MeasurementLog, kind: str, seed: int, noise: np.ndarray | None = None,
+                  config: ModelConfig | None = None) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    """Library effect(s) ``kind`` (one of :data:`LIBRARY_KINDS`, or "a+b") drawn and sized exactly as
+    :func:`inject` sizes them on ``log``'s motion, written as the effect list of a ``franka-vs serve --truth`` file
+    (the simulated plant then carries them while the robot's model does not, so a client's recording holds them
+    with the simulator's own sampling, control loop and noise), and the truth (as :func:`inject` returns it)."""
+    parts = kind.split("+")
+    if not all(p in LIBRARY_KINDS for p in parts):
+        raise ValueError(f"kind {kind!r}: a served truth takes library effects only ({', '.join(LIBRARY_KINDS)})")
+    rng = np.random.default_rng([seed, sum(KINDS.index(p) + 1 for p in parts)])
+    base = config if config is not None else ModelConfig(tool=Tool.none(), gravity=log.gravity)
+    if noise is None:
+        from franka_vs_gym.validation.signals import clean
+
+        noise = clean(log).noise
+    noise = np.maximum(np.asarray(noise, dtype=float), 1e-3)
+    m = motion(log)
+    tau0 = _torque(base, m)
+    effects, truth = [], []
+    for part in parts:
+        _, tr = _library(part, base, m, tau0, noise, rng)
+        name = tr["effect"]
+        if part == "payload":
+            item = {"effect": name, "mass_kg": tr["mass_kg"], "com_flange_m": tr["com_flange_m"]}
+        elif part == "tilt":
+            item = {"effect": name, "gravity_m_per_s2": (np.asarray(base.gravity) + tr["delta_gravity_m_per_s2"])
+                    .round(6).tolist()}
+        elif part == "delay":
+            item = {"effect": name, "delay_s": tr["delay_s"]}
+        else:  # per-joint: the drawn value on its joint, nothing on the others
+            key = next(k for k in tr if k not in ("effect", "joints", "factor"))
+            v = np.zeros(7)
+            v[tr["joints"][0]] = tr[key]
+            item = {"effect": name, key: v.tolist()}
+        effects.append(item)
+        truth.append(tr)
+    return effects, truth
+
+
 def inject(log: MeasurementLog, kind: str, seed: int, config: ModelConfig | None = None,
            noise: np.ndarray | None = None) -> tuple[MeasurementLog, list[dict[str, Any]]]:
     """A copy of the real ``log`` with ``kind`` (one of :data:`KINDS`; "a+b" for two at once) added to its measured
@@ -206,4 +245,4 @@ def inject(log: MeasurementLog, kind: str, seed: int, config: ModelConfig | None
 
 
 __all__ = ["COMPOUND_KINDS", "KINDS", "LIBRARY_KINDS", "OUTSIDE_KINDS", "distinct_rows", "every_kth", "inject",
-           "motion"]
+           "motion", "truth_effects"]

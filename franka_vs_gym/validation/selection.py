@@ -99,6 +99,8 @@ class SetFit:
     coefs: list[np.ndarray]
     fits: list[Fit] = field(default_factory=list)
     _contribs: list[np.ndarray] | None = None
+    #: (F, 7) held-out sum of squared errors of each block (Nm^2), when cross-validated
+    sse_folds: np.ndarray | None = None
 
 
 class Engine:
@@ -190,7 +192,7 @@ class Engine:
         if P == 0:
             return SetFit(terms, self.empty_mse.copy(), [np.zeros((7, self.design(t).shape[2])) if
                                                          t.effect.per_joint else np.zeros(self.design(t).shape[2])
-                                                         for t in terms])
+                                                         for t in terms], sse_folds=self.yy.copy())
         A = np.zeros((self.F, P, P))
         b = np.zeros((self.F, P))
         per_joint_idx = []
@@ -219,6 +221,7 @@ class Engine:
                     rid[sl] = t.effect.ridge
         theta = _solve(At + np.diag(rid * np.diag(At)), bt)
         mse_cv = self.empty_mse.copy()
+        sse = None
         if cv:
             sse = self.yy.copy()
             for f in range(self.F):
@@ -243,7 +246,7 @@ class Engine:
             coefs.append(c)
         fits = [t.effect.make_fit(self.ctx, c, t.shape, t.joints if t.effect.per_joint else None)
                 for t, c in zip(terms, coefs, strict=True)]
-        return SetFit(terms, mse_cv, coefs, fits)
+        return SetFit(terms, mse_cv, coefs, fits, sse_folds=sse)
 
     def contributions(self, sf: SetFit) -> list[np.ndarray]:
         """In-sample contribution (N, 7) Nm of each term of a fitted set."""
