@@ -11,7 +11,8 @@ A true value counts when diagnose selected the effect (and, per joint, that join
 rows say "other law". Run: ``python scripts/coverage_study.py --seeds 3`` (prints a Markdown table; ``--methods``
 compares covariance estimators on the same fits).
 
-Usage: python scripts/coverage_study.py [--seeds N] [--duration S] [--rates 1000,100,30] [--methods hac,ols]
+Usage: python scripts/coverage_study.py [--seeds N] [--first-seed K] [--duration S] [--rates 1000,100,30]
+       [--methods hac,ewc,spectral,newey_west,ols] [--generators H,A,B]
 """
 
 from __future__ import annotations
@@ -53,9 +54,9 @@ MAP_H = {
 OTHER_LAW = {("A", "coulomb"), ("B", "coulomb")}
 
 
-def cases(seeds: int) -> list[tuple[str, tuple[str, ...], int]]:
+def cases(seeds: int, first: int = 0) -> list[tuple[str, tuple[str, ...], int]]:
     out = []
-    for s in range(seeds):
+    for s in range(first, first + seeds):
         for e in MAP_H:
             out.append(("H", (e,), s))
         out.append(("H", ("coulomb_friction", "gravity_tilt", "armature"), 100 + s))
@@ -134,9 +135,11 @@ def score(gen: str, effects, truth: dict, sel_by_name: dict) -> list[dict]:
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--seeds", type=int, default=2)
+    p.add_argument("--first-seed", type=int, default=0, help="seeds first..first+seeds-1 (more draws of a cell)")
     p.add_argument("--duration", type=float, default=10.0)
     p.add_argument("--rates", default="1000,100,30")
-    p.add_argument("--methods", default="hac", help="covariance methods to compare (hac, newey_west, ols)")
+    p.add_argument("--methods", default="hac",
+                   help="covariance methods to compare (hac, ewc, spectral, newey_west, ols)")
     p.add_argument("--generators", default="H,A,B")
     p.add_argument("--out", default=None, help="write the per-log rows as JSON here (refuses to overwrite)")
     args = p.parse_args(argv)
@@ -158,7 +161,7 @@ def main(argv=None) -> int:
     gens = set(args.generators.split(","))
     rows = []
     t0 = time.time()
-    all_cases = [c for c in cases(args.seeds) if c[0] in gens]
+    all_cases = [c for c in cases(args.seeds, args.first_seed) if c[0] in gens]
     n_logs = 0
     for i, (gen, effects, seed) in enumerate(all_cases):
         logs, truth = logs_for(gen, effects, seed, args.duration, rates)
