@@ -84,14 +84,6 @@ def _scores(X: np.ndarray, residual: np.ndarray) -> np.ndarray:
     return np.matmul(X.transpose(0, 2, 1), e[:, :, None])[:, :, 0]
 
 
-def _tau_int(x: np.ndarray, max_lag: int = 4000) -> float:
-    """Integrated autocorrelation time of a series (summed while the autocorrelation is positive)."""
-    from franka_vs_gym.validation.selection import n_eff
-
-    n = len(x)
-    return float(n / max(n_eff(x, max_lag=min(max_lag, n - 1)), 1.0))
-
-
 def ewc_dof(influence: np.ndarray) -> int:
     """Degrees of freedom ``nu`` of the EWC estimator for influence series (N, P): ``0.4 N_eff^(2/3)`` with the
     smallest effective sample size among the columns, at most ``N_eff / 4`` (the highest cosine then stays below
@@ -101,8 +93,9 @@ def ewc_dof(influence: np.ndarray) -> int:
     cols = [c for c in range(influence.shape[1]) if var[c] > 0]
     if not cols:
         return MAX_DOF
-    tau = max(_tau_int(influence[:, c]) for c in cols)
-    neff = n / max(tau, 1.0)
+    from franka_vs_gym.validation.selection import n_eff
+
+    neff = max(float(np.min(n_eff(influence[:, cols], max_lag=min(4000, n - 1)))), 1.0)  # one batched FFT
     nu = min(0.4 * neff ** (2.0 / 3.0), 0.25 * neff)
     return int(np.clip(round(nu), 2, MAX_DOF))
 
@@ -143,8 +136,8 @@ SMOOTH_REL = 0.15  # half-width of the residual periodogram's smoothing window, 
 TAIL = 1e-4  # share of a regressor's energy at the highest frequencies the spectral estimate leaves out
 
 
-def _meat_spectral(J: np.ndarray, e: np.ndarray, B: np.ndarray, rel: float = SMOOTH_REL
-                   ) -> tuple[np.ndarray, np.ndarray]:
+def _meat_spectral(J: np.ndarray, e: np.ndarray, B: np.ndarray, rel: float = SMOOTH_REL,
+                   nonzero: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Frequency-domain middle of the sandwich and each parameter's degrees of freedom.
 
     For a regressor ``J`` (N, k, P) fixed by the motion and a stationary error ``e`` (N, k), the variance of the
@@ -153,9 +146,12 @@ def _meat_spectral(J: np.ndarray, e: np.ndarray, B: np.ndarray, rel: float = SMO
     ``+-rel * f`` (at least the neighbouring bins): a constant relative bandwidth, so a steep low-frequency
     spectrum (1/f noise, a slow drift, an AR(1) with a long correlation time) is followed where it is steep. The
     degrees of freedom of parameter p are Satterthwaite's for this weighted sum of periodogram ordinates (each
-    chi^2 with 2): a parameter whose regressor lives in two frequency bins of the log gets about 4, whatever N."""
+    chi^2 with 2): a parameter whose regressor lives in two frequency bins of the log gets about 4, whatever N.
+    ``nonzero`` (k, P): which joints' columns of each parameter are not zero, when the caller knows."""
     n, k, p = J.shape
-    jj, pp = np.nonzero(np.abs(J).max(axis=0) > 0)  # the (joint, parameter) columns that are not zero
+    if nonzero is None:
+        nonzero = np.abs(J).max(axis=0) > 0
+    jj, pp = np.nonzero(nonzero)  # the (joint, parameter) columns that are not zero
     Cf = sfft.rfft(J[:, jj, pp], axis=0)  # (K, C): per-joint effects have one column per parameter, not k
     E = sfft.rfft(e, axis=0)  # (K, k)
     K = E.shape[0]
@@ -264,10 +260,11 @@ class Covariance:
 
 
 def covariance(X: np.ndarray, residual: np.ndarray, *, method: str = "hac", gram: np.ndarray | None = None,
-               dof: int | None = None, bandwidth: int | None = None) -> Covariance:
+               dof: int | None = None, bandwidth: int | None = None, nonzero: np.ndarray | None = None
+               ) -> Covariance:
     """The covariance of least-squares parameters fitted to ``residual`` with regressor ``X`` ((N, P) or (N, k, P)
     with ``residual`` (N, k): k channels sampled together, e.g. the 7 joints), see the module docstring.
-    ``gram``: ``X^T X`` when already known."""
+    ``gram``: ``X^T X`` when already known; ``nonzero`` (k, P): the channels each column of X is not zero on."""
     X = np.asarray(X, dtype=np.float64)
     g = _scores(X, residual)
     n, p = g.shape
@@ -290,7 +287,7 @@ def covariance(X: np.ndarray, residual: np.ndarray, *, method: str = "hac", gram
         Xk, ek = (X, e) if X.ndim == 3 else (X[:, None, :], e[:, None])
         nu = int(dof) if dof is not None else ewc_dof(g @ B)
         c_ewc = B @ _meat_ewc(g, nu) @ B
-        meat_f, dof_f = _meat_spectral(Xk, ek, B)
+        meat_f, dof_f = _meat_spectral(Xk, ek, B, nonzero=nonzero if X.ndim == 3 else None)
         c_spec = B @ meat_f @ B
         v_e = np.diag(_fold_dof(c_ewc, np.full(p, float(nu))))
         v_f = np.diag(_fold_dof(c_spec, np.maximum(dof_f, 2.0)))
@@ -310,7 +307,7 @@ def covariance(X: np.ndarray, residual: np.ndarray, *, method: str = "hac", gram
         else:
             e = np.asarray(residual, dtype=np.float64)
             Xk, ek = (X, e) if X.ndim == 3 else (X[:, None, :], e[:, None])
-            meat, dof_f = _meat_spectral(Xk, ek, B)
+            meat, dof_f = _meat_spectral(Xk, ek, B, nonzero=nonzero if X.ndim == 3 else None)
             cov = _fold_dof(B @ meat @ B, np.maximum(dof_f, 2.0))
             info["dof_spectral"] = dof_f
             return Covariance(0.5 * (cov + cov.T), math.inf, null, scale, method, info)
@@ -568,8 +565,10 @@ def confidence(ctx, effects: list, fits: list, y: np.ndarray, *, method: str = "
         return Confidence([_mirror(pb) for pb in pubs], [[] for _ in pubs], [[] for _ in pubs], labels,
                           np.array([p.value for p in params]), Covariance(np.zeros((P, P)), math.inf,
                                                                           np.zeros((P, 0)), np.ones(P), method))
-    Jl = Jf[live]
-    cv = covariance(Jt[live].transpose(1, 2, 0), resid, method=method, gram=Jl @ Jl.T)
+    Jlive = Jt if live.all() else Jt[live]  # (no 30 MB copies when every parameter is fitted, the usual case)
+    Jl = Jlive.reshape(len(Jlive), -1)
+    cv = covariance(Jlive.transpose(1, 2, 0), resid, method=method, gram=Jl @ Jl.T,
+                    nonzero=Jlive.any(axis=1).T)
     theta = np.array([p.value for p in params])
     # full-size covariance (dead parameters: not fitted, no column)
     full = np.zeros((P, P))
