@@ -11,8 +11,14 @@ A true value counts when diagnose selected the effect (and, per joint, that join
 rows say "other law". Run: ``python scripts/coverage_study.py --seeds 3`` (prints a Markdown table; ``--methods``
 compares covariance estimators on the same fits).
 
+``--redraws R`` separates bias from spread where a cell misses: generator B's log of each ``--redraw-seeds`` seed
+(its trajectory style and effect values) with R independent draws of its sensor chain, the effect fitted on all
+seven joints with the library (no selection), and per covariance method the coverage, the mean fitted/true ratio
+(a bias shows here) and the fitted values' spread against the median interval's (half-width / quantile).
+
 Usage: python scripts/coverage_study.py [--seeds N] [--first-seed K] [--duration S] [--rates 1000,100,30]
        [--methods hac,ewc,spectral,newey_west,ols] [--generators H,A,B]
+       python scripts/coverage_study.py --redraws 40 [--redraw-seeds 0,1] [--redraw-effect armature]
 """
 
 from __future__ import annotations
@@ -132,6 +138,50 @@ def score(gen: str, effects, truth: dict, sel_by_name: dict) -> list[dict]:
     return rows
 
 
+def redraw_study(seeds: list[int], effect: str, redraws: int, duration: float, methods: list[str]) -> None:
+    """See the module docstring (``--redraws``)."""
+    import independent_logs_b as gb
+    from scipy import stats
+
+    from franka_vs_gym.validation.compare import as_processed, baseline_config
+    from franka_vs_gym.validation.effects import Context, get_effect
+    from franka_vs_gym.validation.selection import Engine, Term
+    from franka_vs_gym.validation.uncertainty import confidence
+
+    lib, key, tkey, _ = MAP_B[effect][0]
+    print("| generator B seed (style) | method | coverage | mean fitted/true | spread / (median half-width / 1.96) | "
+          "median +- |")
+    print("|---|---|---|---|---|---|")
+    for seed in seeds:
+        res = {m: {"ins": 0, "n": 0, "ratio": [], "hw": []} for m in methods}
+        style = ""
+        for r in range(redraws):
+            log, truth = gb.make_log([effect], seed, duration=duration, rate=1000.0, noise_seed=r)
+            style = truth["style"]
+            tv = np.asarray(truth["params"][effect][tkey], dtype=float)
+            data = as_processed(log)
+            ctx = Context(data, baseline_config(data.log, None, False))
+            e = get_effect(lib)
+            sf = Engine(ctx, ctx.residual, [np.arange(ctx.n)]).fit([Term(e, e.shape(ctx, ctx.residual),
+                                                                         list(range(7)))], cv=False)
+            val = np.asarray(e.public(sf.fits[0])[key], dtype=float)
+            for m in methods:
+                ci = confidence(ctx, [e], sf.fits, ctx.residual, method=m, draws=50).params_ci95[0][key]
+                for j in range(7):
+                    if ci[j] is None or tv[j] == 0:
+                        continue
+                    res[m]["ins"] += int(ci[j][0] <= tv[j] <= ci[j][1])
+                    res[m]["n"] += 1
+                    res[m]["ratio"].append(val[j] / tv[j])
+                    res[m]["hw"].append((ci[j][1] - ci[j][0]) / 2 / tv[j])
+        z = stats.norm.ppf(0.975)
+        for m, v in res.items():
+            ratio, hw = np.array(v["ratio"]), np.array(v["hw"])
+            print(f"| {seed} ({style}) | {m} | {v['ins']}/{v['n']} ({100 * v['ins'] / max(v['n'], 1):.0f}%) | "
+                  f"{ratio.mean():.3f} +- {ratio.std() / np.sqrt(len(ratio)):.3f} | "
+                  f"{ratio.std() / (np.median(hw) / z):.2f} | {100 * np.median(hw):.1f}% |")
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--seeds", type=int, default=2)
@@ -142,7 +192,14 @@ def main(argv=None) -> int:
                    help="covariance methods to compare (hac, ewc, spectral, newey_west, ols)")
     p.add_argument("--generators", default="H,A,B")
     p.add_argument("--out", default=None, help="write the per-log rows as JSON here (refuses to overwrite)")
+    p.add_argument("--redraws", type=int, default=0, help="bias-or-spread study: sensor-chain redraws per seed")
+    p.add_argument("--redraw-seeds", default="0,1")
+    p.add_argument("--redraw-effect", default="armature", choices=sorted(MAP_B))
     args = p.parse_args(argv)
+    if args.redraws:
+        redraw_study([int(x) for x in args.redraw_seeds.split(",")], args.redraw_effect, args.redraws,
+                     args.duration, args.methods.split(","))
+        return 0
     import importlib
 
     D = importlib.import_module("franka_vs_gym.validation.diagnose")
