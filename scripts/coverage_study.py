@@ -13,8 +13,10 @@ compares covariance estimators on the same fits).
 
 ``--redraws R`` separates bias from spread where a cell misses: generator B's log of each ``--redraw-seeds`` seed
 (its trajectory style and effect values) with R independent draws of its sensor chain, the effect fitted on all
-seven joints with the library (no selection), and per covariance method the coverage, the mean fitted/true ratio
-(a bias shows here) and the fitted values' spread against the median interval's (half-width / quantile).
+seven joints with the library (no selection), and per covariance method the coverage, the median fitted/true
+ratio, and the errors in units of the standard deviation each interval claims (z = (fitted - true) / (half-width /
+1.96)): a bias shows as a mean z away from 0, intervals too narrow as an RMS z above 1 (with a Student quantile
+folded in, a correct interval has an RMS z below 1).
 
 Usage: python scripts/coverage_study.py [--seeds N] [--first-seed K] [--duration S] [--rates 1000,100,30]
        [--methods hac,ewc,spectral,newey_west,ols] [--generators H,A,B]
@@ -149,11 +151,11 @@ def redraw_study(seeds: list[int], effect: str, redraws: int, duration: float, m
     from franka_vs_gym.validation.uncertainty import confidence
 
     lib, key, tkey, _ = MAP_B[effect][0]
-    print("| generator B seed (style) | method | coverage | mean fitted/true | spread / (median half-width / 1.96) | "
-          "median +- |")
-    print("|---|---|---|---|---|---|")
+    z975 = stats.norm.ppf(0.975)
+    print("| generator B seed (style) | method | coverage | median fitted/true | mean z | RMS z | median +- |")
+    print("|---|---|---|---|---|---|---|")
     for seed in seeds:
-        res = {m: {"ins": 0, "n": 0, "ratio": [], "hw": []} for m in methods}
+        res = {m: {"ins": 0, "n": 0, "ratio": [], "hw": [], "z": []} for m in methods}
         style = ""
         for r in range(redraws):
             log, truth = gb.make_log([effect], seed, duration=duration, rate=1000.0, noise_seed=r)
@@ -174,12 +176,13 @@ def redraw_study(seeds: list[int], effect: str, redraws: int, duration: float, m
                     res[m]["n"] += 1
                     res[m]["ratio"].append(val[j] / tv[j])
                     res[m]["hw"].append((ci[j][1] - ci[j][0]) / 2 / tv[j])
-        z = stats.norm.ppf(0.975)
+                    # the error in units of the standard deviation the interval claims (half-width / 1.96)
+                    res[m]["z"].append((val[j] - tv[j]) / ((ci[j][1] - ci[j][0]) / 2 / z975))
         for m, v in res.items():
-            ratio, hw = np.array(v["ratio"]), np.array(v["hw"])
+            ratio, hw, zz = np.array(v["ratio"]), np.array(v["hw"]), np.array(v["z"])
             print(f"| {seed} ({style}) | {m} | {v['ins']}/{v['n']} ({100 * v['ins'] / max(v['n'], 1):.0f}%) | "
-                  f"{ratio.mean():.3f} +- {ratio.std() / np.sqrt(len(ratio)):.3f} | "
-                  f"{ratio.std() / (np.median(hw) / z):.2f} | {100 * np.median(hw):.1f}% |")
+                  f"{np.median(ratio):.3f} | {zz.mean():+.2f} +- {zz.std() / np.sqrt(len(zz)):.2f} | "
+                  f"{np.sqrt(np.mean(zz ** 2)):.2f} | {100 * np.median(hw):.1f}% |")
 
 
 def main(argv=None) -> int:

@@ -107,7 +107,8 @@ def sysid_fit(data, y: np.ndarray, train: np.ndarray, test: np.ndarray, effects:
         r = (y[train] - inv.run(values(params))) * w
         return [r.ravel()], None, None
 
-    opt, res = sysid.optimize(pd, residual_fn, optimizer="scipy", verbose=False, max_iters=60)
+    with contextlib.redirect_stdout(io.StringIO()):  # its scipy backend prints every iteration
+        opt, res = sysid.optimize(pd, residual_fn, optimizer="scipy", verbose=False, max_iters=60)
     r_star = residual_fn(res.x, opt)[0]
     _, half = sysid.calculate_intervals(r_star, res.jac)
     secs = time.perf_counter() - t0
