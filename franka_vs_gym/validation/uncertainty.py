@@ -46,7 +46,9 @@ own ``contribution``; exact for the linear ones), so the sandwich is the delta m
 fit. Reported quantities that are non-linear functions of these (payload mass, centre of mass and inertia from the
 ten dynamic parameters, the tilt angle from the gravity change) get their interval by propagating ``N(theta,
 Sigma)`` through the effect's own ``public`` (``N_DRAWS`` seeded draws; the interval is the value +- the Student
-quantile times the draws' standard deviation); no effect needs code of its own, plug-ins included.
+quantile times the draws' standard deviation); numbers ``public`` reports linearly (a friction coefficient, an
+armature, an offset: checked by finite differences and two probe draws) get ``sqrt(g^T Sigma g)`` exactly instead.
+No effect needs code of its own, plug-ins included.
 
 **Unidentifiable directions.** Eigen-directions of the column-scaled ``J^T J`` below ``NULL_TOL`` of the largest
 are not identified by the log. Every reported number that moves along one gets the interval ``None``, and the
@@ -594,8 +596,14 @@ def confidence(ctx, effects: list, fits: list, y: np.ndarray, *, method: str = "
         mirror = _mirror(pub)
         paths = _leaf_paths(pub)
         own = [k for k, p in enumerate(params) if p.term == ti]
-        vals = {pth: [] for pth in paths}
-        for d in range(draws):
+        # numbers that are linear in the parameters (a friction coefficient, an armature, an offset): their standard
+        # deviation exactly, sqrt(g^T Sigma g); the others (payload mass and centre of mass, a tilt angle) by draws
+        G = _linear_public(e, ctx, f, [params[k] for k in own], theta[own], Z[:2, own], pub, paths)
+        vals: dict[tuple, list] = {pth: [] for pth in paths}
+        if G is not None:
+            C = full[np.ix_(own, own)]
+            sd_lin = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", G, C, G), 0.0))
+        for d in range(draws if G is None else 0):
             x = theta.copy()
             x[own] += Z[d, own]
             pd = _public(e, ctx, _set_theta(f, [params[k] for k in own], x[own]))
@@ -615,13 +623,19 @@ def confidence(ctx, effects: list, fits: list, y: np.ndarray, *, method: str = "
                     a, b = _get(pub, pth), _get(pd, pth)
                     if a is None or b is None or abs(b - a) > 1e-3 * (abs(a) + 1e-6):
                         moved.add(pth)
-        for pth in paths:
+        for i_p, pth in enumerate(paths):
             v0 = _get(pub, pth)
-            vs = np.array([v for v in vals[pth] if v is not None], dtype=float)
-            # None: moves along an unidentified direction, or does not move at all (nothing fitted drives it)
-            if v0 is None or pth in moved or len(vs) < 0.9 * draws or float(np.ptp(vs)) == 0.0:
-                continue
-            half = q * float(np.std(vs))
+            if G is not None:
+                sd = float(sd_lin[i_p])
+                if v0 is None or pth in moved or not sd > 0.0:  # None: unidentified, or nothing fitted drives it
+                    continue
+            else:
+                vs = np.array([v for v in vals[pth] if v is not None], dtype=float)
+                # None: moves along an unidentified direction, or does not move at all (nothing fitted drives it)
+                if v0 is None or pth in moved or len(vs) < 0.9 * draws or float(np.ptp(vs)) == 0.0:
+                    continue
+                sd = float(np.std(vs))
+            half = q * sd
             _set(mirror, pth, [_r(v0 - half), _r(v0 + half)])
         if any(k in pub for k in ("link_mass_kg", "link_com_m")):
             sentences_own = ("link_inertials: single link masses and centres of mass are not identifiable from joint "
@@ -643,6 +657,39 @@ def confidence(ctx, effects: list, fits: list, y: np.ndarray, *, method: str = "
         names = {labels[k] for k in own}
         unid.append([s for s in sentences if any(nm in s for nm in names)] + ([sentences_own] if sentences_own else []))
     return Confidence(ci, corr, unid, labels, theta, cov_full)
+
+
+def _linear_public(effect, ctx, fit, own: list[_Param], theta: np.ndarray, probes: np.ndarray, pub: dict,
+                   paths: list[tuple]) -> np.ndarray | None:
+    """(leaves, own parameters) gradient of the effect's reported numbers when they are linear in its parameters
+    (finite differences of a unit change of each coefficient, or its step for a shape parameter, then checked on
+    the given probe draws: the linear prediction must hold to the rounding of ``public``), else None."""
+    if not own or not paths:
+        return None
+
+    def leaves(x: np.ndarray) -> np.ndarray | None:
+        out = [_get(_public(effect, ctx, _set_theta(fit, own, x)), pth) for pth in paths]
+        return None if any(v is None for v in out) else np.array(out, dtype=float)
+
+    v0 = [_get(pub, pth) for pth in paths]
+    if any(v is None for v in v0):
+        return None
+    v0 = np.array(v0, dtype=float)
+    G = np.empty((len(paths), len(own)))
+    for i, p in enumerate(own):
+        h = 1.0 if p.key == "coef" else p.step
+        x = theta.copy()
+        x[i] += h
+        v = leaves(x)
+        if v is None:
+            return None
+        G[:, i] = (v - v0) / h
+    for z in probes:
+        v = leaves(theta + z)
+        lin = G @ z
+        if v is None or np.any(np.abs(v - v0 - lin) > 2e-6 * (1 + np.abs(v0)) + 1e-3 * np.abs(lin)):
+            return None
+    return G
 
 
 def _r(x: float) -> float:
