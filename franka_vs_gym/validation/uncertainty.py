@@ -28,12 +28,12 @@ cosines. On a slow motion it is not: a regressor whose energy sits in the log's 
 (an acceleration on 0.1 Hz point-to-point moves or slow multi-sines) meets the noise where 1/f noise and a slow
 drift are several times the white level, and the band average dilutes that (measured on generator B with
 ``scripts/coverage_study.py --redraws 40``: no bias in the armature fit, median ratio to the truth 1.01-1.04, but a
-spread 1.5-1.6 times what EWC claims and 78-80 % coverage). So ``method="hac"`` also computes the
+spread 1.5-1.6 times what EWC claims and 78-81 % coverage). So ``method="hac"`` also computes the
 **spectral** sandwich of :func:`_meat_spectral` (``(1/N) sum_f J(f)^H S_e(f) J(f)``: the residual's smoothed
 cross-periodogram weighted by each regressor's own spectrum, with Satterthwaite degrees of freedom per parameter)
 and keeps, parameter by parameter, the wider of the two intervals (each with its own Student quantile, folded into
 the covariance so that +-1.96 standard deviations is the interval): EWC covers heteroscedastic noise, the spectral
-estimate covers noise coloured where the regressor lives (the same redraws: 95-96 % coverage).
+estimate covers noise coloured where the regressor lives (the same redraws: 95-98 % coverage).
 
 ``method="hac"`` (the default of :func:`parameter_covariance`) is this combination; ``"ewc"`` and ``"spectral"``
 alone, ``"newey_west"`` (Bartlett kernel, Andrews' AR(1) bandwidth, normal quantile) and ``"ols"`` (white noise, as
