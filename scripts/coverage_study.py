@@ -11,7 +11,16 @@ A true value counts when diagnose selected the effect (and, per joint, that join
 rows say "other law". Run: ``python scripts/coverage_study.py --seeds 3`` (prints a Markdown table; ``--methods``
 compares covariance estimators on the same fits).
 
-Usage: python scripts/coverage_study.py [--seeds N] [--duration S] [--rates 1000,100,30] [--methods hac,ols]
+``--redraws R`` separates bias from spread where a cell misses: generator B's log of each ``--redraw-seeds`` seed
+(its trajectory style and effect values) with R independent draws of its sensor chain, the effect fitted on all
+seven joints with the library (no selection), and per covariance method the coverage, the median fitted/true
+ratio, and the errors in units of the standard deviation each interval claims (z = (fitted - true) / (half-width /
+1.96)): a bias shows as a mean z away from 0, intervals too narrow as an RMS z above 1 (with a Student quantile
+folded in, a correct interval has an RMS z below 1).
+
+Usage: python scripts/coverage_study.py [--seeds N] [--first-seed K] [--duration S] [--rates 1000,100,30]
+       [--methods hac,ewc,spectral,newey_west,ols] [--generators H,A,B]
+       python scripts/coverage_study.py --redraws 40 [--redraw-seeds 0,1] [--redraw-effect armature]
 """
 
 from __future__ import annotations
@@ -53,9 +62,9 @@ MAP_H = {
 OTHER_LAW = {("A", "coulomb"), ("B", "coulomb")}
 
 
-def cases(seeds: int) -> list[tuple[str, tuple[str, ...], int]]:
+def cases(seeds: int, first: int = 0) -> list[tuple[str, tuple[str, ...], int]]:
     out = []
-    for s in range(seeds):
+    for s in range(first, first + seeds):
         for e in MAP_H:
             out.append(("H", (e,), s))
         out.append(("H", ("coulomb_friction", "gravity_tilt", "armature"), 100 + s))
@@ -131,15 +140,69 @@ def score(gen: str, effects, truth: dict, sel_by_name: dict) -> list[dict]:
     return rows
 
 
+def redraw_study(seeds: list[int], effect: str, redraws: int, duration: float, methods: list[str]) -> None:
+    """See the module docstring (``--redraws``)."""
+    import independent_logs_b as gb
+    from scipy import stats
+
+    from franka_vs_gym.validation.compare import as_processed, baseline_config
+    from franka_vs_gym.validation.effects import Context, get_effect
+    from franka_vs_gym.validation.selection import Engine, Term
+    from franka_vs_gym.validation.uncertainty import confidence
+
+    lib, key, tkey, _ = MAP_B[effect][0]
+    z975 = stats.norm.ppf(0.975)
+    print("| generator B seed (style) | method | coverage | median fitted/true | mean z | RMS z | median +- |")
+    print("|---|---|---|---|---|---|---|")
+    for seed in seeds:
+        res = {m: {"ins": 0, "n": 0, "ratio": [], "hw": [], "z": []} for m in methods}
+        style = ""
+        for r in range(redraws):
+            log, truth = gb.make_log([effect], seed, duration=duration, rate=1000.0, noise_seed=r)
+            style = truth["style"]
+            tv = np.asarray(truth["params"][effect][tkey], dtype=float)
+            data = as_processed(log)
+            ctx = Context(data, baseline_config(data.log, None, False))
+            e = get_effect(lib)
+            sf = Engine(ctx, ctx.residual, [np.arange(ctx.n)]).fit([Term(e, e.shape(ctx, ctx.residual),
+                                                                         list(range(7)))], cv=False)
+            val = np.asarray(e.public(sf.fits[0])[key], dtype=float)
+            for m in methods:
+                ci = confidence(ctx, [e], sf.fits, ctx.residual, method=m, draws=50).params_ci95[0][key]
+                for j in range(7):
+                    if ci[j] is None or tv[j] == 0:
+                        continue
+                    res[m]["ins"] += int(ci[j][0] <= tv[j] <= ci[j][1])
+                    res[m]["n"] += 1
+                    res[m]["ratio"].append(val[j] / tv[j])
+                    res[m]["hw"].append((ci[j][1] - ci[j][0]) / 2 / tv[j])
+                    # the error in units of the standard deviation the interval claims (half-width / 1.96)
+                    res[m]["z"].append((val[j] - tv[j]) / ((ci[j][1] - ci[j][0]) / 2 / z975))
+        for m, v in res.items():
+            ratio, hw, zz = np.array(v["ratio"]), np.array(v["hw"]), np.array(v["z"])
+            print(f"| {seed} ({style}) | {m} | {v['ins']}/{v['n']} ({100 * v['ins'] / max(v['n'], 1):.0f}%) | "
+                  f"{np.median(ratio):.3f} | {zz.mean():+.2f} +- {zz.std() / np.sqrt(len(zz)):.2f} | "
+                  f"{np.sqrt(np.mean(zz ** 2)):.2f} | {100 * np.median(hw):.1f}% |")
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--seeds", type=int, default=2)
+    p.add_argument("--first-seed", type=int, default=0, help="seeds first..first+seeds-1 (more draws of a cell)")
     p.add_argument("--duration", type=float, default=10.0)
     p.add_argument("--rates", default="1000,100,30")
-    p.add_argument("--methods", default="hac", help="covariance methods to compare (hac, newey_west, ols)")
+    p.add_argument("--methods", default="hac",
+                   help="covariance methods to compare (hac, ewc, spectral, newey_west, ols)")
     p.add_argument("--generators", default="H,A,B")
     p.add_argument("--out", default=None, help="write the per-log rows as JSON here (refuses to overwrite)")
+    p.add_argument("--redraws", type=int, default=0, help="bias-or-spread study: sensor-chain redraws per seed")
+    p.add_argument("--redraw-seeds", default="0,1")
+    p.add_argument("--redraw-effect", default="armature", choices=sorted(MAP_B))
     args = p.parse_args(argv)
+    if args.redraws:
+        redraw_study([int(x) for x in args.redraw_seeds.split(",")], args.redraw_effect, args.redraws,
+                     args.duration, args.methods.split(","))
+        return 0
     import importlib
 
     D = importlib.import_module("franka_vs_gym.validation.diagnose")
@@ -158,7 +221,7 @@ def main(argv=None) -> int:
     gens = set(args.generators.split(","))
     rows = []
     t0 = time.time()
-    all_cases = [c for c in cases(args.seeds) if c[0] in gens]
+    all_cases = [c for c in cases(args.seeds, args.first_seed) if c[0] in gens]
     n_logs = 0
     for i, (gen, effects, seed) in enumerate(all_cases):
         logs, truth = logs_for(gen, effects, seed, args.duration, rates)

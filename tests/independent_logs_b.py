@@ -187,9 +187,11 @@ def _smooth_noise(rng, n, alpha):
 
 
 # ---------------------------------------------------------------- the generator
-def make_logs(effects, seed: int, duration: float = 10.0, rates=(1000.0, 100.0, 30.0), style: str | None = None
-              ) -> tuple[dict[float, MeasurementLog], dict]:
-    """Logs of ``duration`` s at each rate (Hz) with the given hidden effects, and the truth."""
+def make_logs(effects, seed: int, duration: float = 10.0, rates=(1000.0, 100.0, 30.0), style: str | None = None,
+              noise_seed: int | None = None) -> tuple[dict[float, MeasurementLog], dict]:
+    """Logs of ``duration`` s at each rate (Hz) with the given hidden effects, and the truth. ``noise_seed``: draw
+    the sensor chain (noise, quantisation, velocity filter) from its own seed, the motion and effects staying those
+    of ``seed`` (None: everything from ``seed``, as always)."""
     effects = list(effects)
     rng = np.random.default_rng(77_000 + seed)
     if style is None:
@@ -351,6 +353,8 @@ def make_logs(effects, seed: int, duration: float = 10.0, rates=(1000.0, 100.0, 
         parts["delay"] = tau_d - tau
         tau = tau_d
     # -------------------------------------------------------- sensor chain at 1 kHz
+    if noise_seed is not None:
+        rng = np.random.default_rng((88_000, seed, noise_seed))
     sig = rng.uniform(0.6, 1.4) * np.array([0.25, 0.3, 0.2, 0.25, 0.1, 0.1, 0.05]) * rng.uniform(0.8, 1.25, 7)
     phi = rng.uniform(0.2, 0.6)
     white = rng.normal(size=(n, 7))
@@ -416,9 +420,10 @@ def _sampling(rng, t, rate):
     return idx, stamps
 
 
-def make_log(effects, seed: int, duration: float = 10.0, rate: float = 1000.0, style: str | None = None):
+def make_log(effects, seed: int, duration: float = 10.0, rate: float = 1000.0, style: str | None = None,
+             noise_seed: int | None = None):
     """One log at one rate: ``(log, truth)``."""
-    logs, truth = make_logs(effects, seed, duration, (rate,), style)
+    logs, truth = make_logs(effects, seed, duration, (rate,), style, noise_seed)
     return logs[rate], truth
 
 
