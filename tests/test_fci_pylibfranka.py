@@ -185,7 +185,9 @@ def test_record_writes_a_workbench_log(tmp_path):
         FCIServer(loopback_host(21), lockstep=True, camera=False, verbose=False, record=log_path)
 
 
-@pytest.mark.parametrize("stall, reflex", [(0.005, False), (0.06, True)])
+# the short stall is 15 cycles (below the tolerance of 50): a 5 ms stall once went unseen in a loaded CI run, where
+# the server, started late itself, re-anchors its cycle grid and counts the overrun cycles as its own
+@pytest.mark.parametrize("stall, reflex", [(0.015, False), (0.06, True)])
 def test_real_time_missed_deadlines(stall, reflex):
     """Real-time mode: a client that stalls lowers control_command_success_rate; beyond the tolerance the
     communication-constraints reflex stops the motion."""

@@ -9,7 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-pytest.importorskip("mujoco.sysid")
+sysid = pytest.importorskip("mujoco.sysid")
+if not hasattr(sysid, "TimeSeries"):  # the module imports without its extras, and is then empty
+    pytest.skip("mujoco.sysid needs its extras: pip install -e '.[sysid]'", allow_module_level=True)
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
 
 import sysid_side_by_side as side  # noqa: E402

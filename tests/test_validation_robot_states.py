@@ -86,6 +86,17 @@ def test_franky_states_recorded_and_dumped_are_read_and_at_the_floor(tmp_path):
     for name in ("recorded.npz", "states.pkl"):
         res = compare(logs[name])
         assert _at_floor(res), (name, res.rmse_tau, res.noise_floor)
+    if importlib.util.find_spec("pylibfranka") is not None:
+        # a process that has imported pylibfranka cannot import franky's types (both bind libfranka's): the pickle
+        # is then read in a fresh process, with the same result
+        code = ("import sys, json, pylibfranka; from franka_vs_gym.validation.logs import load_log; "
+                "log = load_log(sys.argv[1]); print(json.dumps([log.n, float(abs(log.q).sum()), log.tool]))")
+        run = subprocess.run([sys.executable, "-c", code, str(tmp_path / "states.pkl")], capture_output=True,
+                             text=True, timeout=300)
+        assert run.returncode == 0, run.stderr
+        n, qsum, tool = json.loads(run.stdout)
+        ref = logs["states.pkl"]
+        assert n == ref.n and abs(qsum - float(np.abs(ref.q).sum())) < 1e-9 * qsum and tool == ref.tool
 
 
 def _states(n: int = 400, t0: float = 12.5):

@@ -554,18 +554,50 @@ class _StateUnpickler(pickle.Unpickler):
                 or (module, name) in self._NUMPY | self._BUILTINS):
             try:
                 return super().find_class(module, name)
-            except ImportError:
+            except ImportError as e:
+                if "already registered" in str(e):  # franky and pylibfranka both bind libfranka's types: the
+                    raise _BindingConflict(str(e)) from None  # one imported first keeps them (read in a new process)
                 raise ValueError(f"the pickle holds {module}.{name}; reading it needs that package installed "
                                  "(pip install 'franka_vs_gym[fci]')") from None
         raise ValueError(f"the pickle holds {module}.{name}, which is not part of a robot state; only franky "
                          "states, numpy arrays and lists/dicts of them are read (nothing else is executed)")
 
 
+class _BindingConflict(Exception):
+    """The pickle's franky types cannot be imported here: this process has already imported pylibfranka, whose
+    bindings register the same libfranka types (the two cannot be imported into one process)."""
+
+
+def _read_pickle_elsewhere(path: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """:func:`read_pickle` in a fresh Python process (one that has not imported pylibfranka); its arrays and
+    metadata come back as a pickle of numpy arrays and plain values only."""
+    import subprocess
+    import sys
+
+    code = ("import pickle, sys; from franka_vs_gym.validation.readers.robot_states import read_pickle; "
+            "sys.stdout.buffer.write(pickle.dumps(read_pickle(sys.argv[1])))")
+    run = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True, timeout=600)
+    if run.returncode != 0:
+        err = run.stderr.decode(errors="replace").strip().splitlines()
+        raise ValueError(err[-1] if err else f"{path}: the pickle could not be read in a separate process")
+
+    class _Plain(pickle.Unpickler):  # what read_pickle returns: numpy arrays and builtins, nothing else
+        def find_class(self, module: str, name: str) -> Any:
+            if (module, name) in _StateUnpickler._NUMPY | _StateUnpickler._BUILTINS:
+                return super().find_class(module, name)
+            raise ValueError(f"{path}: unexpected {module}.{name} from the separate reader")
+
+    return _Plain(_pyio.BytesIO(run.stdout)).load()
+
+
 def read_pickle(path: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-    """A pickled list of franky RobotStates (or of dicts of arrays), read without executing anything else."""
+    """A pickled list of franky RobotStates (or of dicts of arrays), read without executing anything else. In a
+    process that has imported pylibfranka (franky's types then cannot be imported), it is read in a fresh one."""
     with io.open_input(path, "rb", what="log") as fh:
         try:
             obj = _StateUnpickler(fh).load()
+        except _BindingConflict:
+            return _read_pickle_elsewhere(Path(path))
         except ValueError as e:
             raise ValueError(f"{path}: {e}") from None
         except Exception as e:  # a truncated or foreign pickle
