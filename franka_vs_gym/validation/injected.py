@@ -163,6 +163,22 @@ def _outside(kind: str, base: ModelConfig, m: SimpleNamespace, tau_meas: np.ndar
     raise ValueError(f"unknown kind {kind!r}: choose from {', '.join(KINDS)}")
 
 
+def _draw_setup(log: MeasurementLog, parts: list[str], seed: int, config: ModelConfig | None,
+                noise: np.ndarray | None) -> tuple[np.random.Generator, ModelConfig, np.ndarray, Any, np.ndarray]:
+    """What :func:`inject` and :func:`truth_effects` draw and size effects from: the seeded generator of ``parts``,
+    the model the effects change (default: the FER without tool, the log's gravity), the noise floor (default: the
+    cleaned log's estimate, at least 1e-3 Nm), the log's motion and the model's torque along it."""
+    rng = np.random.default_rng([seed, sum(KINDS.index(p) + 1 for p in parts)])
+    base = config if config is not None else ModelConfig(tool=Tool.none(), gravity=log.gravity)
+    if noise is None:
+        from franka_vs_gym.validation.signals import clean
+
+        noise = clean(log).noise
+    noise = np.maximum(np.asarray(noise, dtype=float), 1e-3)
+    m = motion(log)
+    return rng, base, noise, m, _torque(base, m)
+
+
 def truth_effects(log: MeasurementLog, kind: str, seed: int, noise: np.ndarray | None = None,
                   config: ModelConfig | None = None) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
     """Library effect(s) ``kind`` (one of :data:`LIBRARY_KINDS`, or "a+b") drawn and sized exactly as
@@ -172,15 +188,7 @@ def truth_effects(log: MeasurementLog, kind: str, seed: int, noise: np.ndarray |
     parts = kind.split("+")
     if not all(p in LIBRARY_KINDS for p in parts):
         raise ValueError(f"kind {kind!r}: a served truth takes library effects only ({', '.join(LIBRARY_KINDS)})")
-    rng = np.random.default_rng([seed, sum(KINDS.index(p) + 1 for p in parts)])
-    base = config if config is not None else ModelConfig(tool=Tool.none(), gravity=log.gravity)
-    if noise is None:
-        from franka_vs_gym.validation.signals import clean
-
-        noise = clean(log).noise
-    noise = np.maximum(np.asarray(noise, dtype=float), 1e-3)
-    m = motion(log)
-    tau0 = _torque(base, m)
+    rng, base, noise, m, tau0 = _draw_setup(log, parts, seed, config, noise)
     effects, truth = [], []
     for part in parts:
         _, tr = _library(part, base, m, tau0, noise, rng)
@@ -208,17 +216,9 @@ def inject(log: MeasurementLog, kind: str, seed: int, config: ModelConfig | None
     torque, and the truth (one dict per effect: name, joints touched, parameters). ``config`` is the model the
     effects change (default: the FER without tool, gravity of the log); ``noise`` (7,) Nm the noise floor that
     sizes them (default: the cleaned log's estimate)."""
-    from franka_vs_gym.validation.signals import clean
-
     if kind not in KINDS and not all(p in KINDS for p in kind.split("+")):
         raise ValueError(f"unknown kind {kind!r}: choose from {', '.join(KINDS)}")
-    rng = np.random.default_rng([seed, sum(KINDS.index(p) + 1 for p in kind.split("+"))])
-    base = config if config is not None else ModelConfig(tool=Tool.none(), gravity=log.gravity)
-    if noise is None:
-        noise = clean(log).noise
-    noise = np.maximum(np.asarray(noise, dtype=float), 1e-3)
-    m = motion(log)
-    tau0 = _torque(base, m)
+    rng, base, noise, m, tau0 = _draw_setup(log, kind.split("+"), seed, config, noise)
     tau = log.tau_J.copy()
     truth = []
     delay = 0.0
