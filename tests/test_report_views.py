@@ -14,7 +14,14 @@ import pytest
 from franka_vs_gym.cli import main as cli
 from franka_vs_gym.validation.hidden import make_hidden_effect_log
 from franka_vs_gym.validation.logs import save_log
-from franka_vs_gym.validation.report.content import binned_mean, envelope, finding_views, unit_of, value_text
+from franka_vs_gym.validation.report.content import (
+    binned_mean,
+    correlation_lines,
+    envelope,
+    finding_views,
+    unit_of,
+    value_text,
+)
 from franka_vs_gym.validation.structure import Finding, Unexplained
 
 
@@ -195,3 +202,16 @@ def test_excite_report_refuses_a_design_without_limits(tmp_path):
         excite_report({"limits": {"robot_limits": {"q_min_rad": [0] * 7}}}, np.zeros((10, 5)), tmp_path / "r",
                       tmp_path)
     assert not (tmp_path / "r").exists()
+
+
+def test_a_correlated_pair_between_two_effects_is_said_once():
+    """The payload lists (mass, gravity z) and the tilt (gravity z, mass): one line, the strongest first, with the
+    count of the rest beyond the top ones."""
+    pairs = [{"a": "payload mass", "b": "gravity z", "r": 0.927}, {"a": "gravity z", "b": "payload mass", "r": 0.927},
+             {"a": "offset j0", "b": "offset j3", "r": -0.95}]
+    lines = correlation_lines(pairs)
+    assert lines == ["  correlated: offset j0 and offset j3 (r = -0.95)",
+                     "  correlated: payload mass and gravity z (r = 0.927)"]
+    many = [{"a": f"p{i}", "b": f"q{i}", "r": 0.91 + i / 1000} for i in range(7)]
+    more = "  correlated: 2 more pairs with abs(r) > 0.9 (--verbose or --json)"
+    assert correlation_lines(many + many[::-1])[-1] == more

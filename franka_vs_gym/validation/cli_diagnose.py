@@ -80,9 +80,9 @@ def main(args: argparse.Namespace) -> int:
     # the verdict with its fitted values first; details with --verbose
     for line in verdict_lines(d):
         print(line)
-    for s in d.selection:
-        for line in correlation_lines(getattr(s, "correlations", None), verbose=args.verbose):
-            print(line)
+    pairs = [c for s in d.selection for c in (getattr(s, "correlations", None) or [])]
+    for line in correlation_lines(pairs, verbose=args.verbose):
+        print(line)
     after = (f" -> {np.round(d.rmse_tau_selected, 3).tolist()} with the selected set (held out)"
              if d.rmse_tau_selected is not None and d.selection else "")
     print(f"torque RMSE (Nm): {np.round(d.rmse_tau, 3).tolist()}{after}")

@@ -180,8 +180,11 @@ def fit_lines(fit) -> list[str]:
 def correlation_lines(correlations: list[dict[str, Any]] | None, unidentifiable: list[str] | None = None,
                       verbose: bool = False, top: int = 5) -> list[str]:
     """Strongly correlated parameter pairs (the strongest ``top`` unless ``verbose``) and the combinations the log
-    cannot identify, in words."""
-    corr = sorted(correlations or [], key=lambda c: -abs(c["r"]))
+    cannot identify, in words. A pair listed twice (under each of two effects, in either order) is said once."""
+    unique: dict[frozenset, dict[str, Any]] = {}
+    for c in correlations or []:
+        unique.setdefault(frozenset((c["a"], c["b"])), c)
+    corr = sorted(unique.values(), key=lambda c: -abs(c["r"]))
     shown = corr if verbose else corr[:top]
     lines = [f"  correlated: {c['a']} and {c['b']} (r = {c['r']})" for c in shown]
     if len(corr) > len(shown):
