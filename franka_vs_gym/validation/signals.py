@@ -206,7 +206,7 @@ def velocity_noise_level(hf: np.ndarray, settings: CleanSettings) -> np.ndarray:
     rate, fc = settings.rate, settings.cutoff
     nper = int(min(len(hf), max(16, 2 ** int(np.ceil(np.log2(4 * rate / fc))))))
     f, p = signal.welch(hf, fs=rate, nperseg=nper, axis=0, detrend=False)
-    band = (f >= fc) & (f <= min(4.0 * fc, 0.5 * rate))
+    band = (f >= fc) & (f <= 4.0 * fc) & (f < 0.5 * rate)  # (the Nyquist bin of a one-sided PSD is not doubled)
     _, h = signal.sosfreqz(_lowpass(settings), worN=f[band], fs=rate)
     keep = (1.0 - np.abs(h) ** 2) ** 2  # the power the complementary high-pass of the zero-phase filter keeps
     level = keep @ p[band] / max(float(keep @ keep), 1e-12)  # one-sided PSD, (rad/s)^2 / Hz
