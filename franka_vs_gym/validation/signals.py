@@ -29,6 +29,7 @@ Nothing here modifies the input log.
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -144,6 +145,8 @@ class ProcessedLog:
     #: content above the cutoff, scaled like the torque noise floor, through the low-pass and the derivative);
     #: None when not estimated
     ddq_noise: np.ndarray | None = None
+    #: the equivalent degrees of freedom of ``ddq_noise``'s variance (a chi-square estimate from the periodogram)
+    ddq_noise_dof: float = math.inf
 
     @property
     def n(self) -> int:
@@ -157,7 +160,8 @@ class ProcessedLog:
         """The samples at indices ``idx`` (a copy; the time grid may become non-uniform)."""
         return ProcessedLog(self.time[idx], self.q[idx], self.dq[idx], self.ddq[idx], self.tau[idx],
                             self.tau_filt[idx], {k: v[idx] for k, v in self.optional.items()}, self.noise,
-                            self.log, self.report, self.settings, self.ddq_noise)
+                            self.log, self.report, self.settings, self.ddq_noise,
+                            self.ddq_noise_dof)
 
 
 
@@ -196,13 +200,14 @@ def ddq_noise_gain(settings: CleanSettings) -> float:
     return float(np.sqrt(np.sum(h[half // 2: -(half // 2)] ** 2)))
 
 
-def velocity_noise_level(hf: np.ndarray, settings: CleanSettings) -> np.ndarray:
+def velocity_noise_level(hf: np.ndarray, settings: CleanSettings) -> tuple[np.ndarray, float]:
     """(7,) the standard deviation of the white noise whose power spectral density ``hf`` (N, 7), the velocity's
     content above the cutoff (``dq - lowpass(dq)``), shows just above the cutoff (from the cutoff to 4 times it,
-    below half the rate; least squares of the Welch periodogram on the complementary high-pass's power response):
-    the level of the velocity noise at the top of the log's band, where its derivative matters. A level there,
-    unlike the RMS of all of ``hf``: a 1 kHz velocity differentiated from an encoder has most of its noise at
-    hundreds of Hz and little near 10 Hz, while at 30 Hz the same noise is folded flat over the whole band."""
+    below half the rate; least squares of the Welch periodogram on the complementary high-pass's power response),
+    and the estimate's equivalent degrees of freedom (Hann segments overlapping by half: 1.89 per segment and
+    independent bin, a bin being 1.5 of the periodogram's). The level there, unlike the RMS of all of ``hf``: a
+    1 kHz velocity differentiated from an encoder has most of its noise at hundreds of Hz and little near 10 Hz,
+    while at 30 Hz the same noise is folded flat over the whole band."""
     rate, fc = settings.rate, settings.cutoff
     nper = int(min(len(hf), max(16, 2 ** int(np.ceil(np.log2(4 * rate / fc))))))
     f, p = signal.welch(hf, fs=rate, nperseg=nper, axis=0, detrend=False)
@@ -210,7 +215,9 @@ def velocity_noise_level(hf: np.ndarray, settings: CleanSettings) -> np.ndarray:
     _, h = signal.sosfreqz(_lowpass(settings), worN=f[band], fs=rate)
     keep = (1.0 - np.abs(h) ** 2) ** 2  # the power the complementary high-pass of the zero-phase filter keeps
     level = keep @ p[band] / max(float(keep @ keep), 1e-12)  # one-sided PSD, (rad/s)^2 / Hz
-    return np.sqrt(np.maximum(level, 0.0) * rate / 2.0)
+    segments = max(1, (len(hf) - nper) // (nper // 2) + 1)
+    bins = float(keep.sum() ** 2 / max(float(keep @ keep), 1e-12))
+    return np.sqrt(np.maximum(level, 0.0) * rate / 2.0), max(1.89 * segments * bins / 1.5, 1.0)
 
 
 def _lowpass(settings: CleanSettings):
@@ -327,11 +334,13 @@ def clean(log: MeasurementLog, settings: CleanSettings | None = None) -> Process
     # the measured velocity's noise (its content above the cutoff, as for the torque) and what the derivative makes
     # of it: at low rates the velocity's broadband noise (a differentiated encoder) is folded into the log's band and
     # its derivative is an error in the regressor of every inertial effect (see uncertainty.inertial_bias)
-    ddq_noise = velocity_noise_level(dq_res[sl] - dq[sl], s) * ddq_noise_gain(s)
+    dq_level, ddq_noise_dof = velocity_noise_level(dq_res[sl] - dq[sl], s)
+    ddq_noise = dq_level * ddq_noise_gain(s)
     report = CleaningReport(n_in, int(stale.sum()), int(rep.sum()), float(raw_dt.min()), float(np.median(raw_dt)),
                             float(raw_dt.max()), int(sl.stop - sl.start), asdict(s), warnings, bridged)
     return ProcessedLog(grid[sl] - grid[0], q[sl], dq[sl], ddq[sl], tau[sl], tau_filt[sl],
-                        {kk: v[sl] for kk, v in optional.items()}, noise, log, report, s, ddq_noise)
+                        {kk: v[sl] for kk, v in optional.items()}, noise, log, report, s, ddq_noise,
+                        ddq_noise_dof)
 
 
 MAX_EFFECT_SAMPLES = 60_000  # samples the effect library works on (60 s at 1 kHz); longer logs are decimated

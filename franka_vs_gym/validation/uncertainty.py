@@ -689,9 +689,12 @@ def inertial_bias(ctx, effects: list, params: list, gram: np.ndarray) -> np.ndar
     ``E[theta_hat] - theta = (J^T J)^-1 c`` with ``c_k = -sigma_j^2 sum_t (M_jj(q_t) + I_j)`` for the armature
     coefficient ``k`` of joint ``j`` (``I_j`` the model's plus the fitted armature) and 0 elsewhere: the armature
     is pulled down by about ``(M_jj + I_j) sigma_j^2 / mean(ddq_j^2)``, a fraction of the link inertia ten times
-    the armature's size, and the other parameters of the set by their correlation with it. Measured on generator B
-    at 30 Hz (``scripts/coverage_study.py``): an armature fitted at 0.5-0.9 times (down to -6 times on a joint
-    that barely accelerates) the truth on exact decimations of nearly noise-free logs."""
+    the armature's size, and the other parameters of the set by their correlation with it. ``sigma_j^2`` is taken
+    at the upper 97.5 % bound of its chi-square estimate (``ProcessedLog.ddq_noise_dof``; about 1.3 times the
+    estimate on 8 s at 30 Hz): the returned bias is the largest the log supports, and the intervals extend to it.
+    Measured on generator B at 30 Hz: an armature fitted at 0.5-0.9 times the truth (down to -6 times on a joint
+    that barely accelerates) on exact decimations of logs with 1 % of the torque noise (docs/workbench.md,
+    section 12)."""
     sig = getattr(ctx.data, "ddq_noise", None)
     out = np.zeros(len(params))
     arm = [k for k, p in enumerate(params) if p.key == "coef" and getattr(effects[p.term], "name", "") == "armature"]
@@ -705,10 +708,14 @@ def inertial_bias(ctx, effects: list, params: list, gram: np.ndarray) -> np.ndar
     d = model.createData()
     sub = ctx.coarse  # M(q) changes slowly: the mean over the decimated samples
     mjj = np.mean([np.diag(pin.crba(model, d, ctx.data.q[i])) for i in sub], axis=0)  # armature included
+    # the noise variance at its upper 97.5 % bound (the level is a chi-square estimate from the velocity's
+    # periodogram): the bias grows with it, so the interval holds the correction the log allows at the most
+    dof = float(getattr(ctx.data, "ddq_noise_dof", math.inf))
+    up = dof / stats.chi2.ppf(0.025, dof) if math.isfinite(dof) else 1.0
     c = np.zeros(len(params))
     for k in arm:
         j = params[k].idx[0]
-        c[k] = -float(sig[j]) ** 2 * ctx.n * (mjj[j] + params[k].value)
+        c[k] = -up * float(sig[j]) ** 2 * ctx.n * (mjj[j] + params[k].value)
     if not np.any(c):
         return out
     scale = np.sqrt(np.maximum(np.diag(gram), 1e-300))
