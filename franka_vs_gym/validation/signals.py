@@ -193,7 +193,7 @@ def ddq_noise_gain(settings: CleanSettings) -> float:
     rad/s at the settings' rate: the root sum of squares of the impulse response of the zero-phase low-pass followed
     by the derivative."""
     rate, cutoff = settings.rate, settings.cutoff
-    half = int(np.ceil(40 * rate / cutoff))  # the low-pass's impulse response has died out well before
+    half = min(int(np.ceil(40 * rate / cutoff)), 200_000)  # the low-pass's impulse response has died out by then
     x = np.zeros(2 * half + 1)
     x[half] = 1.0
     h = derivative(signal.sosfiltfilt(_lowpass(settings), x), rate, settings.derivative)
