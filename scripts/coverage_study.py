@@ -19,8 +19,9 @@ ratio, and the errors in units of the standard deviation each interval claims (z
 folded in, a correct interval has an RMS z below 1).
 
 Usage: python scripts/coverage_study.py [--seeds N] [--first-seed K] [--duration S] [--rates 1000,100,30]
-       [--methods hac,ewc,spectral,newey_west,ols] [--generators H,A,B]
+       [--methods hac,ewc,spectral,newey_west,ols] [--generators H,A,B] [--kinds armature]
        python scripts/coverage_study.py --redraws 40 [--redraw-seeds 0,1] [--redraw-effect armature]
+       [--redraw-rate 30]
 """
 
 from __future__ import annotations
@@ -140,7 +141,8 @@ def score(gen: str, effects, truth: dict, sel_by_name: dict) -> list[dict]:
     return rows
 
 
-def redraw_study(seeds: list[int], effect: str, redraws: int, duration: float, methods: list[str]) -> None:
+def redraw_study(seeds: list[int], effect: str, redraws: int, duration: float, methods: list[str],
+                 rate: float = 1000.0) -> None:
     """See the module docstring (``--redraws``)."""
     import independent_logs_b as gb
     from scipy import stats
@@ -158,7 +160,7 @@ def redraw_study(seeds: list[int], effect: str, redraws: int, duration: float, m
         res = {m: {"ins": 0, "n": 0, "ratio": [], "hw": [], "z": []} for m in methods}
         style = ""
         for r in range(redraws):
-            log, truth = gb.make_log([effect], seed, duration=duration, rate=1000.0, noise_seed=r)
+            log, truth = gb.make_log([effect], seed, duration=duration, rate=rate, noise_seed=r)
             style = truth["style"]
             tv = np.asarray(truth["params"][effect][tkey], dtype=float)
             data = as_processed(log)
@@ -194,14 +196,17 @@ def main(argv=None) -> int:
     p.add_argument("--methods", default="hac",
                    help="covariance methods to compare (hac, ewc, spectral, newey_west, ols)")
     p.add_argument("--generators", default="H,A,B")
+    p.add_argument("--kinds", default=None,
+                   help="only the generated effects named (comma-separated, e.g. armature; default: all)")
     p.add_argument("--out", default=None, help="write the per-log rows as JSON here (refuses to overwrite)")
     p.add_argument("--redraws", type=int, default=0, help="bias-or-spread study: sensor-chain redraws per seed")
     p.add_argument("--redraw-seeds", default="0,1")
     p.add_argument("--redraw-effect", default="armature", choices=sorted(MAP_B))
+    p.add_argument("--redraw-rate", type=float, default=1000.0, help="the rate (Hz) of the redrawn logs")
     args = p.parse_args(argv)
     if args.redraws:
         redraw_study([int(x) for x in args.redraw_seeds.split(",")], args.redraw_effect, args.redraws,
-                     args.duration, args.methods.split(","))
+                     args.duration, args.methods.split(","), args.redraw_rate)
         return 0
     import importlib
 
@@ -221,7 +226,9 @@ def main(argv=None) -> int:
     gens = set(args.generators.split(","))
     rows = []
     t0 = time.time()
-    all_cases = [c for c in cases(args.seeds, args.first_seed) if c[0] in gens]
+    kinds = set(args.kinds.split(",")) if args.kinds else None
+    all_cases = [c for c in cases(args.seeds, args.first_seed) if c[0] in gens and (kinds is None or
+                                                                                     set(c[1]) <= kinds)]
     n_logs = 0
     for i, (gen, effects, seed) in enumerate(all_cases):
         logs, truth = logs_for(gen, effects, seed, args.duration, rates)

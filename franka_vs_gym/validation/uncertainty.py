@@ -489,6 +489,9 @@ class Confidence:
     labels: list[str]
     theta: np.ndarray
     cov: Covariance
+    #: (P,) the first-order bias of each parameter from the acceleration's noise (see :func:`inertial_bias`); every
+    #: interval also covers the number corrected by it
+    bias: np.ndarray | None = None
 
 
 def _words(null: np.ndarray, labels: list[str], scale: np.ndarray) -> list[str]:
@@ -569,9 +572,11 @@ def confidence(ctx, effects: list, fits: list, y: np.ndarray, *, method: str = "
                                                                           np.zeros((P, 0)), np.ones(P), method))
     Jlive = Jt if live.all() else Jt[live]  # (no 30 MB copies when every parameter is fitted, the usual case)
     Jl = Jlive.reshape(len(Jlive), -1)
-    cv = covariance(Jlive.transpose(1, 2, 0), resid, method=method, gram=Jl @ Jl.T,
-                    nonzero=Jlive.any(axis=1).T)
+    gram = Jl @ Jl.T
+    cv = covariance(Jlive.transpose(1, 2, 0), resid, method=method, gram=gram, nonzero=Jlive.any(axis=1).T)
     theta = np.array([p.value for p in params])
+    bias = np.zeros(P)
+    bias[live] = inertial_bias(ctx, effects, [params[k] for k in np.nonzero(live)[0]], gram)
     # full-size covariance (dead parameters: not fitted, no column)
     full = np.zeros((P, P))
     li = np.nonzero(live)[0]
@@ -623,6 +628,13 @@ def confidence(ctx, effects: list, fits: list, y: np.ndarray, *, method: str = "
                     a, b = _get(pub, pth), _get(pd, pth)
                     if a is None or b is None or abs(b - a) > 1e-3 * (abs(a) + 1e-6):
                         moved.add(pth)
+        b_leaf = pub_b = None
+        if np.any(bias[own]):
+            if G is not None:
+                b_leaf = G @ bias[own]
+            else:
+                b_leaf = bias[own]
+                pub_b = _public(e, ctx, _set_theta(f, [params[k] for k in own], theta[own] - bias[own]))
         for i_p, pth in enumerate(paths):
             v0 = _get(pub, pth)
             if G is not None:
@@ -636,7 +648,12 @@ def confidence(ctx, effects: list, fits: list, y: np.ndarray, *, method: str = "
                     continue
                 sd = float(np.std(vs))
             half = q * sd
-            _set(mirror, pth, [_r(v0 - half), _r(v0 + half)])
+            lo, hi = v0 - half, v0 + half
+            if b_leaf is not None:  # the interval of the bias-corrected number joins it (see inertial_bias)
+                vb = (v0 - float(b_leaf[i_p])) if G is not None else _get(pub_b, pth)
+                if vb is not None:
+                    lo, hi = min(lo, vb - half), max(hi, vb + half)
+            _set(mirror, pth, [_r(lo), _r(hi)])
         if any(k in pub for k in ("link_mass_kg", "link_com_m")):
             sentences_own = ("link_inertials: single link masses and centres of mass are not identifiable from joint "
                              "torques, only the base parameters are (the link values shown are the physically "
@@ -656,7 +673,57 @@ def confidence(ctx, effects: list, fits: list, y: np.ndarray, *, method: str = "
         corr.append(pairs)
         names = {labels[k] for k in own}
         unid.append([s for s in sentences if any(nm in s for nm in names)] + ([sentences_own] if sentences_own else []))
-    return Confidence(ci, corr, unid, labels, theta, cov_full)
+    return Confidence(ci, corr, unid, labels, theta, cov_full, bias)
+
+
+def inertial_bias(ctx, effects: list, params: list, gram: np.ndarray) -> np.ndarray:
+    """(P,) the first-order bias of the jointly fitted ``params`` (their normal matrix ``gram``) that the noise of
+    the acceleration puts into them (an errors-in-variables bias; zeros when there is none to speak of).
+
+    The acceleration ``ddq`` is the derivative of the measured velocity; at low rates the velocity's broadband
+    noise (a differentiated encoder, sampled without an anti-alias filter) is folded into the log's band, so ddq
+    carries a noise ``e`` of standard deviation ``sigma_j`` (``ProcessedLog.ddq_noise``, estimated by the cleaning
+    from the velocity's content above the cutoff). It enters twice: in the armature's regressor (``ddq_j``) and,
+    through the baseline model's ``M(q) ddq``, in the residual the armature explains, with the opposite sign. With
+    ``y = J theta - (M(q) + diag(I)) e + noise`` and ``J = J_true + e`` on an armature column, least squares gives
+    ``E[theta_hat] - theta = (J^T J)^-1 c`` with ``c_k = -sigma_j^2 sum_t (M_jj(q_t) + I_j)`` for the armature
+    coefficient ``k`` of joint ``j`` (``I_j`` the model's plus the fitted armature) and 0 elsewhere: the armature
+    is pulled down by about ``(M_jj + I_j) sigma_j^2 / mean(ddq_j^2)``, a fraction of the link inertia ten times
+    the armature's size, and the other parameters of the set by their correlation with it. ``sigma_j^2`` is taken
+    at the upper 97.5 % bound of its chi-square estimate (``ProcessedLog.ddq_noise_dof``; about 1.3 times the
+    estimate on 8 s at 30 Hz): the returned bias is the largest the log supports, and the intervals extend to it.
+    Measured on generator B at 30 Hz: an armature fitted at 0.5-0.9 times the truth (down to -6 times on a joint
+    that barely accelerates) on exact decimations of logs with 1 % of the torque noise (docs/workbench.md,
+    section 12)."""
+    sig = getattr(ctx.data, "ddq_noise", None)
+    out = np.zeros(len(params))
+    arm = [k for k, p in enumerate(params) if p.key == "coef" and getattr(effects[p.term], "name", "") == "armature"]
+    if sig is None or not arm:
+        return out
+    import pinocchio as pin
+
+    from franka_vs_gym.model.franka_model import build_pinocchio_model
+
+    model, _, _ = build_pinocchio_model(ctx.config)
+    d = model.createData()
+    sub = ctx.coarse  # M(q) changes slowly: the mean over the decimated samples
+    mjj = np.mean([np.diag(pin.crba(model, d, ctx.data.q[i])) for i in sub], axis=0)  # armature included
+    # the noise variance at its upper 97.5 % bound (the level is a chi-square estimate from the velocity's
+    # periodogram): the bias grows with it, so the interval holds the correction the log allows at the most
+    dof = float(getattr(ctx.data, "ddq_noise_dof", math.inf))
+    up = dof / stats.chi2.ppf(0.025, dof) if math.isfinite(dof) else 1.0
+    c = np.zeros(len(params))
+    for k in arm:
+        j = params[k].idx[0]
+        c[k] = -up * float(sig[j]) ** 2 * ctx.n * (mjj[j] + params[k].value)
+    if not np.any(c):
+        return out
+    scale = np.sqrt(np.maximum(np.diag(gram), 1e-300))
+    Gs = gram / np.outer(scale, scale)
+    w, V = np.linalg.eigh(0.5 * (Gs + Gs.T))
+    ok = w > NULL_TOL * max(float(w[-1]), 1e-300)
+    B = ((V[:, ok] / w[ok]) @ V[:, ok].T) / np.outer(scale, scale)
+    return B @ c
 
 
 def _linear_public(effect, ctx, fit, own: list[_Param], theta: np.ndarray, probes: np.ndarray, pub: dict,
