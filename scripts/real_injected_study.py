@@ -26,7 +26,9 @@ torque noise of ``--serve-noise`` Nm, the same noise sequence in every recording
 untouched recording's answer at the same rate.
 
     python scripts/real_injected_study.py --cases 1 -o study.json        # about 5 min on one core
-    python scripts/real_injected_study.py --source serve                 # about 15 min (10 recordings of 15 s)
+    python scripts/real_injected_study.py --source serve                 # about 6-15 min (10 recordings of 15 s)
+    python scripts/real_injected_study.py --source serve --recordings rec/   # keeps them: run again to score the
+                                                                         # same recordings (another workbench)
 """
 
 from __future__ import annotations
@@ -189,6 +191,9 @@ def main() -> int:
     ap.add_argument("--serve-duration", type=float, default=15.0, help="length of the served excitation, s")
     ap.add_argument("--serve-noise", type=float, default=0.1, help="white torque noise of the served plant, Nm")
     ap.add_argument("--host", default="127.0.22.1", help="loopback address the study's server uses")
+    ap.add_argument("--recordings", default=None, metavar="DIR",
+                    help="keep the served recordings (and the design) in DIR and reuse those already there, so two "
+                         "versions of the workbench are scored on the same recordings (default: a temporary folder)")
     ap.add_argument("-o", "--output", default=None, help="write the per-case results as JSON")
     ap.add_argument("--merge", nargs="+", default=None, metavar="JSON",
                     help="print the table of earlier runs' JSON outputs (e.g. one run per rate) instead of running")
@@ -250,12 +255,16 @@ def gaz_rows(args, kinds: list[str], rates: list[str], opts: dict) -> list[dict]
     return rows
 
 
-def record(design: Path, truth: dict, out: Path, host: str, client: str) -> Path:
+def record(design: Path, truth: dict, out: Path, host: str, client: str, reuse: bool = False) -> Path:
     """One recording through ``franka-vs serve --lockstep --record`` with ``truth`` hidden in the plant: the
     script ``franka-vs excite`` wrote for ``client`` (pylibfranka or franky) plays the design in its own process,
-    then the server is stopped (SIGTERM) and writes the log."""
+    then the server is stopped (SIGTERM) and writes the log. ``reuse``: an existing recording made with the same
+    truth and client is returned as it is."""
     tf = out.with_suffix(".truth.json")
-    atomic_write(tf, json.dumps(truth))
+    said = json.dumps({**truth, "client": client})
+    if reuse and out.exists() and tf.exists() and tf.read_text() == said:
+        return out
+    atomic_write(tf, said)  # (serve --truth ignores the client key)
     env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
     srv = subprocess.Popen([sys.executable, "-m", "franka_vs_gym.cli", "serve", "--lockstep", "--no-camera", "--tool",
                             "none", "--scene", "empty", "--host", host, "--truth", str(tf), "--record", str(out)],
@@ -280,21 +289,26 @@ def record(design: Path, truth: dict, out: Path, host: str, client: str) -> Path
 
 
 def serve_rows(args, kinds: list[str], rates: list[str], opts: dict) -> list[dict]:
-    tmp = Path(tempfile.mkdtemp(prefix="real_injected_serve_"))
+    keep = args.recordings is not None
+    tmp = Path(args.recordings) if keep else Path(tempfile.mkdtemp(prefix="real_injected_serve_"))
+    tmp.mkdir(parents=True, exist_ok=True)
     try:
         design = tmp / "design"
-        print(f"serve: designing a {args.serve_duration:g} s excitation (franka-vs excite)", file=sys.stderr)
-        subprocess.run([sys.executable, "-m", "franka_vs_gym.cli", "excite", "--effects",
-                        "payload,gravity_tilt,viscous_friction,armature,torque_offset", "--duration",
-                        str(args.serve_duration), "--rest", "0.5", "--evaluations", "60", "--time-budget", "60",
-                        "-o", str(design), "--quiet"], check=True, capture_output=True, text=True,
-                       env={**os.environ, "PYTHONPATH": str(ROOT)})
+        if keep and (design / "excite.json").exists():
+            print(f"serve: reusing the design and recordings in {tmp}", file=sys.stderr)
+        else:
+            print(f"serve: designing a {args.serve_duration:g} s excitation (franka-vs excite)", file=sys.stderr)
+            subprocess.run([sys.executable, "-m", "franka_vs_gym.cli", "excite", "--effects",
+                            "payload,gravity_tilt,viscous_friction,armature,torque_offset", "--duration",
+                            str(args.serve_duration), "--rest", "0.5", "--evaluations", "60", "--time-budget", "60",
+                            "-o", str(design), "--quiet"], check=True, capture_output=True, text=True,
+                           env={**os.environ, "PYTHONPATH": str(ROOT)})
         noise_truth = {"torque_noise_Nm": args.serve_noise, "seed": 0}
         clients = ["pylibfranka"] + (["franky"] if set(kinds) & FRANKY_KINDS else [])
         log0, base = {}, {}
         for client in clients:  # each client's untouched recording: its own motion and timing
             log0[client] = load_log(record(design, {"effects": [], **noise_truth}, tmp / f"untouched_{client}.npz",
-                                           args.host, client))
+                                           args.host, client, keep))
             for r in rates:
                 base[client, r] = diagnose(every_kth(log0[client], RATES[r]), **opts)
                 print(f"serve untouched ({client}) {r}: {sorted(named(base[client, r]).items())} explained "
@@ -306,7 +320,7 @@ def serve_rows(args, kinds: list[str], rates: list[str], opts: dict) -> list[dic
                 effects, truth = truth_effects(log0["pylibfranka"], kind, seed, noise=noise)
                 client = "franky" if kind in FRANKY_KINDS else "pylibfranka"
                 log = load_log(record(design, {"effects": effects, **noise_truth},
-                                      tmp / f"{kind.replace('+', '_')}_{seed}.npz", args.host, client))
+                                      tmp / f"{kind.replace('+', '_')}_{seed}.npz", args.host, client, keep))
                 for r in rates:
                     t0 = time.process_time()
                     d = diagnose(every_kth(log, RATES[r]), **opts)
@@ -315,7 +329,8 @@ def serve_rows(args, kinds: list[str], rates: list[str], opts: dict) -> list[dic
                     report(rows, res, kind, seed, r, truth, time.process_time() - t0, "serve")
         return rows
     finally:
-        shutil.rmtree(tmp, ignore_errors=True)
+        if not keep:
+            shutil.rmtree(tmp, ignore_errors=True)
 
 
 def table(rows: list[dict], kinds: list[str], rates: list[str], cases: int) -> None:
