@@ -63,3 +63,25 @@ def test_a_change_of_g_magnitude_is_not_named_a_tilt_a_rotation_is(clean_log):
     t = _tilt(d_rot)
     assert t is not None, d_rot.selected
     assert t.params["tilt_deg"] == pytest.approx(1.0, rel=0.1)
+
+
+def test_a_long_delay_is_the_exact_shift_and_brings_nothing_beside_it(clean_log):
+    """A 60 ms lag of the measured torque (the model's torque on the log's own motion, shifted): the delay law is
+    first order in the lag; its remainder at 60 ms is systematic, and the default names the delay alone, with the
+    lag, from the exact shift."""
+    from franka_vs_gym.validation.evaluate import shift
+    from franka_vs_gym.validation.injected import _torque, motion
+
+    m = motion(clean_log)
+    tau = _torque(ModelConfig(), m)
+    lagged = shift(tau, m.time, 0.060)
+    first = tau - 0.060 * np.gradient(tau, m.time, axis=0)
+    # the first-order law leaves a remainder well above a hundredth of the lag's own size
+    rem = np.sqrt(np.mean((lagged - first)[500:-500] ** 2))
+    assert rem > 0.03 * np.sqrt(np.mean((lagged - tau)[500:-500] ** 2))
+    log = MeasurementLog(clean_log.time, clean_log.q, clean_log.dq, clean_log.tau_J + lagged - tau,
+                         tool=clean_log.tool, gravity=clean_log.gravity, controller=clean_log.controller,
+                         extra=dict(clean_log.extra), source=clean_log.source, tool_declared=clean_log.tool_declared)
+    d = diagnose(log)
+    assert d.selected == ["delay"], [(s.effect, s.joints) for s in d.selection]
+    assert d.selection[0].params["delay_s"] == pytest.approx(0.060, rel=0.03)
