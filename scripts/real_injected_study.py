@@ -183,9 +183,11 @@ def main() -> int:
     ap.add_argument("--cases", type=int, default=1, help="injected copies per kind (seeds 0..cases-1)")
     ap.add_argument("--kinds", default=",".join(KINDS))
     ap.add_argument("--rates", default=",".join(RATES))
-    ap.add_argument("--band", action="store_true", help="diagnose with band_evidence (scores in the motion band)")
+    ap.add_argument("--band", action="store_true", help="diagnose with band_evidence (= --evidence band_only)")
     ap.add_argument("--evidence", default=None, choices=("band", "band_only", "full"),
-                    help="diagnose(evidence=...): the default's scores, --band's, or the whole band's (before)")
+                    help="diagnose(evidence=...): band (the default: the motion band with its rules), band_only "
+                         "(the motion band, the information criterion alone) or full (every sample counted, the "
+                         "default before); omitted: diagnose's default")
     ap.add_argument("--source", default="gaz", help="gaz (the Gaz et al. 2019 log), serve (recordings through "
                                                     "franka-vs serve by real clients) or gaz,serve")
     ap.add_argument("--serve-duration", type=float, default=15.0, help="length of the served excitation, s")

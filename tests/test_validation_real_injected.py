@@ -96,15 +96,16 @@ def test_ambiguity_seam_and_offset_at_30_hz(gaz):
 
 
 def test_payload_named_before_link_inertials_at_1_khz(gaz):
-    """At 1 kHz the untouched recording needs a change of the link inertials; an undeclared payload added to it is
-    named `payload` (a flange body) with its mass, not absorbed by the link inertials; the untouched recording
-    names no payload (its flange-body change lies inside link 7: link 7's own error)."""
+    """With every sample counted as evidence (``evidence="full"``, the default before the motion band), at 1 kHz the
+    untouched recording needs a change of the link inertials; an undeclared payload added to it is named `payload`
+    (a flange body) with its mass, not absorbed by the link inertials; the untouched recording names no payload
+    (its flange-body change lies inside link 7: link 7's own error). The default's answer: the next test."""
     from franka_vs_gym.validation.injected import inject
 
     log, noise = gaz
     new, (truth,) = inject(log, "payload", 0, noise=noise)
-    d = _diagnose(new, 1)
-    base = _diagnose(log, 1)
+    d = _diagnose(new, 1, evidence="full")
+    base = _diagnose(log, 1, evidence="full")
     assert "link_inertials" in base.selected and "payload" not in base.selected
     p = next(s.params for s in d.selection if s.effect == "payload")
     # the flange body carries the payload and link 7's own error (one rigid body to the joint torques; on the

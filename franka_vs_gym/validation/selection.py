@@ -14,7 +14,7 @@ coefficients to a model whose held-out mean squared error per joint is ``MSE0_j`
 ``sum_j N_eff_j ln(MSE0_j / MSE1_j) - k ln(N_eff)``, with ``N_eff`` the effective sample size of the current residual
 under its autocorrelation.
 
-**The motion band** (``Engine(..., band=True)``; ``diagnose(..., band_evidence=True)``, off by default). Every
+**The motion band** (``Engine(..., band=True)``; ``diagnose``'s default, ``evidence="band"``). Every
 effect is a function of the motion, which cleaning low-passes at its cutoff (10 Hz), so effects live below the
 cutoff; the torque measured above it (most of a real log's noise once its model is close) is the same for every
 candidate and carries no information about them. The scores are therefore taken in the motion band: ``MSE`` less the
@@ -25,7 +25,7 @@ selection, against 40-250 at 30 Hz and 330-380 for the low-passed residual at ei
 tenth of the noise floor from the real robot's own unmodelled structure became significant. In the band the same log
 gives the same answer at 1 kHz, 100 Hz and 30 Hz; but the low-passed residual of a real log is mostly slow model
 error, whose N_eff (about 20-30 per 20 s) no longer affords a 43-parameter change of the link inertials that held-
-out data confirm on that log, hence off by default.
+out data confirm on that log: ``diagnose`` therefore confirms such a term by the blocked held-out test.
 """
 
 from __future__ import annotations
