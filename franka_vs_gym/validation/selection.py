@@ -37,6 +37,7 @@ import numpy as np
 from scipy import signal
 
 from franka_vs_gym.validation.effects import Context, Effect, Fit
+from franka_vs_gym.validation.signals import band_sos
 
 
 def n_eff(r: np.ndarray, max_lag: int = 2000) -> np.ndarray | float:
@@ -115,10 +116,7 @@ class Engine:
         self._xy: dict[tuple, np.ndarray] = {}
         self._gram: dict[tuple, np.ndarray] = {}
         self.empty_mse = self.yy.sum(axis=0) / self.n
-        st = ctx.data.settings
-        self._sos = None
-        if band and st.rate and st.cutoff and st.cutoff < st.rate / 2 and self.n > 6 * (st.order + 1) * 3:
-            self._sos = signal.butter(st.order, st.cutoff, fs=st.rate, output="sos")
+        self._sos = band_sos(ctx.data.settings, self.n) if band else None
         #: (7,) the target's power above the motion band (Nm^2): no effect removes it, so scores leave it out
         self.hf = np.mean((y - self.lowpass(y)) ** 2, axis=0) if self._sos is not None else np.zeros(y.shape[1])
 

@@ -224,6 +224,16 @@ def _lowpass(settings: CleanSettings):
     return signal.butter(settings.order, settings.cutoff, fs=settings.rate, output="sos")
 
 
+def band_sos(settings: CleanSettings, n: int):
+    """The cleaning's zero-phase low-pass (second-order sections) for taking the motion band of ``n`` samples, or
+    None where it does not apply (no resolved rate or cutoff, a cutoff not below the Nyquist frequency, or too few
+    samples for the filter's edges)."""
+    st = settings
+    if st.rate and st.cutoff and st.cutoff < st.rate / 2 and n > 6 * (st.order + 1) * 3:
+        return _lowpass(st)
+    return None
+
+
 def highpass_power_fraction(settings: CleanSettings) -> float:
     """Fraction of white-noise power left in ``x - filtfilt(x)`` (from the frequency response); automatic
     settings are taken at 1 kHz."""

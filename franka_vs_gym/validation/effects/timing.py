@@ -12,16 +12,19 @@ from franka_vs_gym.validation.effects.base import (
     Fit,
 )
 from franka_vs_gym.validation.evaluate import shift
+from franka_vs_gym.validation.signals import band_sos
 
 
 def motion_band(ctx, x: np.ndarray) -> np.ndarray:
     """``x`` (N, 7) low-passed with zero phase at the cleaning's cutoff and order: its part in the motion band (``x``
     itself when the log is too short for the filter or the cutoff is not below its Nyquist frequency)."""
-    st = ctx.data.settings
-    if not (st.rate and st.cutoff and st.cutoff < st.rate / 2 and len(x) > 6 * (st.order + 1) * 3):
-        return x
-    sos = signal.butter(st.order, st.cutoff, fs=st.rate, output="sos")
-    return signal.sosfiltfilt(sos, x, axis=0)
+    sos = band_sos(ctx.data.settings, len(x))
+    return x if sos is None else signal.sosfiltfilt(sos, x, axis=0)
+
+
+def band_pred(ctx) -> np.ndarray:
+    """(N, 7) Nm: the predicted torque in the motion band (cached)."""
+    return ctx.cached("delay_band_pred", lambda: motion_band(ctx, ctx.ev.predicted))
 
 
 def band_dpred(ctx) -> np.ndarray:
@@ -50,7 +53,7 @@ def delay_column(ctx) -> np.ndarray:
     inertial parameters took it and were named beside the delay."""
     def make() -> np.ndarray:
         dp = band_dpred(ctx)
-        pred = ctx.cached("delay_band_pred", lambda: motion_band(ctx, ctx.ev.predicted))
+        pred = band_pred(ctx)
         y = motion_band(ctx, ctx.residual)
         den = float(np.sum(dp * dp))
         d_lin = -float(np.sum(dp * y)) / den if den > 0 else 0.0
@@ -96,7 +99,7 @@ class Delay(Effect):
         d0 = float(self.coef(fit)[0])
         if d0 <= 0:
             return fit
-        pred = ctx.cached("delay_band_pred", lambda: motion_band(ctx, ctx.ev.predicted))
+        pred = band_pred(ctx)
         target = motion_band(ctx, y) + pred
         t = ctx.data.time
         best, best_sse = d0, np.inf
