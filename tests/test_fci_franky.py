@@ -100,11 +100,20 @@ def test_real_time_elbow_motion_with_late_commands():
     so libfranka's low-pass (against the state's O_T_EE_c and elbow_c) filters against where the motion is and the
     motion ends without a reflex. (Applied a cycle late instead, they tripped
     cartesian_motion_generator_joint_velocity_discontinuity: joint 1 at 25-120 rad/s^2.)"""
-    # a tolerance of 200 missed cycles: a loaded test machine must not end the motion with the communication reflex
-    with FCIServer(loopback_host(37), camera=False, verbose=False, max_missed_commands=200) as srv:
-        out = run_client("late_elbow_motion.py", srv.host, "0.0025", "0.3")
-        stats, dropped = srv.motion_stats, srv.late_commands
-    assert out["raised"] is None, (out, stats)
-    assert out["long_periods"] + dropped >= 3, (out, dropped)  # the client did miss cycles
-    assert abs(out["elbow_end"] - out["elbow_start"] - 0.3) < 1e-3, out
+    # a tolerance of 200 missed cycles: a loaded test machine must not end the motion with the communication reflex.
+    # The client's stalls make it miss cycles only while the server keeps its 1 ms grid; on a machine loaded enough
+    # that the server's own cycles overrun (the grid re-anchors, plant time falls behind) a stall can fit inside one
+    # slow cycle and nothing is missed. Such a run does not exercise the case, so it is run again (at most 3 runs,
+    # every one of which must end without a reflex and with the elbow out by 0.3 rad).
+    missed = []
+    for _ in range(3):
+        with FCIServer(loopback_host(37), camera=False, verbose=False, max_missed_commands=200) as srv:
+            out = run_client("late_elbow_motion.py", srv.host, "0.0025", "0.3")
+            stats, dropped = srv.motion_stats, srv.late_commands
+        assert out["raised"] is None, (out, stats)
+        assert abs(out["elbow_end"] - out["elbow_start"] - 0.3) < 1e-3, out
+        missed.append(out["long_periods"] + dropped)
+        if missed[-1] >= 3:
+            break
+    assert missed[-1] >= 3, (missed, out, stats)  # the client did miss cycles
 

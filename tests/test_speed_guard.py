@@ -58,7 +58,8 @@ def test_batched_env_keeps_most_of_the_physics_rate(env_id, n, bound):
     threads), one batch thread: today about 0.95 for both (the task logic runs once for all robots, about 1 us per
     robot and step for torque tracking, 5-10 us for IBVS); it was 0.78 (IBVS, 8 robots) and 0.6 (torque tracking)
     when each robot's Python ran in turn, which these bounds catch. Both sides are timed in alternating blocks of
-    the same run, the fastest block of each kept."""
-    r = bench_batched(env_id, n, 1, seconds=1.0)
+    the same run, the fastest block of each kept: 3 s of blocks, since with 1 s a loaded 2-core machine left one
+    side without a clean block often enough to read 0.51 once (0.71-0.89 in five 1 s runs at load 1)."""
+    r = bench_batched(env_id, n, 1, seconds=3.0)
     assert np.isfinite(r["env_steps_per_s"])
     assert r["ratio_to_batch_physics"] >= bound, r
