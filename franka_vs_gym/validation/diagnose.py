@@ -562,14 +562,18 @@ class _Selector:
         score = float(gain.sum() - k * np.log(max(float(neff.mean()), 2.0)))
         removed = np.sqrt(np.maximum(mse0 - sf.mse_cv, 0.0))
         joints = [j for j in range(7) if removed[j] >= PRACTICAL * self.noise[j] and gain[j] > 0]
-        problems = []
-        if score > SCORE_MIN and joints:
-            for t, f in zip(terms, sf.fits[-2:], strict=True):
-                problems += [f"{t.effect.name}: {m}" for m in t.effect.problems(self.ctx, f).values()]
         params = {t.effect.name: t.effect.public(f) for t, f in zip(terms, sf.fits[-2:], strict=True)}
+        # plausible until checked (:meth:`_check_group`): the check (the link inertials' consistent fit is costly)
+        # is made only for a group that would count
         return Candidate(f"{a.effect}+{b.effect}", [a.effect, b.effect], joints, params, np.sqrt(sf.mse_cv), score,
-                         bool(score > SCORE_MIN and joints), not problems, problems, removed, gain, sf.fits[-2:],
-                         terms, sf.mse_cv)
+                         bool(score > SCORE_MIN and joints), True, [], removed, gain, sf.fits[-2:], terms, sf.mse_cv)
+
+    def _check_group(self, g: Candidate) -> Candidate:
+        """``g`` (from :meth:`try_group`, significant) with its members' plausibility checked."""
+        for t, f in zip(g.terms, g.fits, strict=True):
+            g.problems += [f"{t.effect.name}: {m}" for m in t.effect.problems(self.ctx, f).values()]
+        g.plausible = not g.problems
+        return g
 
     def _collinear(self, base_fit: SetFit, a: Candidate, b: Candidate) -> bool:
         ca = self.eng.contributions(self.eng.fit([a.terms[0]] if not a.terms[0].effect.per_joint else
@@ -615,7 +619,7 @@ class _Selector:
                     extra = np.sqrt(np.maximum(best.mse_cv - g.mse_cv, 0.0))
                     if (g.significant and g.score > best.score + SCORE_MIN
                             and np.any(extra >= GROUP_PRACTICAL * noise)):
-                        groups.append(g)
+                        groups.append(self._check_group(g))
             if rnd == 0:
                 ranking = sorted(cands + groups, key=_order)
             for c in cands:

@@ -125,6 +125,7 @@ def test_lack_of_fit(ctx: Context, terms: list[Term], contributions: list[np.nda
     threshold = SCORE_MIN + math.log(len(alts))
     out: dict[int, list[LackOfFit]] = {}
     sgn_all = np.tanh(data.dq / STEP_VEL)
+    ne_r: dict[int, float] = {}  # each joint's residual's effective sample size, computed once
     for i, j, alt, name, x, sh in alts:
         r = residual[idx, j]
         cj = contributions[i][idx, j]
@@ -153,7 +154,9 @@ def test_lack_of_fit(ctx: Context, terms: list[Term], contributions: list[np.nda
         pred = _cv_lin(p, X, fold, len(np.unique(fold)))
         mse0 = float(np.mean(r ** 2))
         mse1 = float(np.mean((p - pred) ** 2))
-        ne = max(float(n_eff(r)), float(n_eff(p - pred)), 2.0)
+        if j not in ne_r:
+            ne_r[j] = float(n_eff(r))
+        ne = max(ne_r[j], float(n_eff(p - pred)), 2.0)
         dk = X.shape[1] - 1
         score = ne * math.log(max(mse0, 1e-30) / max(mse1, 1e-30)) - dk * math.log(ne)
         removed = math.sqrt(max(mse0 - mse1, 0.0))

@@ -100,6 +100,7 @@ class SetFit:
     coefs: list[np.ndarray]
     fits: list[Fit] = field(default_factory=list)
     _contribs: list[np.ndarray] | None = None
+    _band_neff: np.ndarray | None = None
     #: (F, 7) held-out sum of squared errors of each block (Nm^2), when cross-validated
     sse_folds: np.ndarray | None = None
 
@@ -111,7 +112,10 @@ class Engine:
         self.ctx, self.y, self.folds = ctx, y, folds
         self.F = len(folds)
         self.n = len(y)
-        self.yy = np.array([np.einsum("nj,nj->j", y[b], y[b]) for b in folds])  # (F, 7)
+        # contiguous blocks are taken as slices: views instead of copies of each design (same numbers)
+        self._blocks = [slice(int(b[0]), int(b[-1]) + 1) if len(b) and np.array_equal(b, np.arange(b[0], b[-1] + 1))
+                        else b for b in folds]
+        self.yy = np.array([np.einsum("nj,nj->j", y[b], y[b]) for b in self._blocks])  # (F, 7)
         self._design: dict[tuple, np.ndarray] = {}
         self._xy: dict[tuple, np.ndarray] = {}
         self._gram: dict[tuple, np.ndarray] = {}
@@ -133,8 +137,11 @@ class Engine:
         return np.maximum(np.asarray(mse, dtype=np.float64) - self.hf, 1e-3 * self.hf + 1e-30)
 
     def band_neff(self, sf: SetFit) -> np.ndarray:
-        """Effective sample size (7,) of the fitted set's residual in the motion band (at least 2)."""
-        return np.maximum(np.asarray(n_eff(self.lowpass(self.residual(sf)))), 2.0)
+        """Effective sample size (7,) of the fitted set's residual in the motion band (at least 2); kept with the
+        set."""
+        if sf._band_neff is None:
+            sf._band_neff = np.maximum(np.asarray(n_eff(self.lowpass(self.residual(sf)))), 2.0)
+        return sf._band_neff.copy()
 
     # --- caches
     def design(self, t: Term) -> np.ndarray:
@@ -152,7 +159,7 @@ class Engine:
         k = t.key
         if k not in self._xy:
             D = self.design(t)
-            self._xy[k] = np.array([np.einsum("njp,nj->jp", D[b], self.y[b]) for b in self.folds])
+            self._xy[k] = np.array([np.einsum("njp,nj->jp", D[b], self.y[b]) for b in self._blocks])
         return self._xy[k]
 
     def gram(self, a: Term, b: Term) -> np.ndarray:  # (F, 7, pa, pb)
@@ -163,7 +170,7 @@ class Engine:
                 return self._gram[kt].transpose(0, 1, 3, 2)
             Da, Db = self.design(a), self.design(b)
             self._gram[k] = np.array([np.matmul(Da[blk].transpose(1, 2, 0), Db[blk].transpose(1, 0, 2))
-                                      for blk in self.folds])
+                                      for blk in self._blocks])
         return self._gram[k]
 
     # --- fits
@@ -195,16 +202,22 @@ class Engine:
         b = np.zeros((self.F, P))
         per_joint_idx = []
         blocks = []
+        grams: dict[tuple[int, int], np.ndarray] = {}  # each pair's (F, 7, pa, pb) looked up once per fit
+        xys = [self.xy(t) for t in terms]
         for j in range(7):
             act = [(i, lay[i][j if t.effect.per_joint else -1]) for i, t in enumerate(terms) if t.active(j)]
             if not act:
                 per_joint_idx.append(None)
                 blocks.append(None)
                 continue
+            for a, _ in act:
+                for c, _ in act:
+                    if (a, c) not in grams:
+                        grams[a, c] = self.gram(terms[a], terms[c])
             idx = np.concatenate([np.arange(s.start, s.stop) for _, s in act])
-            G = np.concatenate([np.concatenate([self.gram(terms[a], terms[c])[:, j] for c, _ in act], axis=2)
+            G = np.concatenate([np.concatenate([grams[a, c][:, j] for c, _ in act], axis=2)
                                 for a, _ in act], axis=1)  # (F, pj, pj)
-            xy = np.concatenate([self.xy(terms[a])[:, j] for a, _ in act], axis=1)  # (F, pj)
+            xy = np.concatenate([xys[a][:, j] for a, _ in act], axis=1)  # (F, pj)
             A[:, idx[:, None], idx[None, :]] += G
             b[:, idx] += xy
             per_joint_idx.append(idx)

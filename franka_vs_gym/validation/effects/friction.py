@@ -235,7 +235,7 @@ class SigmoidFriction(Effect):
         basis = ctx.sigmoid_basis()  # (g, nc, 7)
         t = target[ctx.coarse]
         num = np.einsum("gmj,mj->gj", basis, t)
-        den = np.einsum("gmj,gmj->gj", basis, basis) + 1e-12
+        den = ctx.cached("sigmoid_basis_norms", lambda: np.einsum("gmj,gmj->gj", basis, basis)) + 1e-12
         best = np.argmax(num ** 2 / den, axis=0)
         cols = np.arange(7)
         p1 = num[best, cols] / den[best, cols]
