@@ -42,7 +42,7 @@ def band_dpred(ctx) -> np.ndarray:
 
 #: linear interpolation shifts the motion band where its power gain half-way between samples at the band's cutoff,
 #: cos^2(pi cutoff / rate), is within this of 1 (1 kHz with the 10 Hz cutoff: 0.99901); below (100 Hz: 0.905, 30 Hz
-#: with its 7.5 Hz cutoff: 0.50) the band-limited shift of :func:`band_shift` is used
+#: with its 7.5 Hz cutoff: 0.50) :func:`band_limited_delay` shifts by a phase instead
 LINEAR_SHIFT_TOL = 0.01
 
 
@@ -70,7 +70,7 @@ def phase_shift(spec: tuple[np.ndarray, np.ndarray, int], delay: float) -> np.nd
 
 def _shifted(ctx, key: str, make, delay: float) -> np.ndarray:
     """``x(t - delay)`` for the prediction ``make()`` (its spectrum cached under ``key``): linear interpolation where
-    it is exact in the band (:data:`LINEAR_SHIFT_TOL`), else the band-limited shift (see :func:`band_shift`)."""
+    it is exact in the band (:data:`LINEAR_SHIFT_TOL`), else the band-limited shift (see :func:`band_limited_delay`)."""
     if linear_shift_exact(ctx.data.settings):
         return shift(make(), ctx.data.time, delay)
     if delay == 0:
@@ -78,28 +78,23 @@ def _shifted(ctx, key: str, make, delay: float) -> np.ndarray:
     return phase_shift(ctx.cached(("delay_spectrum", key), lambda: even_spectrum(make(), ctx.data.time)), delay)
 
 
-def band_shift(ctx, delay: float) -> np.ndarray:
-    """(N, 7) Nm: the motion-band prediction (:func:`band_pred`) delayed by ``delay`` s, ``predicted(t - delay)``.
-
-    Linear interpolation where it is exact in the band (:data:`LINEAR_SHIFT_TOL`: 1 kHz logs), else the band-limited
-    shift: the phase ``exp(-2 pi i f delay)`` applied to the spectrum of the prediction's even extension (no jump at
-    the ends; the first ``delay`` s take the mirrored start). Why: at 100 Hz and below the measured velocity's broadband
-    noise is folded into the band by the logger's sampling and rides on the prediction (through ``M(q) ddq``), and
-    linear interpolation at a fraction ``a`` of the sample period keeps ``(1 - a)^2 + a^2 + 2 a (1 - a) r1`` of that
-    noise's power (``r1`` its one-sample correlation): the least-squares shift is pulled towards half a sample
-    period, where the interpolated noise is smallest. On the hidden-effect generator's 7-12 ms delays sampled at
-    30 Hz, with only the velocity noise (4 logs, 4 draws of it each) the fitted delay moved 2.4-8 % above the
-    noise-free fit's; with the band-limited shift it lies 1.3-2.4 % below it (docs/workbench.md, section 12). A shift
-    by a phase keeps every frequency's power, so the noise no longer prefers a delay."""
-    return _shifted(ctx, "band", lambda: band_pred(ctx), delay)
-
-
 def band_limited_delay(ctx, y: np.ndarray, start: float, iterations: int = 12) -> float | None:
     """The delay (s) at which ``y`` (N, 7), the residual a measurement delay explains, is orthogonal to the secant
-    ``(predicted(t - d) - predicted(t)) / d`` of the model's torque shifted without interpolation loss (the
-    band-limited shift of :func:`band_shift` wherever linear interpolation is not exact in the band; the same
-    fixed point as an exact-shift delay fit, iterated from ``start``). None when it does not settle within
-    ``iterations`` to 0.01 % or leaves (0, 1.5 x MAX_DELAY]."""
+    ``(predicted(t - d) - predicted(t)) / d`` of the model's torque shifted without interpolation loss (the fixed
+    point of an exact-shift delay fit, iterated from ``start``); None when it does not settle within ``iterations``
+    to 0.01 % or leaves (0, 1.5 x MAX_DELAY]. The shift is linear interpolation where that is exact in the band
+    (:data:`LINEAR_SHIFT_TOL`: 1 kHz logs), else band-limited (:func:`phase_shift` of the prediction's even
+    extension).
+
+    Why: the delay fits (this module's column and refinement, ``diagnose``'s exact shift) interpolate the model's
+    torque linearly. At 100 Hz and below the measured velocity's broadband noise is folded into the band by the
+    logger's sampling and rides on that torque (through ``M(q) ddq``), and linear interpolation at a fraction ``a``
+    of the sample period keeps ``(1 - a)^2 + a^2 + 2 a (1 - a) r1`` of that noise's power (``r1`` its one-sample
+    correlation): the least-squares shift is pulled towards half a sample period, where the interpolated noise is
+    smallest. On the hidden-effect generator's 7-12 ms delays sampled at 30 Hz, with only the velocity noise (4
+    logs, 4 draws of it each) the fitted delay moved 2.4-8 % above the noise-free fit's; with the band-limited shift
+    it lies 1.3-2.4 % below it (docs/workbench.md, section 12). A shift by a phase keeps every frequency's power, so
+    the noise no longer prefers a delay. ``uncertainty.interpolation_bias`` puts the difference into the interval."""
     pred = ctx.ev.predicted
     d = float(start)
     for _ in range(iterations):
@@ -137,10 +132,10 @@ def delay_column(ctx) -> np.ndarray:
         if not d_lin >= SECANT_FROM:
             return -dp
         d_lin = min(d_lin, 1.5 * MAX_DELAY)
-        target = y + pred
+        target, t = y + pred, ctx.data.time
         grid = np.linspace(0.5 * d_lin, 1.5 * d_lin, 41)
-        d0 = grid[int(np.argmin([np.sum((target - band_shift(ctx, d)) ** 2) for d in grid]))]
-        return (band_shift(ctx, d0) - pred) / d0
+        d0 = grid[int(np.argmin([np.sum((target - shift(pred, t, d)) ** 2) for d in grid]))]
+        return (shift(pred, t, d0) - pred) / d0
 
     return ctx.cached("delay_column", make)
 
@@ -176,10 +171,12 @@ class Delay(Effect):
         d0 = float(self.coef(fit)[0])
         if d0 <= 0:
             return fit
-        target = motion_band(ctx, y) + band_pred(ctx)
+        pred = band_pred(ctx)
+        target = motion_band(ctx, y) + pred
+        t = ctx.data.time
         best, best_sse = d0, np.inf
         for d in np.linspace(0.5 * d0, 1.5 * d0, 21):
-            sse = float(np.sum((target - band_shift(ctx, d)) ** 2))
+            sse = float(np.sum((target - shift(pred, t, d)) ** 2))
             if sse < best_sse:
                 best, best_sse = d, sse
         return Fit(self.name, {"coef": np.array([best])}, fit.joints)
