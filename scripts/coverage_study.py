@@ -18,10 +18,20 @@ ratio, and the errors in units of the standard deviation each interval claims (z
 1.96)): a bias shows as a mean z away from 0, intervals too narrow as an RMS z above 1 (with a Student quantile
 folded in, a correct interval has an RMS z below 1).
 
+``--redraws R --redraw-generator H`` does the same for the hidden-effect generator's scalar parameters (``delay``,
+``gravity_tilt``) through ``diagnose`` itself: the log of each seed simulated without sensor noise, its rows at
+``--redraw-rate``, then R draws of the generator's sensor noise added to it (``--redraw-noise``: the torque's, the
+position's and velocity's, or all; added after the simulation, so unlike the generator's own noise it does not pass
+through the controller), each diagnosed. It prints the noise-free log's fit against the plant's value, then per
+noise the coverage of the plant's value and of the noise-free fit, the median fitted / noise-free ratio and z =
+(fitted - noise-free fit) / (half-width / 1.96): a noise that biases the fit shows as a mean z away from 0.
+
 Usage: python scripts/coverage_study.py [--seeds N] [--first-seed K] [--duration S] [--rates 1000,100,30]
        [--methods hac,ewc,spectral,newey_west,ols] [--generators H,A,B] [--kinds armature]
        python scripts/coverage_study.py --redraws 40 [--redraw-seeds 0,1] [--redraw-effect armature]
        [--redraw-rate 30]
+       python scripts/coverage_study.py --redraws 10 --redraw-generator H --redraw-effect delay --redraw-rate 30
+       [--redraw-seeds 0,2] [--redraw-noise torque,velocity,all]
 """
 
 from __future__ import annotations
@@ -132,6 +142,8 @@ def score(gen: str, effects, truth: dict, sel_by_name: dict) -> list[dict]:
             i, o, u = covered(ci, tv, joints)
             row.update(inside=i, outside=o, unid=u, missed=(7 - len(joints)) if per_joint else 0)
             vals = s["params"][key]
+            if not per_joint and isinstance(tv, (int, float)) and isinstance(vals, (int, float)):
+                row.update(value=float(vals), ci=ci, truth=float(tv))  # (for bias studies on the --out rows)
             vlist = vals if isinstance(vals, list) else [vals]
             clist = ci if isinstance(vals, list) else [ci]
             for j, (v, c) in enumerate(zip(vlist, clist, strict=False)):
@@ -187,6 +199,70 @@ def redraw_study(seeds: list[int], effect: str, redraws: int, duration: float, m
                   f"{np.sqrt(np.mean(zz ** 2)):.2f} | {100 * np.median(hw):.1f}% |")
 
 
+H_SCALAR = ("delay", "gravity_tilt")  # the hidden-effect generator's kinds with one scalar parameter
+NOISES = ("torque", "velocity", "all")
+
+
+def redraw_study_h(seeds: list[int], effect: str, redraws: int, duration: float, rate: float,
+                   noises: list[str]) -> None:
+    """See the module docstring (``--redraws R --redraw-generator H``)."""
+    from franka_vs_gym.validation import hidden
+    from franka_vs_gym.validation.diagnose import diagnose
+    from franka_vs_gym.validation.logs import MeasurementLog
+
+    lib, key, tkey, _ = MAP_H[effect][0]
+    step = int(round(1000 / rate))
+    z975 = 1.959963984540054
+
+    def fitted(log):
+        sl = slice(0, len(log.time), step)
+        rows = MeasurementLog(log.time[sl], log.q[sl], log.dq[sl], log.tau_J[sl], tool=log.tool,
+                              gravity=log.gravity, extra=dict(log.extra))
+        s = {x.effect: x for x in diagnose(rows, verbose=False).selection}.get(lib)
+        return (None, None) if s is None or s.params_ci95.get(key) is None else (s.params[key], s.params_ci95[key])
+
+    print(f"{effect} at {rate:g} Hz, {duration:g} s, {redraws} draws of each noise\n")
+    print("| seed | noise | noise-free fit / plant | plant value inside | noise-free fit inside | "
+          "median fitted / noise-free | mean z | RMS z | median +- (of the plant value) |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for seed in seeds:
+        log, ans = hidden.make_hidden_effect_log(effect, seed, duration=duration, noise_scale=0.0)
+        truth = float(ans["params"][tkey])
+        ref, _ = fitted(log)
+        if ref is None:
+            print(f"| {seed} | - | not selected without noise | | | | | | |")
+            continue
+        n = len(log.time)
+        for noise in noises:
+            ins_t = ins_r = 0
+            ratio, z, hw = [], [], []
+            for r in range(redraws):
+                rng = np.random.default_rng([seed, r])
+                tau, q, dq = log.tau_J, log.q, log.dq
+                if noise in ("torque", "all"):
+                    tau = tau + rng.normal(size=(n, 7)) * hidden.TORQUE_NOISE * rng.uniform(0.8, 1.2, 7)
+                if noise in ("velocity", "all"):
+                    q = q + rng.normal(0.0, hidden.Q_NOISE, (n, 7))
+                    dq = dq + rng.normal(0.0, hidden.DQ_NOISE, (n, 7))
+                v, ci = fitted(MeasurementLog(log.time, q, dq, tau, tool=log.tool, gravity=log.gravity,
+                                              extra=dict(log.extra)))
+                if v is None:
+                    continue
+                ins_t += int(ci[0] <= truth <= ci[1])
+                ins_r += int(ci[0] <= ref <= ci[1])
+                ratio.append(v / ref)
+                z.append((v - ref) / ((ci[1] - ci[0]) / 2 / z975))
+                hw.append((ci[1] - ci[0]) / 2 / abs(truth))
+            m = len(ratio)
+            if not m:
+                print(f"| {seed} | {noise} | {ref / truth:.3f} | not selected | | | | | |")
+                continue
+            zz = np.array(z)
+            print(f"| {seed} | {noise} | {ref / truth:.3f} | {ins_t}/{m} | {ins_r}/{m} | {np.median(ratio):.3f} | "
+                  f"{zz.mean():+.2f} +- {zz.std() / np.sqrt(m):.2f} | {np.sqrt(np.mean(zz ** 2)):.2f} | "
+                  f"{100 * np.median(hw):.1f}% |", flush=True)
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--seeds", type=int, default=2)
@@ -201,9 +277,25 @@ def main(argv=None) -> int:
     p.add_argument("--out", default=None, help="write the per-log rows as JSON here (refuses to overwrite)")
     p.add_argument("--redraws", type=int, default=0, help="bias-or-spread study: sensor-chain redraws per seed")
     p.add_argument("--redraw-seeds", default="0,1")
-    p.add_argument("--redraw-effect", default="armature", choices=sorted(MAP_B))
+    p.add_argument("--redraw-effect", default="armature", choices=sorted(set(MAP_B) | set(H_SCALAR)))
     p.add_argument("--redraw-rate", type=float, default=1000.0, help="the rate (Hz) of the redrawn logs")
+    p.add_argument("--redraw-generator", default="B", choices=("B", "H"))
+    p.add_argument("--redraw-noise", default="torque,velocity,all",
+                   help="generator H: which sensor noise each draw adds (torque, velocity, all)")
     args = p.parse_args(argv)
+    if args.redraws and args.redraw_generator == "H":
+        noises = args.redraw_noise.split(",")
+        if args.redraw_effect not in H_SCALAR:
+            p.error(f"--redraw-generator H takes --redraw-effect {' or '.join(H_SCALAR)}, got {args.redraw_effect}")
+        if not set(noises) <= set(NOISES):
+            p.error(f"--redraw-noise takes {', '.join(NOISES)}, got {args.redraw_noise}")
+        if not 0 < args.redraw_rate <= 1000:
+            p.error(f"--redraw-rate must be in (0, 1000] Hz (rows of the 1 kHz log), got {args.redraw_rate:g}")
+        redraw_study_h([int(x) for x in args.redraw_seeds.split(",")], args.redraw_effect, args.redraws,
+                       args.duration, args.redraw_rate, noises)
+        return 0
+    if args.redraw_effect not in MAP_B:
+        p.error(f"--redraw-effect {args.redraw_effect} is a generator H kind: add --redraw-generator H")
     if args.redraws:
         redraw_study([int(x) for x in args.redraw_seeds.split(",")], args.redraw_effect, args.redraws,
                      args.duration, args.methods.split(","), args.redraw_rate)

@@ -489,7 +489,8 @@ class Confidence:
     labels: list[str]
     theta: np.ndarray
     cov: Covariance
-    #: (P,) the first-order bias of each parameter from the acceleration's noise (see :func:`inertial_bias`); every
+    #: (P,) the first-order bias of each parameter from the acceleration's noise (see :func:`inertial_bias`) plus, for
+    #: a delay fitted on a low-rate log, what linear interpolation adds to it (:func:`interpolation_bias`); every
     #: interval also covers the number corrected by it
     bias: np.ndarray | None = None
 
@@ -577,6 +578,7 @@ def confidence(ctx, effects: list, fits: list, y: np.ndarray, *, method: str = "
     theta = np.array([p.value for p in params])
     bias = np.zeros(P)
     bias[live] = inertial_bias(ctx, effects, [params[k] for k in np.nonzero(live)[0]], gram)
+    bias += interpolation_bias(ctx, effects, params, contrib, resid, live)
     # full-size covariance (dead parameters: not fitted, no column)
     full = np.zeros((P, P))
     li = np.nonzero(live)[0]
@@ -724,6 +726,35 @@ def inertial_bias(ctx, effects: list, params: list, gram: np.ndarray) -> np.ndar
     ok = w > NULL_TOL * max(float(w[-1]), 1e-300)
     B = ((V[:, ok] / w[ok]) @ V[:, ok].T) / np.outer(scale, scale)
     return B @ c
+
+
+def interpolation_bias(ctx, effects: list, params: list, contrib: list, resid: np.ndarray,
+                       live: np.ndarray) -> np.ndarray:
+    """(P,) for a fitted measurement delay on a log whose rate is too low for linear interpolation to shift the
+    motion band exactly (:func:`effects.timing.linear_shift_exact`: 100 Hz and below with the default cutoffs):
+    the fitted delay minus the delay the band-limited shift of the model's torque gives on the same residual (the
+    delay's contribution plus what the set leaves; :func:`effects.timing.band_limited_delay`), zeros elsewhere.
+
+    ``diagnose`` reports the delay of an exact-shift fit that interpolates the model's torque linearly. At 30 Hz
+    the velocity noise the logger folds into the band rides on that torque, and linear interpolation keeps less of
+    its power the nearer the shift falls to half a sample period, which pulls the fit there (on the hidden-effect
+    generator's 7-12 ms delays at 30 Hz: 2.4-8 % above the noise-free fit with only the velocity noise,
+    docs/workbench.md section 12). As with :func:`inertial_bias`, the fitted value is kept and the interval also
+    holds the corrected one."""
+    from franka_vs_gym.validation.effects.timing import band_limited_delay, linear_shift_exact
+
+    out = np.zeros(len(params))
+    if linear_shift_exact(ctx.data.settings):
+        return out
+    for k, p in enumerate(params):
+        e = effects[p.term]
+        if not (live[k] and p.key == "coef" and getattr(e, "name", "") == "delay"
+                and getattr(e, "channel", "") == "measurement" and p.value > 0):
+            continue
+        d = band_limited_delay(ctx, resid + contrib[p.term], p.value)
+        if d is not None:
+            out[k] = p.value - d
+    return out
 
 
 def _linear_public(effect, ctx, fit, own: list[_Param], theta: np.ndarray, probes: np.ndarray, pub: dict,
