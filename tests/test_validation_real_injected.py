@@ -203,3 +203,29 @@ def test_served_truth_is_the_injection_of_the_same_kind_and_seed(gaz, tmp_path):
                                                                  + vis["viscous_Nms_per_rad"])
         if "payload" in kind:
             assert served.payload.mass == pytest.approx(truth[0]["mass_kg"])
+
+
+@pytest.mark.parametrize("k", [1, 10])
+def test_payload_and_viscous_friction_at_once_named_as_such(gaz, k):
+    """A payload and viscous friction on one joint added at once (seed 0: 0.42 kg, 2.1 Nm s/rad on joint 1), at
+    1 kHz and 100 Hz: the answer adds to the untouched recording's the payload (its mass within 50 %) and viscous
+    friction on that joint, nothing else (before: at 100 Hz a wide sigmoid on six joints took the viscous term, then
+    link masses, a delay and step laws came beside it; at 1 kHz the link inertials, with the real joint's own
+    friction error that the viscous coefficient carries, took the payload's place). A law newly named on a joint is
+    the viscous friction on its joint or is said ambiguous there."""
+    from franka_vs_gym.validation.injected import inject
+
+    log, noise = gaz
+    new, truth = inject(log, "payload+viscous", 0, noise=noise)
+    pay, visc = truth
+    (j,) = visc["joints"]
+    base, d = _diagnose(log, k), _diagnose(new, k)
+    assert set(d.selected) - set(base.selected) == {"payload", "viscous_friction"}, d.selected
+    laws = {(s.effect, x) for s in d.selection if s.effect in ("viscous_friction", "torque_offset")
+            or s.effect.endswith("_friction") for x in s.joints}
+    assert ("viscous_friction", j) in laws, laws
+    m = next(s.params for s in d.selection if s.effect == "payload")["mass_kg"]
+    assert abs(m - pay["mass_kg"]) < 0.5 * pay["mass_kg"], (m, pay["mass_kg"])
+    old = {(s.effect, x) for s in base.selection for x in s.joints}
+    said = {(c, x) for a in d.ambiguous for c in a.candidates for x in a.joints}
+    assert laws - old - {("viscous_friction", j)} <= said, (laws - old, said)
