@@ -96,11 +96,13 @@ def evaluate(config: ModelConfig, data: ProcessedLog, regressors: bool = False) 
         units = np.eye(3)
         for k in range(n):
             qk = q[k]
-            rigid[k] = rnea(model, d, qk, dq[k], ddq[k])
             for c in range(3):
                 gm.gravity.linear = units[c]
                 G[k, :, c] = ggrav(gm, gd, qk)
             Y[k] = reg(model, d, qk, dq[k], ddq[k])
+        # what rnea gives: the regressor times the links' dynamic parameters, plus the armature's B ddq (to 1e-14)
+        pi = np.concatenate([model.inertias[i].toDynamicParameters() for i in range(1, model.njoints)])
+        rigid = Y @ pi + ddq * np.asarray(model.armature)[None, :]
         grav = np.einsum("nic,c->ni", G, config.gravity)
     else:
         for k in range(n):

@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from scipy import fft as sp_fft
 from scipy import signal
 
 from franka_vs_gym.validation.effects import Context, Effect, Fit
@@ -51,9 +52,9 @@ def n_eff(r: np.ndarray, max_lag: int = 2000) -> np.ndarray | float:
     x = x - x.mean(axis=0)
     var = np.einsum("nk,nk->k", x, x)
     lag = min(max_lag, n - 1)
-    m = 1 << int(np.ceil(np.log2(n + lag + 1)))
-    f = np.fft.rfft(x, m, axis=0)
-    ac = np.fft.irfft(f.real ** 2 + f.imag ** 2, m, axis=0)[: lag + 1] / np.maximum(var, 1e-300)
+    m = sp_fft.next_fast_len(n + lag + 1, real=True)  # any length >= n + lag keeps lags <= lag free of wrap-around
+    f = sp_fft.rfft(x, m, axis=0)
+    ac = sp_fft.irfft(f.real ** 2 + f.imag ** 2, m, axis=0)[: lag + 1] / np.maximum(var, 1e-300)
     out = np.empty(x.shape[1])
     for c in range(x.shape[1]):
         if var[c] <= 0:
@@ -235,15 +236,17 @@ class Engine:
         sse = None
         if cv:
             sse = self.yy.copy()
-            for f in range(self.F):
-                Af = At - A[f]
-                th = _solve(Af + np.diag(rid * np.diag(Af)), bt - b[f], ref=np.diag(At))
-                for j in range(7):
-                    if per_joint_idx[j] is None:
-                        continue
-                    G, xy = blocks[j]
-                    tj = th[per_joint_idx[j]]
-                    sse[f, j] = self.yy[f, j] - 2 * tj @ xy[f] + tj @ G[f] @ tj
+            Af = At[None] - A  # (F, P, P): each fold's normal equations without its block
+            dg = np.diagonal(Af, axis1=1, axis2=2)
+            Af = Af + rid[None, :, None] * np.eye(P)[None] * dg[:, None, :]
+            ths = _solve_folds(Af, bt[None] - b, np.diag(At))
+            for j in range(7):
+                if per_joint_idx[j] is None:
+                    continue
+                G, xy = blocks[j]
+                tj = ths[:, per_joint_idx[j]]  # (F, pj)
+                sse[:, j] = (self.yy[:, j] - 2 * np.einsum("fp,fp->f", tj, xy)
+                             + np.einsum("fp,fp->f", np.einsum("fpq,fq->fp", G, tj), tj))
             mse_cv = np.maximum(sse.sum(axis=0), 0.0) / self.n
         coefs = []
         for t, d in zip(terms, lay, strict=True):
@@ -295,6 +298,20 @@ def _solve(A: np.ndarray, b: np.ndarray, ref: np.ndarray | None = None) -> np.nd
         x = np.linalg.lstsq(An, b / scale, rcond=1e-10)[0] / scale
     theta[live] = x
     return theta
+
+
+def _solve_folds(A: np.ndarray, b: np.ndarray, ref: np.ndarray) -> np.ndarray:
+    """:func:`_solve` of every fold's normal equations ``A`` (F, P, P), ``b`` (F, P) at once (one batched LAPACK
+    call) when every parameter is excited in every fold; otherwise fold by fold."""
+    d = np.diagonal(A, axis1=1, axis2=2)
+    if (d > EXCITED * ref[None, :]).all():
+        scale = np.sqrt(d)
+        An = A / (scale[:, :, None] * scale[:, None, :])
+        try:
+            return np.linalg.solve(An + 1e-9 * np.eye(A.shape[1])[None], (b / scale)[..., None])[..., 0] / scale
+        except np.linalg.LinAlgError:
+            pass
+    return np.array([_solve(A[f], b[f], ref=ref) for f in range(len(A))])
 
 
 EXCITED = 1e-9  # share of a parameter's excitation on the whole log below which a fold does not estimate it
