@@ -88,18 +88,19 @@ def evaluate(config: ModelConfig, data: ProcessedLog, regressors: bool = False) 
     rnea, ggrav = pin.rnea, pin.computeGeneralizedGravity
     G = Y = None
     if regressors:
-        G = np.empty((n, 7, 3))
         Y = np.empty((n, 7, 70))
-        gm, _, _ = build_pinocchio_model(config)
-        gd = gm.createData()
         reg = pin.computeJointTorqueRegressor
-        units = np.eye(3)
         for k in range(n):
-            qk = q[k]
-            for c in range(3):
-                gm.gravity.linear = units[c]
-                G[k, :, c] = ggrav(gm, gd, qk)
-            Y[k] = reg(model, d, qk, dq[k], ddq[k])
+            Y[k] = reg(model, d, q[k], dq[k], ddq[k])
+        # the gravity torque per unit gravity along x, y, z: one model per axis (no gravity change per sample)
+        G3 = np.empty((3, n, 7))
+        for c in range(3):
+            gm, _, _ = build_pinocchio_model(config)
+            gm.gravity.linear = np.eye(3)[c]
+            gd, out = gm.createData(), G3[c]
+            for k in range(n):
+                out[k] = ggrav(gm, gd, q[k])
+        G = np.ascontiguousarray(G3.transpose(1, 2, 0))
         # what rnea gives: the regressor times the links' dynamic parameters, plus the armature's B ddq (to 1e-14)
         pi = np.concatenate([model.inertias[i].toDynamicParameters() for i in range(1, model.njoints)])
         rigid = Y @ pi + ddq * np.asarray(model.armature)[None, :]

@@ -151,6 +151,28 @@ def _cv_lin(r: np.ndarray, X: np.ndarray, fold: np.ndarray, F: int) -> np.ndarra
     return out
 
 
+def _harmonics(x: np.ndarray, ks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """sin and cos (len(ks), len(x)) of 2 pi k x for every k of ``ks``. Equally spaced ``ks`` (the scan's) take the
+    three-term recurrence s_(i+1) = 2 cos(d) s_i - s_(i-1) of the angle step d (one multiply-add per value instead of
+    a sine and a cosine; it agrees with them to ~1e-11), others ``np.sin``/``np.cos``."""
+    K = len(ks)
+    step = np.diff(ks)
+    if K < 3 or not np.allclose(step, step[0], rtol=1e-9, atol=0.0):
+        w = np.outer(2 * math.pi * ks, x)
+        return np.sin(w), np.cos(w)
+    a = 2 * math.pi * ks[0] * x
+    d = 2 * math.pi * (ks[1] - ks[0]) * x
+    s, c = np.empty((K, len(x))), np.empty((K, len(x)))
+    s[0], c[0], s[1], c[1] = np.sin(a), np.cos(a), np.sin(a + d), np.cos(a + d)
+    c2 = 2.0 * np.cos(d)
+    for i in range(2, K):
+        np.multiply(c2, s[i - 1], out=s[i])
+        s[i] -= s[i - 2]
+        np.multiply(c2, c[i - 1], out=c[i])
+        c[i] -= c[i - 2]
+    return s, c
+
+
 def _best_periodic(r: np.ndarray, x: np.ndarray, ks: np.ndarray) -> tuple[float, float]:
     """Frequency (cycles per unit of x, from ks) whose sin/cos explains most of r (least squares with intercept).
     All frequencies of a chunk at once (the 2x2 normal equations solved in closed form), chunks of at most about
@@ -158,16 +180,15 @@ def _best_periodic(r: np.ndarray, x: np.ndarray, ks: np.ndarray) -> tuple[float,
     ks = np.asarray(ks, dtype=np.float64)
     rc = r - r.mean()
     gains = np.empty(len(ks))
-    step = max(1, int(2_000_000 // max(len(x), 1)))
+    step = max(3, int(2_000_000 // max(len(x), 1)))
     for i0 in range(0, len(ks), step):
-        w = np.outer(x, 2 * math.pi * ks[i0:i0 + step])
-        s, c = np.sin(w), np.cos(w)
-        s -= s.mean(axis=0)
-        c -= c.mean(axis=0)
-        a11 = np.einsum("nk,nk->k", s, s) + 1e-12
-        a12 = np.einsum("nk,nk->k", s, c)
-        a22 = np.einsum("nk,nk->k", c, c) + 1e-12
-        b1, b2 = rc @ s, rc @ c
+        s, c = _harmonics(x, ks[i0:i0 + step])
+        s -= s.mean(axis=1, keepdims=True)
+        c -= c.mean(axis=1, keepdims=True)
+        a11 = np.einsum("kn,kn->k", s, s) + 1e-12
+        a12 = np.einsum("kn,kn->k", s, c)
+        a22 = np.einsum("kn,kn->k", c, c) + 1e-12
+        b1, b2 = s @ rc, c @ rc
         det = a11 * a22 - a12 * a12
         with np.errstate(divide="ignore", invalid="ignore"):
             g = ((a22 * b1 - a12 * b2) * b1 + (a11 * b2 - a12 * b1) * b2) / det
