@@ -47,6 +47,33 @@ def record_with_client(script: str, out: Path, net: int) -> dict:
     return json.loads(r.stdout.strip().splitlines()[-1])
 
 
+def record_served(script: Path, args: list[str], log: Path, net: int, timeout: float = 300, **server):
+    """Run the client ``script HOST *args`` unmodified in its own process against a lock-step FCI server on
+    :func:`loopback_host` ``(net)`` that records to ``log`` (``server``: more FCIServer arguments, e.g. ``truth``,
+    ``tool``); returns the server, stopped, for what the caller checks of its plant."""
+    import subprocess
+    import sys
+
+    from franka_vs_gym.fci import FCIServer
+
+    with FCIServer(loopback_host(net), lockstep=True, camera=False, verbose=False, record=log, **server) as srv:
+        r = subprocess.run([sys.executable, str(script), srv.host, *args], capture_output=True, text=True,
+                           timeout=timeout)
+    assert r.returncode == 0, r.stderr[-3000:]
+    return srv
+
+
+def log_context(path):
+    """The diagnosis context (the baseline model's evaluation and regressors) of the recording at ``path``, as
+    ``diagnose`` builds it."""
+    from franka_vs_gym.validation.compare import as_processed, baseline_config
+    from franka_vs_gym.validation.effects.base import Context
+    from franka_vs_gym.validation.signals import decimated
+
+    data = as_processed(str(path))
+    return Context(decimated(data), baseline_config(data.log, None, False, data=data))
+
+
 @pytest.fixture
 def rng():
     return np.random.default_rng(12345)

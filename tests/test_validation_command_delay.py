@@ -11,8 +11,6 @@ from __future__ import annotations
 
 import importlib.util
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -20,16 +18,13 @@ import pytest
 if importlib.util.find_spec("pylibfranka") is None:
     pytest.skip("pylibfranka is not installed (pip install -e '.[fci]')", allow_module_level=True)
 
-from conftest import CLIENTS, loopback_host  # noqa: E402
+from conftest import CLIENTS, log_context, record_served  # noqa: E402
 
-from franka_vs_gym.fci import FCIServer  # noqa: E402
 from franka_vs_gym.model.description import FER  # noqa: E402
-from franka_vs_gym.validation.compare import as_processed, baseline_config  # noqa: E402
 from franka_vs_gym.validation.diagnose import diagnose  # noqa: E402
 from franka_vs_gym.validation.effects.base import MIN_DELAY, Context  # noqa: E402
 from franka_vs_gym.validation.effects.inertial import Armature  # noqa: E402
 from franka_vs_gym.validation.effects.timing import CommandDelay  # noqa: E402
-from franka_vs_gym.validation.signals import decimated  # noqa: E402
 
 DELAY = 0.004  # s: the known command delay of the second log (whole 1 ms steps in the plant)
 SECONDS = "6"  # of the client's PD sine motion (libfranka's joint-impedance law, K 600..50, D 50..5)
@@ -46,19 +41,10 @@ def logs(tmp_path_factory):
             tp = d / "truth.json"
             tp.write_text(json.dumps(truth))
         log = d / "session.npz"
-        with FCIServer(loopback_host(44), lockstep=True, camera=False, verbose=False, record=log, truth=tp) as srv:
-            assert srv.sim.rotor_inertia.max() > 0  # the motors are in the plant
-            r = subprocess.run([sys.executable, str(CLIENTS / "record_pylibfranka.py"), srv.host, str(d), SECONDS],
-                               capture_output=True, text=True, timeout=600)
-        assert r.returncode == 0, r.stderr[-3000:]
+        srv = record_served(CLIENTS / "record_pylibfranka.py", [str(d), SECONDS], log, 44, timeout=600, truth=tp)
+        assert srv.sim.rotor_inertia.max() > 0  # the motors are in the plant
         out[name] = log
     return out
-
-
-def _context(path) -> Context:
-    data = as_processed(str(path))
-    cfg = baseline_config(data.log, None, False, data=data)
-    return Context(decimated(data), cfg)
 
 
 def _command_delay(ctx: Context) -> float:
@@ -71,7 +57,7 @@ def test_motor_term_is_not_taken_for_a_delay(logs):
     Armature.effective's regression of tau_J_d + g - tau_J on ddq, is the robot's 0.195 / 0.074 kg m^2; a delay fit
     on the raw difference takes it for a command delay of several ms), yet diagnose names no delay and the
     command-channel fit is below the 1.5 ms the check reports."""
-    ctx = _context(logs["none"])
+    ctx = log_context(logs["none"])
     armature = np.array(Armature.effective(ctx)["effective_armature_kgm2"])
     assert np.allclose(armature, FER.rotor_inertia, rtol=0.05), armature
     # what the check did before: the delay fitted on the raw difference, the motor term still in it
@@ -91,7 +77,7 @@ def test_known_command_delay_is_named_within_its_interval(logs):
     """With a 4 ms command delay: diagnose names the delay on the command channel, and its 95 % interval contains
     the plant's delay: the 4 ms added plus the sub-step alignment the same plant shows without a delay (the command
     held over a 1 ms physics step, the torque read at its end: +0.2 ms on this log, measured on the first log)."""
-    d0 = _command_delay(_context(logs["none"]))
+    d0 = _command_delay(log_context(logs["none"]))
     d = diagnose(str(logs["delayed"]), effects=["delay"])
     s = next((s for s in d.selection if s.effect == "delay"), None)
     assert s is not None and s.channel == "command", [(c.effect, c.ok, c.params) for c in d.ranking]

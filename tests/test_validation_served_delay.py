@@ -18,8 +18,6 @@ from __future__ import annotations
 
 import importlib.util
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -27,16 +25,13 @@ import pytest
 if importlib.util.find_spec("pylibfranka") is None or importlib.util.find_spec("franky") is None:
     pytest.skip("pylibfranka and franky are needed (pip install -e '.[fci]')", allow_module_level=True)
 
-from conftest import loopback_host  # noqa: E402
+from conftest import log_context, record_served  # noqa: E402
 from scipy import signal  # noqa: E402
 
-from franka_vs_gym.fci import FCIServer  # noqa: E402
-from franka_vs_gym.validation.compare import as_processed, baseline_config  # noqa: E402
 from franka_vs_gym.validation.diagnose import diagnose  # noqa: E402
 from franka_vs_gym.validation.effects.base import MIN_DELAY, Context  # noqa: E402
 from franka_vs_gym.validation.effects.registry import REGISTRY  # noqa: E402
 from franka_vs_gym.validation.evaluate import shift  # noqa: E402
-from franka_vs_gym.validation.signals import decimated  # noqa: E402
 
 NET = 244  # this file's loopback nets (conftest.loopback_host)
 HIDDEN = 0.060  # s: the sensor delay hidden in the plant of the second recording
@@ -58,18 +53,9 @@ def logs(tmp_path_factory):
         truth = root / f"{client}.truth.json"
         truth.write_text(json.dumps({"effects": effects, **NOISE}))
         log = root / f"{client}.npz"
-        with FCIServer(loopback_host(NET + k), lockstep=True, camera=False, verbose=False, tool="none",
-                       record=log, truth=truth) as srv:
-            r = subprocess.run([sys.executable, str(design / f"play_excitation_{client}.py"), srv.host],
-                               capture_output=True, text=True, timeout=300)
-        assert r.returncode == 0, r.stderr[-3000:]
+        record_served(design / f"play_excitation_{client}.py", [], log, NET + k, tool="none", truth=truth)
         out[client] = log
     return out
-
-
-def _context(path) -> Context:
-    data = as_processed(str(path))
-    return Context(decimated(data), baseline_config(data.log, None, False, data=data))
 
 
 def _band(ctx: Context, x: np.ndarray) -> np.ndarray:
@@ -85,7 +71,7 @@ def _exact_shift(ctx: Context, grid: np.ndarray) -> float:
 
 
 def test_franky_waypoint_recording_reads_its_alignment_not_a_delay(logs):
-    ctx = _context(logs["franky"])
+    ctx = log_context(logs["franky"])
     delay = REGISTRY.get("delay")
     d = float(delay.fit(ctx, ctx.residual, np.arange(ctx.n)).theta["coef"][0])
     exact = _exact_shift(ctx, np.arange(-3e-3, 5e-3, 5e-5))
@@ -99,7 +85,7 @@ def test_franky_waypoint_recording_reads_its_alignment_not_a_delay(logs):
 
 
 def test_long_hidden_delay_leaves_what_the_exact_shift_leaves(logs):
-    ctx = _context(logs["pylibfranka"])
+    ctx = log_context(logs["pylibfranka"])
     delay = REGISTRY.get("delay")
     fit = delay.fit(ctx, ctx.residual, np.arange(ctx.n))
     d = float(fit.theta["coef"][0])
