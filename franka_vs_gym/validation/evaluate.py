@@ -92,12 +92,13 @@ def evaluate(config: ModelConfig, data: ProcessedLog, regressors: bool = False) 
         reg = pin.computeJointTorqueRegressor
         for k in range(n):
             Y[k] = reg(model, d, q[k], dq[k], ddq[k])
-        # the gravity torque per unit gravity along x, y, z: one model per axis (no gravity change per sample)
+        # the gravity torque per unit gravity along x, y, z: one axis at a time (not three gravity changes per sample)
+        gm, _, _ = build_pinocchio_model(config)
+        gd = gm.createData()
         G3 = np.empty((3, n, 7))
         for c in range(3):
-            gm, _, _ = build_pinocchio_model(config)
             gm.gravity.linear = np.eye(3)[c]
-            gd, out = gm.createData(), G3[c]
+            out = G3[c]
             for k in range(n):
                 out[k] = ggrav(gm, gd, q[k])
         G = np.ascontiguousarray(G3.transpose(1, 2, 0))

@@ -290,25 +290,29 @@ def _solve(A: np.ndarray, b: np.ndarray, ref: np.ndarray | None = None) -> np.nd
     if not live.all():
         A, b = A[np.ix_(live, live)], b[live]
         d = d[live]
-    scale = np.sqrt(d)
-    An = A / np.outer(scale, scale)
     try:
-        x = np.linalg.solve(An + 1e-9 * np.eye(len(b)), b / scale) / scale
+        theta[live] = _scaled_solve(A, b, d)
     except np.linalg.LinAlgError:
-        x = np.linalg.lstsq(An, b / scale, rcond=1e-10)[0] / scale
-    theta[live] = x
+        scale = np.sqrt(d)
+        theta[live] = np.linalg.lstsq(A / np.outer(scale, scale), b / scale, rcond=1e-10)[0] / scale
     return theta
 
 
+def _scaled_solve(A: np.ndarray, b: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """``A theta = b`` (..., P, P), (..., P) with the columns scaled to unit diagonal ``d`` (..., P) and a 1e-9
+    ridge: one LAPACK call for a stack of systems. Raises LinAlgError where a system is singular."""
+    scale = np.sqrt(d)
+    An = A / (scale[..., :, None] * scale[..., None, :])
+    return np.linalg.solve(An + 1e-9 * np.eye(A.shape[-1]), (b / scale)[..., None])[..., 0] / scale
+
+
 def _solve_folds(A: np.ndarray, b: np.ndarray, ref: np.ndarray) -> np.ndarray:
-    """:func:`_solve` of every fold's normal equations ``A`` (F, P, P), ``b`` (F, P) at once (one batched LAPACK
-    call) when every parameter is excited in every fold; otherwise fold by fold."""
+    """:func:`_solve` of every fold's normal equations ``A`` (F, P, P), ``b`` (F, P) at once when every parameter
+    is excited in every fold and no system is singular; otherwise fold by fold."""
     d = np.diagonal(A, axis1=1, axis2=2)
     if (d > EXCITED * ref[None, :]).all():
-        scale = np.sqrt(d)
-        An = A / (scale[:, :, None] * scale[:, None, :])
         try:
-            return np.linalg.solve(An + 1e-9 * np.eye(A.shape[1])[None], (b / scale)[..., None])[..., 0] / scale
+            return _scaled_solve(A, b, d)
         except np.linalg.LinAlgError:
             pass
     return np.array([_solve(A[f], b[f], ref=ref) for f in range(len(A))])
