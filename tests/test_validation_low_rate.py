@@ -59,6 +59,16 @@ def _slow_log(rate: float, dq_noise: float, seed: int = 0, duration: float = 12.
     return MeasurementLog(t, q, dq_meas, tau, tool="franka_hand")
 
 
+def test_assumptions_name_the_derivative_the_log_was_differentiated_with():
+    """The diagnosis' assumptions say how ddq was taken: the central difference at 1 kHz, the spline's derivative at
+    30 Hz (they had said "central difference" at every rate)."""
+    from franka_vs_gym.validation.diagnose import diagnose
+
+    for rate, said in ((1000.0, "central difference"), (30.0, "cubic spline")):
+        d = diagnose(_slow_log(rate, 0.0), select=False)
+        assert said in d.assumptions["cleaning"]["acceleration"], (rate, d.assumptions["cleaning"])
+
+
 def test_ddq_noise_estimate_matches_the_noise_the_velocity_puts_into_ddq():
     noisy = clean(_slow_log(30.0, 0.003))
     exact = clean(_slow_log(30.0, 0.0))

@@ -352,7 +352,9 @@ def assumptions_of(data: ProcessedLog, config: Any, tool: str | None = None) -> 
                         "lowpass_hz": data.settings.cutoff, "filter": f"Butterworth order {data.settings.order}, "
                                                                         "zero phase", "trim_s": data.settings.trim,
                         "max_gap_s": rep.settings.get("max_gap_used", data.settings.max_gap),
-                        "acceleration": "central difference of the filtered velocity",
+                        "acceleration": ("central difference of the filtered velocity"
+                                         if data.settings.derivative == "central" else
+                                         "derivative of the cubic spline through the filtered velocity"),
                         "resampling": "linear interpolation onto a uniform grid"},
            "samples": int(data.n), "duration_s": round(float(data.n / data.settings.rate), 3),
            "warnings": list(getattr(rep, "warnings", []))}
