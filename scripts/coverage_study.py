@@ -283,6 +283,8 @@ def main(argv=None) -> int:
     p.add_argument("--redraw-noise", default="torque,velocity,all",
                    help="generator H: which sensor noise each draw adds (torque, velocity, all)")
     args = p.parse_args(argv)
+    if args.out and Path(args.out).exists():  # checked before the long run, not after it
+        p.error(f"--out {args.out} exists; choose another file name")
     if args.redraws and args.redraw_generator == "H":
         noises = args.redraw_noise.split(",")
         if args.redraw_effect not in H_SCALAR:

@@ -17,6 +17,7 @@ import collections
 import json
 import sys
 import time
+from pathlib import Path
 
 import gymnasium as gym
 
@@ -71,6 +72,8 @@ def main() -> int:
     args = ap.parse_args()
     if args.episodes < 1:
         ap.error("--episodes must be >= 1")
+    if args.json and Path(args.json).exists():  # checked before the long run, not after it
+        ap.error(f"--json {args.json} exists; choose another file name")
     rows = []
     print(f"{'env':26s} {'robot':5s} {'setting':7s} {'reflex share':>12s}  ends", flush=True)
     for env_id in args.envs.split(","):

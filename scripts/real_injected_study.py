@@ -208,6 +208,8 @@ def main() -> int:
             print(f"\n### {src}")
             table(sub, list(dict.fromkeys(r["kind"] for r in sub)), rates, args.cases)
         return 0
+    if args.output and Path(args.output).exists():  # checked before the long run, not after it
+        ap.error(f"-o {args.output} exists; choose another file name")
     kinds = [k for k in args.kinds.split(",") if k]
     rates = [r for r in args.rates.split(",") if r]
     sources = [s for s in args.source.split(",") if s]
