@@ -102,6 +102,11 @@ def test_malformed_files_name_the_problem(tmp_path):
     p = _write_csv(tmp_path / "m6.csv", _cols(), bad)
     with pytest.raises(ValueError, match=r"milliseconds"):
         load_log(p)
+    # a slow recording (a ROS topic at 10 Hz) is seconds, not milliseconds: read, at its own time
+    slow = good.copy()
+    slow[:, 0] *= 100
+    back = load_log(_write_csv(tmp_path / "m6b.csv", _cols(), slow))
+    np.testing.assert_allclose(back.time, slow[:, 0])
     # text in a number field
     p = tmp_path / "m7.csv"
     p.write_text(",".join(_cols()) + "\n" + ",".join(["0.0"] + ["abc"] + ["1"] * 20) + "\n")

@@ -193,7 +193,10 @@ def test_dump_formats_and_their_errors_are_one_line(tmp_path):
     err("gap.jsonl", bad, r"robot state 3 has no 'dq'")
     bad = [{k: v for k, v in t.items() if k != "time"} for t in _ticks()]
     err("notime.jsonl", bad, r"no time field \(looked for 'time' or 'robot_time', in s or ms\)")
-    err("unit.jsonl", _ticks(step=0.2), r"cannot tell the unit of 'time' \(median step 0.2\)")
+    err("unit.jsonl", _ticks(step=1000.0), r"cannot tell the unit of 'time' \(median step 1000\)")
+    slow = load_log(_jsonl(tmp_path / "slow.jsonl", _ticks(step=0.2)))  # 5 Hz in seconds (in ms: 5 kHz)
+    assert slow.duration == pytest.approx(9.8) and "in seconds (detected from its median step 0.2)" in \
+        slow.extra["read_as"]
     err("cell.csv", "time,q,dq,tau_J\n0,\"[1, 2, 3, 4, 5, 6, 7]\",\"[0 0 0 0 0 0 0]\",abc\n",
         r"line 2: column 'tau_J' holds 'abc'")
     err("torn.jsonl", '{"time": 1, "q": [0]}\n{"time": 2, \n', r"line 2 is not a JSON object")

@@ -146,6 +146,9 @@ class MeasurementLog:
                               tool_declared=self.tool_declared)
 
 
+#: the longest median time step read as seconds: 2 Hz. A step of 1 (a sample index, or milliseconds at 1 kHz) is
+#: not seconds; one of 0.05-0.5 s is a slow recording (a ROS topic at 2-20 Hz), not milliseconds (2-20 kHz)
+MAX_STEP_S = 0.5
 Q_RANGE_MARGIN = 0.5  # rad beyond the joint range that no arm reaches (its hard stops are a few degrees out): refused
 Q_RANGE_WARN = 0.05  # rad beyond the range that is warned about (a position past the soft limits)
 
@@ -179,7 +182,7 @@ def validate(log: MeasurementLog) -> None:
             raise ValueError(f"{name}[{c}] contains NaN or inf (first at row {r}, time {t[r]:.6g} s)")
     pos = dt[dt > 0]
     med = float(np.median(pos)) if len(pos) else 0.0
-    if med > 0.05:
+    if med >= MAX_STEP_S:
         raise ValueError(f"time step is {med:.3g} (median): the time column looks like milliseconds or a "
                          "sample index, it must be in seconds (about 0.001 s at 1 kHz)")
     for name in ("q", "q_d"):
@@ -537,7 +540,7 @@ def _load_file(p: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         if native:
             t = np.asarray(z["time"], dtype=np.float64).ravel()
             dt = np.diff(t)
-            native = not (dt > 0).any() or float(np.median(dt[dt > 0])) <= 0.05
+            native = not (dt > 0).any() or float(np.median(dt[dt > 0])) < MAX_STEP_S
         return _load_npz(p) if native else rs.read_npz_dump(p)
     if kind == "npy":
         return rs.read_npy(p)

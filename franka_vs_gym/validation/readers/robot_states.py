@@ -26,7 +26,7 @@ detected from the content, not the file name):
 
 Field names are libfranka's (``q``, ``dq``, ``tau_J``, ...). The time is ``time`` or ``robot_time`` (also
 ``time_s``, ``time_ms``: the unit from the name); otherwise its unit is detected from the median step (s: at most
-0.05, ms: 0.5-100, anything else is refused), converted to seconds from the first sample, and stated in the log's
+0.5 (2 Hz or faster), ms: 0.5-500, anything else is refused), converted to seconds from the first sample, and stated in the log's
 ``extra["read_as"]``, which every workbench output repeats under ``assumptions``. Missing or malformed fields raise
 ``ValueError`` in one line naming what is missing and what was found.
 """
@@ -239,13 +239,13 @@ def time_to_seconds(t: np.ndarray, name: str, unit: str | None, where: str) -> t
     how = "from its name"
     if unit is None:
         how = f"detected from its median step {med:.4g}"
-        if 0 < med <= 0.05:
+        if 0 < med < 0.5:  # (logs.MAX_STEP_S) 2 Hz or faster in seconds; in ms that would be 2 kHz or faster
             unit = "s"
-        elif 0.5 <= med <= 100:
+        elif 0.5 <= med < 500:  # 1 kHz to 2 Hz in milliseconds
             unit = "ms"
         else:
             raise ValueError(f"{where}: cannot tell the unit of {name!r} (median step {med:.4g}): expected seconds "
-                             "(step <= 0.05, 20 Hz or faster) or milliseconds (step 0.5-100)")
+                             "(step < 0.5, 2 Hz or faster) or milliseconds (step 0.5-500)")
     scale = 1e-3 if unit == "ms" else 1.0
     out = (t - t[0]) * scale
     text = (f"time from {name!r} in {'milliseconds' if unit == 'ms' else 'seconds'} ({how}), "
