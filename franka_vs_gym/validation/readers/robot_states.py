@@ -27,8 +27,8 @@ detected from the content, not the file name):
 Field names are libfranka's (``q``, ``dq``, ``tau_J``, ...). The time is ``time`` or ``robot_time`` (also
 ``time_s``, ``time_ms``: the unit from the name); otherwise its unit is detected from the median step (s: below
 0.5, 2 Hz or faster; ms: 0.5-500; anything else is refused), converted to seconds from the first sample, and stated
-in the log's ``extra["read_as"]``, which every workbench output repeats under ``assumptions``. Missing or malformed fields raise
-``ValueError`` in one line naming what is missing and what was found.
+in the log's ``extra["read_as"]``, which every workbench output repeats under ``assumptions``. Missing or malformed
+fields raise ``ValueError`` in one line naming what is missing and what was found.
 """
 
 from __future__ import annotations
