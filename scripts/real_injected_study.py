@@ -56,7 +56,7 @@ from franka_vs_gym.validation.logs import load_log  # noqa: E402
 from franka_vs_gym.validation.signals import clean  # noqa: E402
 
 GAZ = ROOT.parent / "shared" / "data" / "gaz2019_traj1"
-RATES = {"1 kHz": 1, "100 Hz": 10, "30 Hz": 33}
+RATES = {"1 kHz": 1, "100 Hz": 10, "50 Hz": 20, "30 Hz": 33}  # (50 Hz: by name in --rates)
 STEP = {"coulomb_friction", "sigmoid_friction", "asymmetric_friction", "stribeck_friction"}
 ACCEPT = {"payload": {"payload"}, "gravity_tilt": {"gravity_tilt"}, "torque_offset": {"torque_offset"},
           "viscous_friction": {"viscous_friction"}, "coulomb_friction": STEP, "armature": {"armature"},
@@ -182,7 +182,7 @@ def main() -> int:
     ap.add_argument("--data", default=str(GAZ), help="the Gaz et al. 2019 folder (exciting trajectory 1)")
     ap.add_argument("--cases", type=int, default=1, help="injected copies per kind (seeds 0..cases-1)")
     ap.add_argument("--kinds", default=",".join(KINDS))
-    ap.add_argument("--rates", default=",".join(RATES))
+    ap.add_argument("--rates", default="1 kHz,100 Hz,30 Hz", help=f"comma-separated, of {', '.join(RATES)}")
     ap.add_argument("--band", action="store_true", help="diagnose with band_evidence (= --evidence band_only)")
     ap.add_argument("--evidence", default=None, choices=("band", "band_only", "full"),
                     help="diagnose(evidence=...): band (the default: the motion band with its rules), band_only "
@@ -212,6 +212,8 @@ def main() -> int:
         ap.error(f"-o {args.output} exists; choose another file name")
     kinds = [k for k in args.kinds.split(",") if k]
     rates = [r for r in args.rates.split(",") if r]
+    if not set(rates) <= set(RATES):
+        ap.error(f"--rates {args.rates}: choose from {', '.join(RATES)}")
     sources = [s for s in args.source.split(",") if s]
     if not set(sources) <= {"gaz", "serve"}:
         ap.error(f"--source {args.source}: gaz, serve or gaz,serve")

@@ -229,3 +229,19 @@ def test_payload_and_viscous_friction_at_once_named_as_such(gaz, k):
     old = {(s.effect, x) for s in base.selection for x in s.joints}
     said = {(c, x) for a in d.ambiguous for c in a.candidates for x in a.joints}
     assert laws - old - {("viscous_friction", j)} <= said, (laws - old, said)
+
+
+def test_a_member_the_set_makes_implausible_keeps_a_candidate_out(gaz):
+    """A 0.81 kg payload and viscous friction on joint 4 added at once (seed 1) to the Gaz log at 50 Hz: link masses
+    entering beside the payload turned its mass to -0.27 kg (link 6's mass doubled in its place) and were named with
+    it. A candidate that makes a member of the set implausible waits; the payload keeps its mass (within 30 %) and
+    no link masses are named."""
+    from franka_vs_gym.validation.injected import inject
+
+    log, noise = gaz
+    new, (pay, visc) = inject(log, "payload+viscous", 1, noise=noise)
+    d = _diagnose(new, 20)
+    assert "payload" in d.selected and "link_mass" not in d.selected, d.selected
+    m = next(s.params for s in d.selection if s.effect == "payload")["mass_kg"]
+    assert abs(m - pay["mass_kg"]) < 0.3 * pay["mass_kg"], (m, pay["mass_kg"])
+    assert 4 in next(s.joints for s in d.selection if s.effect == "viscous_friction")

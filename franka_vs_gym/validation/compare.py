@@ -30,7 +30,7 @@ import numpy as np
 from franka_vs_gym.model.config import Friction, ModelConfig, Tool, resolve_config
 from franka_vs_gym.model.description import robot_description
 from franka_vs_gym.validation.evaluate import ModelEvaluation, delay_channel, evaluate, shift
-from franka_vs_gym.validation.logs import MeasurementLog, load_log
+from franka_vs_gym.validation.logs import Q_RANGE_WARN, MeasurementLog, load_log
 from franka_vs_gym.validation.signals import CleanSettings, ProcessedLog, clean
 
 VELOCITY_REGIMES = ((0.0, 0.05, "abs(dq) < 0.05 rad/s (near rest: stiction, offsets)"),
@@ -131,21 +131,66 @@ def estimate_tool(data: ProcessedLog, cfg: ModelConfig) -> tuple[Tool, str]:
     return chosen, note + "; use --tool to say which"
 
 
+def _other_robot_hint(log: MeasurementLog, cfg: ModelConfig) -> str | None:
+    """For a log that does not say which robot it comes from: the registered robots whose joint range holds the
+    logged positions when ``cfg``'s robot's does not (e.g. the FR3's sixth joint reaches 4.5 rad, the FER's 3.75)."""
+    from franka_vs_gym.model.description import ROBOTS
+
+    def beyond(r) -> float:
+        lo, hi = np.asarray(r.limits.q_min, dtype=float), np.asarray(r.limits.q_max, dtype=float)
+        return float(np.max(np.maximum(lo - log.q, log.q - hi)))
+
+    if beyond(cfg.robot) <= Q_RANGE_WARN:
+        return None
+    fits = [r.name for r in ROBOTS.values() if r.name != cfg.robot.name and beyond(r) <= Q_RANGE_WARN]
+    if not fits:
+        return None
+    return (f"the logged positions leave the {cfg.robot.name.upper()}'s joint range by {beyond(cfg.robot):.2f} rad but "
+            f"stay within the {', '.join(n.upper() for n in fits)}'s: a log of that robot? (--robot "
+            f"{fits[0]})")
+
+
 def baseline_config(log: MeasurementLog, model: Any = None, rigid_body: bool = False,
                     tool: str | None = None, robot: Any = None, data: ProcessedLog | None = None) -> ModelConfig:
     """The model to start from: ``model`` (a ModelConfig or a calibrated-model file) if given, else the library's
     default FER with the log's declared tool and gravity. ``rigid_body`` removes all friction. ``tool`` overrides
     the tool: "franka_hand", "none", or "unknown" (no tool in the model; ``diagnose`` and ``fit`` then fit the
     tool's mass, centre of mass and inertia as a payload). ``robot`` (a registered name such as "fer" or "fr3", or a
-    RobotDescription) chooses the robot (default the FER; a model file for another robot is an error). A log that
+    RobotDescription) chooses the robot; by default the robot the log declares (its sidecar's ``robot``, as
+    ``franka-vs serve --record`` writes it), else the FER, with a hint when the logged positions leave the FER's
+    joint range but not another robot's. A model file for another robot than the one asked for or declared is an
+    error. Where the robot came from is ``notes["robot_source"]``, stated in every output's assumptions. A log that
     declares no tool, given with its processed ``data``, gets the tool :func:`estimate_tool` finds (the evidence in
     the configuration's ``notes["tool_estimate"]``, stated in every output's assumptions)."""
     if tool is not None and tool not in TOOLS:
         raise ValueError(f"unknown --tool {tool!r}: choose from {', '.join(TOOLS)}")
+    declared = log.extra.get("robot") if isinstance(log.extra.get("robot"), str) else None
+    robot_note = None
+    if robot is None and declared is not None:  # e.g. `franka-vs serve --robot fr3 --record` says so
+        try:
+            robot = robot_description(declared).name
+        except ValueError:
+            raise ValueError(f"the log declares the robot {declared!r}, which is not a registered robot; pass "
+                             "--robot (fer, fr3, ...)") from None
+        robot_note = "declared by the log"
     if model is not None:
-        cfg = resolve_config(model, robot)
+        try:
+            cfg = resolve_config(model, robot)
+        except ValueError as e:
+            if robot_note is None:
+                raise
+            raise ValueError(f"{e}: the log was recorded on the {robot} (its sidecar says so); give a model of that "
+                             "robot, or --robot to override the log") from None
     else:
         cfg = ModelConfig(robot=robot_description(robot), tool=tool_from_log(log), gravity=log.gravity)
+    if robot_note is None:
+        robot_note = ("--robot" if robot is not None else "the model file's" if model is not None else
+                      f"not declared by the log: the {cfg.robot.name.upper()} assumed (use --robot to say otherwise)")
+        hint = _other_robot_hint(log, cfg) if robot is None and model is None else None
+        if hint:
+            robot_note += "; " + hint
+    cfg = cfg.copy(notes={**cfg.notes, "robot_source": robot_note})
+    if model is None:
         if tool is None and not log.tool_declared and data is not None:
             est, note = estimate_tool(data, cfg)
             cfg = cfg.copy(tool=est, notes={**cfg.notes, "tool_estimate": note})

@@ -344,7 +344,8 @@ def assumptions_of(data: ProcessedLog, config: Any, tool: str | None = None) -> 
     else:
         tool_src = "not declared by the log: the Franka Hand assumed (use --tool to say otherwise)"
     raw_rate = 1.0 / rep.dt_median if rep.dt_median > 0 else float("nan")
-    out = {"robot": config.robot.name, "tool": config.tool.name if hasattr(config.tool, "name") else str(config.tool),
+    out = {"robot": config.robot.name, "robot_source": getattr(config, "notes", {}).get("robot_source", "not stated"),
+           "tool": config.tool.name if hasattr(config.tool, "name") else str(config.tool),
            "tool_mass_kg": round(float(config.tool.body.mass), 4), "tool_source": tool_src,
            "gravity_m_per_s2": np.round(config.gravity, 4).tolist(),
            "log_rate_hz": round(raw_rate, 2), "resampled_to_hz": data.settings.rate,
