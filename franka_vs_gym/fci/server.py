@@ -182,6 +182,11 @@ class FCIServer:
         self._thread: threading.Thread | None = None
         self._running = False
         self._ready = threading.Event()
+        #: set by the serving thread as it ends. stop() waits on it, not on Thread.join / is_alive: on Python < 3.13
+        #: a join interrupted by a signal's exception (Ctrl-C, SIGTERM in serve_forever) can leave the thread marked
+        #: stopped while it still runs, and closing the sockets under it then failed its accept ("Bad file
+        #: descriptor") after every SIGTERM that followed a client
+        self._done = threading.Event()
         self._error: BaseException | None = None
         self.message_id = 0
         self.gripper_message_id = 0
@@ -238,6 +243,7 @@ class FCIServer:
         """Bind the sockets and serve in a background thread; returns when the server is ready."""
         self._bind()
         self._running = True
+        self._done.clear()
         self._thread = threading.Thread(target=self._serve, name=f"fci-{self.host}", daemon=True)
         self._thread.start()
         self._ready.wait()
@@ -261,7 +267,8 @@ class FCIServer:
         """Stop serving, close the sockets, write the recorded log (if any)."""
         self._running = False
         if self._thread is not None:
-            self._thread.join(5.0)
+            self._done.wait(5.0)
+            self._thread.join(0.5)
             self._thread = None
         for s in getattr(self, "_socks", []):
             try:
@@ -366,10 +373,13 @@ class FCIServer:
         except BaseException as e:  # reported by stop()
             self._error = e
         finally:
-            for c in [self.robot_conn, *self.gripper_conns]:
-                if c is not None:
-                    c.sock.close()
-            sel.close()
+            try:
+                for c in [self.robot_conn, *self.gripper_conns]:
+                    if c is not None:
+                        c.sock.close()
+                sel.close()
+            finally:
+                self._done.set()
 
     def _recv_command(self) -> RobotCommand | None:
         try:
