@@ -701,14 +701,17 @@ DQ_MAX = np.array({dq_max!r})  # rad/s, the robot's limits
 DDQ_MAX = np.array({ddq_max!r})  # rad/s^2
 
 
-def excitation(t):
-    """Designed joint positions and velocities at time t (s) of the excitation."""
+def excitation(t, acceleration=False):
+    """Designed joint positions and velocities (and with ``acceleration`` accelerations) at time t (s)."""
     s = min(max(t - REST, 0.0), PERIOD * PERIODS)
     sn, cs = np.sin(W * s), np.cos(W * s)
     moving = REST < t < REST + PERIOD * PERIODS
     q = CENTRE + A @ sn + B @ (cs - 1.0)
     dq = (A @ (W * cs) - B @ (W * sn)) if moving else np.zeros(7)
-    return q, dq
+    if not acceleration:
+        return q, dq
+    ddq = -(A @ (W ** 2 * sn) + B @ (W ** 2 * cs)) if moving else np.zeros(7)
+    return q, dq, ddq
 
 
 def approach_time(q_from):
@@ -786,16 +789,18 @@ if __name__ == "__main__":
     main()
 '''
 
-FRANKY_SCRIPT = '''"""Play the designed excitation on a Franka robot with franky (its joint motion API: a
-JointWaypointMotion through the designed positions and velocities every {step:g} s, each reached in that time) and
-record the robot state.
+FRANKY_SCRIPT = '''"""Play the designed excitation on a Franka robot with franky and record the robot state.
 
     python {name} ROBOT_ADDRESS
 
-First a move to the excitation's centre pose, then the excitation ({duration:.1f} s); the recorded states go to
-<this script's name without play_>_recorded.csv (+ .json sidecar), a new file each run. Read it with:
-franka-vs diagnose FILE; franka-vs fit FILE --add EFFECTS -o model.json. Designed by franka-vs excite for:
-{effects}. The same script runs against 'franka-vs serve' and a real robot.
+First a move to the excitation's centre pose (franky's JointMotion), then the excitation ({duration:.1f} s) as a
+joint reference read every control cycle by franky's JointImpedanceTrackingMotion: the designed position and
+velocity at the robot's own time, and the designed acceleration through the robot model's mass matrix as feed-forward
+torque (a JointWaypointMotion would reach each waypoint at zero acceleration: a ripple at the waypoint rate in the
+torques, which a lower-rate recording folds into the motion band). The recorded states go to <this script's name
+without play_>_recorded.csv (+ .json sidecar), a new file each run. Read it with: franka-vs diagnose FILE;
+franka-vs fit FILE --add EFFECTS -o model.json. Designed by franka-vs excite for: {effects}. The same script runs
+against 'franka-vs serve' and a real robot.
 """
 import json
 import math
@@ -803,12 +808,13 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from franky import (Duration, JointMotion, JointState, JointWaypoint, JointWaypointMotion, RealtimeConfig,
-                    RelativeDynamicsFactor, Robot)
+from franky import (JointImpedanceTrackingMotion, JointMotion, JointReference, Measure, RealtimeConfig,
+                    RelativeDynamicsFactor, Robot, TorqueReaction, TorqueStopMotion)
 
 from franka_vs_gym.validation.readers.robot_states import StateRecorder
 {motion_code}
-STEP = {step!r}  # s between waypoints
+STIFFNESS = [600.0, 600.0, 600.0, 600.0, 250.0, 150.0, 50.0]  # Nm/rad (the gains of libfranka's joint impedance
+DAMPING = [50.0, 50.0, 50.0, 20.0, 20.0, 20.0, 10.0]  # Nm s/rad   example)
 
 
 def main():
@@ -818,18 +824,21 @@ def main():
     robot = Robot(sys.argv[1], realtime_config=RealtimeConfig.Ignore)
     robot.relative_dynamics_factor = RelativeDynamicsFactor(0.2, 0.2, 0.2)
     robot.move(JointMotion(CENTRE.tolist()))
-    robot.relative_dynamics_factor = 1.0
-    # the first rest held at the centre pose, waypoints through the motion, the last rest held at its end
-    waypoints = [JointWaypoint(CENTRE.tolist(), hold_target_duration=Duration(int(REST * 1000)))]
-    times = REST + np.arange(1, int(round(PERIOD * PERIODS / STEP)) + 1) * STEP
-    for k, t in enumerate(times):
-        q, dq = excitation(float(t))
-        hold = Duration(int(REST * 1000)) if k == len(times) - 1 else Duration(0)
-        waypoints.append(JointWaypoint(JointState(q.tolist(), dq.tolist()), minimum_time=Duration(int(STEP * 1000)),
-                                       hold_target_duration=hold))
-    motion = JointWaypointMotion(waypoints)
+    model = robot.model
+    motion = JointImpedanceTrackingMotion(stiffness=STIFFNESS, damping=DAMPING)
     rec = StateRecorder(seconds=DURATION + 5)
-    motion.register_callback(rec)
+
+    def reference(state, t):
+        q, dq, ddq = excitation(t, acceleration=True)
+        return JointReference(q.tolist(), dq.tolist(), (model.mass(state) @ ddq).tolist())
+
+    def step(state, dt, rel, abs_time, tau):  # every cycle: record, and the reference for the next one
+        rec(state)
+        motion.set_reference(reference(state, rel.to_sec() + 0.001))
+
+    motion.set_reference(reference(robot.state, 0.0))
+    motion.register_callback(step)
+    motion.add_reaction(TorqueReaction(Measure.REL_TIME > DURATION, TorqueStopMotion()))  # then brought to rest
     robot.move(motion)
     rec.save(out)
     print(json.dumps({{"log": str(out), "samples": rec.n, "dropped": rec.dropped}}))
@@ -851,7 +860,7 @@ def scripts(design: Design, stem: str = "excitation") -> dict[str, str]:
     out = {}
     n1, n2 = f"play_{stem}_pylibfranka.py", f"play_{stem}_franky.py"
     out[n1] = PYLIBFRANKA_SCRIPT.format(name=n1, duration=design.motion.duration, effects=eff, motion_code=code)
-    out[n2] = FRANKY_SCRIPT.format(name=n2, duration=design.motion.duration, effects=eff, motion_code=code, step=0.05)
+    out[n2] = FRANKY_SCRIPT.format(name=n2, duration=design.motion.duration, effects=eff, motion_code=code)
     return out
 
 
