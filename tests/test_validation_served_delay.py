@@ -1,8 +1,10 @@
 """The workbench's ``delay`` effect (validation/effects/timing.py) on recordings made through ``franka-vs serve
---lockstep --record`` by the scripts ``franka-vs excite`` writes, each unmodified in its own process.
+--lockstep --record``, each client unmodified in its own process: a design of ``franka-vs excite`` played by franky
+as a waypoint motion and by the pylibfranka script ``excite`` writes.
 
-- franky's script plays the design as a ``JointWaypointMotion`` with a waypoint every 50 ms: its commanded
-  acceleration carries most of its power above the workbench's 10 Hz cleaning cutoff (peaks at 20 and 40 Hz). The
+- franky as a ``JointWaypointMotion`` with a waypoint every 50 ms (tests/fci_clients/franky_waypoints.py; how
+  ``excite``'s franky script played a design until 2026-11-27, and how a user's waypoint script plays one): its
+  commanded acceleration carries most of its power above the workbench's 10 Hz cleaning cutoff (peaks at 20 and 40 Hz). The
   recording's torque lags its state by the plant's sub-step alignment (the torque of the 1 ms step that ends at the
   row; about 0.5 ms, read here independently by the exact shift of the predicted torque that best fits the measured
   one). The delay's column must read that alignment, not the out-of-band motion: on the 15 s design of the
@@ -25,7 +27,7 @@ import pytest
 if importlib.util.find_spec("pylibfranka") is None or importlib.util.find_spec("franky") is None:
     pytest.skip("pylibfranka and franky are needed (pip install -e '.[fci]')", allow_module_level=True)
 
-from conftest import log_context, record_served  # noqa: E402
+from conftest import CLIENTS, log_context, record_served  # noqa: E402
 from scipy import signal  # noqa: E402
 
 from franka_vs_gym.validation.diagnose import diagnose  # noqa: E402
@@ -40,7 +42,8 @@ NOISE = {"torque_noise_Nm": 0.1, "seed": 0}  # the served study's white torque n
 
 @pytest.fixture(scope="module")
 def logs(tmp_path_factory):
-    """A 6 s design played by franky's script (no hidden effect) and by pylibfranka's (a 60 ms sensor delay)."""
+    """A 6 s design played by franky as waypoints (no hidden effect) and by excite's pylibfranka script (a 60 ms
+    sensor delay)."""
     from franka_vs_gym.cli import main as cli_main
 
     root = tmp_path_factory.mktemp("served_delay")
@@ -53,7 +56,12 @@ def logs(tmp_path_factory):
         truth = root / f"{client}.truth.json"
         truth.write_text(json.dumps({"effects": effects, **NOISE}))
         log = root / f"{client}.npz"
-        record_served(design / f"play_excitation_{client}.py", [], log, NET + k, tool="none", truth=truth)
+        if client == "franky":
+            record_served(CLIENTS / "franky_waypoints.py", [str(design / "trajectory.csv"),
+                                                            str(root / "franky_client.csv")],
+                          log, NET + k, tool="none", truth=truth)
+        else:
+            record_served(design / f"play_excitation_{client}.py", [], log, NET + k, tool="none", truth=truth)
         out[client] = log
     return out
 
