@@ -4,8 +4,8 @@ as a waypoint motion and by the pylibfranka script ``excite`` writes.
 
 - franky as a ``JointWaypointMotion`` with a waypoint every 50 ms (tests/fci_clients/franky_waypoints.py; how
   ``excite``'s franky script played a design until 2026-11-27, and how a user's waypoint script plays one): its
-  commanded acceleration carries most of its power above the workbench's 10 Hz cleaning cutoff (peaks at 20 and 40 Hz). The
-  recording's torque lags its state by the plant's sub-step alignment (the torque of the 1 ms step that ends at the
+  commanded acceleration carries most of its power above the workbench's 10 Hz cleaning cutoff (peaks at 20 and
+  40 Hz). The recording's torque lags its state by the plant's sub-step alignment (the torque of the 1 ms step that ends at the
   row; about 0.5 ms, read here independently by the exact shift of the predicted torque that best fits the measured
   one). The delay's column must read that alignment, not the out-of-band motion: on the 15 s design of the
   served study the column taken on the whole band read 1.68 ms (above the 1.5 ms the effect reports, and a
