@@ -4,12 +4,12 @@ as a waypoint motion and by the pylibfranka script ``excite`` writes.
 
 - franky as a ``JointWaypointMotion`` with a waypoint every 50 ms (tests/fci_clients/franky_waypoints.py; how
   ``excite``'s franky script played a design until 2026-11-27, and how a user's waypoint script plays one): its
-  commanded acceleration carries most of its power above the workbench's 10 Hz cleaning cutoff (peaks at 20 and
-  40 Hz). The recording's torque lags its state by the plant's sub-step alignment (the torque of the 1 ms step that ends at the
-  row; about 0.5 ms, read here independently by the exact shift of the predicted torque that best fits the measured
-  one). The delay's column must read that alignment, not the out-of-band motion: on the 15 s design of the
-  served study the column taken on the whole band read 1.68 ms (above the 1.5 ms the effect reports, and a
-  ``delay`` was named on franky's untouched recording), on this 6 s one 1.33 ms; the exact shift says 0.6 and 0.5.
+  commanded acceleration carries most of its power above the workbench's 10 Hz cleaning cutoff (peaks at 20 and 40
+  Hz). The recording's torque lags its state by the plant's sub-step alignment (the torque of the 1 ms step that ends
+  at the row; about 0.5 ms, read here independently by the exact shift of the predicted torque that best fits the
+  measured one). The delay's column must read that alignment, not the out-of-band motion: on the 15 s design of the
+  served study the column taken on the whole band read 1.68 ms (above the 1.5 ms the effect reports, and a ``delay``
+  was named on franky's untouched recording), on this 6 s one 1.33 ms; the exact shift says 0.6 and 0.5.
 - pylibfranka's script with a 60 ms sensor delay hidden in the plant (``--truth``): the first-order column
   ``-d(predicted)/dt`` left the rest of such a long shift in the residual (0.08-0.12 Nm in the motion band on joints
   1-3 here, where the exact shift leaves the in-band noise, 0.014-0.018 Nm), which the link inertials took and were
