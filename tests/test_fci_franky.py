@@ -94,21 +94,58 @@ def test_franky_gripper_stop():
     assert out["width_later"] == out["width_after_stop"]  # the fingers stay where they stopped
 
 
+def _stalled_client(script: str, args: list[str], robot, stall: float, every: float = 0.25) -> dict:
+    """Run the client ``script`` and stop its whole process for ``stall`` s every ``every`` s while the robot moves
+    (SIGSTOP / SIGCONT, as a loaded machine stalls a client): its commands for those cycles come late. A sleep in
+    franky's motion callback does not do it: measured, even 50 ms every 250 cycles left its control loop on time
+    (no late command, no long period), so the test's premise was met only by chance."""
+    import os
+    import signal
+    import threading
+    import time
+
+    p = subprocess.Popen([sys.executable, str(CLIENTS / script), *args], stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, text=True)
+
+    def stalls() -> None:
+        while p.poll() is None:
+            time.sleep(every)
+            if robot.moving:
+                try:
+                    os.kill(p.pid, signal.SIGSTOP)
+                    time.sleep(stall)
+                    os.kill(p.pid, signal.SIGCONT)
+                except ProcessLookupError:
+                    return
+
+    th = threading.Thread(target=stalls, daemon=True)
+    th.start()
+    try:
+        out, err = p.communicate(timeout=120)
+    finally:
+        if p.poll() is None:
+            os.kill(p.pid, signal.SIGCONT)
+            p.kill()
+        th.join(5.0)
+    assert p.returncode == 0, err[-3000:]
+    return json.loads(out.strip().splitlines()[-1])
+
+
 def test_real_time_elbow_motion_with_late_commands():
-    """Real time, franky's elbow motion (the hand held, the elbow out by 0.3 rad) with a control loop that stalls
-    2.5 ms every 250 cycles: commands that miss their cycle are dropped and the cycle extrapolated, as the FCI does,
-    so libfranka's low-pass (against the state's O_T_EE_c and elbow_c) filters against where the motion is and the
+    """Real time, franky's elbow motion (the hand held, the elbow out by 0.3 rad) with a client process stopped for
+    2.5 ms every 250 ms: commands that miss their cycle are dropped and the cycle extrapolated, as the FCI does, so
+    libfranka's low-pass (against the state's O_T_EE_c and elbow_c) filters against where the motion is and the
     motion ends without a reflex. (Applied a cycle late instead, they tripped
     cartesian_motion_generator_joint_velocity_discontinuity: joint 1 at 25-120 rad/s^2.)"""
     # a tolerance of 200 missed cycles: a loaded test machine must not end the motion with the communication reflex.
-    # The client's stalls make it miss cycles only while the server keeps its 1 ms grid; on a machine loaded enough
+    # The stalls make the client miss cycles only while the server keeps its 1 ms grid; on a machine loaded enough
     # that the server's own cycles overrun (the grid re-anchors, plant time falls behind) a stall can fit inside one
     # slow cycle and nothing is missed. Such a run does not exercise the case, so it is run again (at most 3 runs,
     # every one of which must end without a reflex and with the elbow out by 0.3 rad).
     missed = []
     for _ in range(3):
         with FCIServer(loopback_host(37), camera=False, verbose=False, max_missed_commands=200) as srv:
-            out = run_client("late_elbow_motion.py", srv.host, "0.0025", "0.3")
+            out = _stalled_client("late_elbow_motion.py", [srv.host, "0", "0.3"], srv.robot, 0.0025)
             stats, dropped = srv.motion_stats, srv.late_commands
         assert out["raised"] is None, (out, stats)
         assert abs(out["elbow_end"] - out["elbow_start"] - 0.3) < 1e-3, out
