@@ -1264,7 +1264,8 @@ def diagnose(log: MeasurementLog | ProcessedLog | str, model: Any = None, *, rig
     changes: list[ModelChange] = []
     if select:
         chosen, cur, changes = _model_changes(ctx, eng, sel, chosen, cur, noise, forced, verbose)
-    notes = [f"{n} not selected: {why}" for n, why in sel.rejections.items()]
+    named = {t.effect.name for t in chosen}  # (a candidate that waited a round and entered later is not "not selected")
+    notes = [f"{n} not selected: {why}" for n, why in sel.rejections.items() if n not in named]
     selection = sel.describe(chosen, cur) if chosen else []
     if chosen and select:
         progress("95% intervals of the selected set's parameters", verbose)
