@@ -238,14 +238,17 @@ def time_to_seconds(t: np.ndarray, name: str, unit: str | None, where: str) -> t
     med = float(np.median(pos)) if len(pos) else 0.0
     how = "from its name"
     if unit is None:
+        from franka_vs_gym.validation.logs import MAX_STEP_S
+
         how = f"detected from its median step {med:.4g}"
-        if 0 < med < 0.5:  # (logs.MAX_STEP_S) 2 Hz or faster in seconds; in ms that would be 2 kHz or faster
+        if 0 < med < MAX_STEP_S:  # 2 Hz or faster in seconds; in ms that would be 2 kHz or faster
             unit = "s"
-        elif 0.5 <= med < 500:  # 1 kHz to 2 Hz in milliseconds
+        elif MAX_STEP_S <= med < 1000 * MAX_STEP_S:  # 1 kHz to 2 Hz in milliseconds
             unit = "ms"
         else:
             raise ValueError(f"{where}: cannot tell the unit of {name!r} (median step {med:.4g}): expected seconds "
-                             "(step < 0.5, 2 Hz or faster) or milliseconds (step 0.5-500)")
+                             f"(step < {MAX_STEP_S:g}, 2 Hz or faster) or milliseconds (step {MAX_STEP_S:g}-"
+                             f"{1000 * MAX_STEP_S:g})")
     scale = 1e-3 if unit == "ms" else 1.0
     out = (t - t[0]) * scale
     text = (f"time from {name!r} in {'milliseconds' if unit == 'ms' else 'seconds'} ({how}), "
