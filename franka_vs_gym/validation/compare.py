@@ -22,15 +22,15 @@ import re
 import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from franka_vs_gym.model.config import Friction, ModelConfig, Tool, resolve_config
 from franka_vs_gym.model.description import robot_description
-from franka_vs_gym.validation.evaluate import ModelEvaluation, delay_channel, evaluate, shift
+from franka_vs_gym.validation.evaluate import delay_channel, evaluate, shift
 from franka_vs_gym.validation.logs import Q_RANGE_WARN, MeasurementLog, load_log
+from franka_vs_gym.validation.results import CompareResult, ReplayResult, rmse
 from franka_vs_gym.validation.signals import CleanSettings, ProcessedLog, clean
 
 VELOCITY_REGIMES = ((0.0, 0.05, "abs(dq) < 0.05 rad/s (near rest: stiction, offsets)"),
@@ -208,91 +208,6 @@ def as_processed(log: MeasurementLog | ProcessedLog | str, settings: CleanSettin
     if not isinstance(log, MeasurementLog):
         log = load_log(log)
     return clean(log, settings)
-
-
-def rmse(x: np.ndarray, axis: int = 0) -> np.ndarray:
-    return np.sqrt(np.mean(np.asarray(x) ** 2, axis=axis))
-
-
-@dataclass
-class ReplayResult:
-    """Simulation replay: mode ("controller", "torque" or "tracking"), RMSE_q (7,) rad, RMSE_tau (7,) Nm and the
-    simulated q, tau_J (N, 7) (NaN where not replayed: before the start of a controller replay, after a
-    divergence)."""
-
-    mode: str
-    rmse_q: np.ndarray
-    rmse_tau: np.ndarray
-    q: np.ndarray
-    tau: np.ndarray
-    diverged: str | None = None
-    #: how this replay stopped early (mode, time, joint, reason), or None when it ran to the end of the log
-    stop: dict[str, Any] | None = None
-    #: the replays tried before this one that could not run (each a ``stop`` record); this one is the fallback
-    fallback_from: list[dict[str, Any]] = field(default_factory=list)
-
-    def to_dict(self) -> dict[str, Any]:
-        def clean_list(a: np.ndarray, nd: int) -> list:
-            return [None if not np.isfinite(x) else round(float(x), nd) for x in a]
-
-        tot_q, tot_tau = float(rmse(self.rmse_q)), float(rmse(self.rmse_tau))
-        return {"mode": self.mode, "rmse_q": clean_list(self.rmse_q, 6), "rmse_tau": clean_list(self.rmse_tau, 4),
-                "rmse_q_total": tot_q if np.isfinite(tot_q) else None,
-                "rmse_tau_total": tot_tau if np.isfinite(tot_tau) else None, "diverged": self.diverged,
-                "stop": self.stop, "fallback_from": self.fallback_from, "status": self.status()}
-
-    def status(self) -> str:
-        """One line: what was replayed, and which replays could not run and why."""
-        out = [f"{s['mode']} replay stopped at t = {s['time_s']:.3f} s"
-               + (f" (joint {s['joint']})" if s.get("joint") is not None else "") + f": {s['reason']}"
-               for s in self.fallback_from]
-        if out:
-            out.append(f"fell back to the {self.mode} replay")
-        if self.stop is not None:
-            s = self.stop
-            out.append(f"{s['mode']} replay stopped at t = {s['time_s']:.3f} s"
-                       + (f" (joint {s['joint']})" if s.get("joint") is not None else "") + f": {s['reason']}; "
-                       "its RMSE covers the samples before")
-        return "; ".join(out) if out else f"{self.mode} replay ran to the end of the log"
-
-
-@dataclass
-class CompareResult:
-    """Inverse-dynamics comparison of one model with one log (arrays (7,) per joint unless said).
-
-    residual (N, 7) Nm = tau_J - tau_model; rmse_tau, mean_tau (bias), max_abs_tau per joint; rmse_tau_total the
-    RMS over all joints and samples; noise_floor the estimated measurement noise; concentration: rows of the table
-    of where the error concentrates; replay: a ReplayResult or None.
-    """
-
-    config: ModelConfig
-    data: ProcessedLog
-    evaluation: ModelEvaluation
-    residual: np.ndarray
-    rmse_tau: np.ndarray
-    rmse_tau_total: float
-    mean_tau: np.ndarray
-    max_abs_tau: np.ndarray
-    noise_floor: np.ndarray
-    concentration: list[dict[str, Any]] = field(default_factory=list)
-    replay: ReplayResult | None = None
-
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "rmse_tau": self.rmse_tau.round(4).tolist(), "rmse_tau_total": round(float(self.rmse_tau_total), 4),
-            "noise_floor": self.noise_floor.round(4).tolist(), "mean_tau": self.mean_tau.round(4).tolist(),
-            "max_abs_tau": self.max_abs_tau.round(4).tolist(), "samples": int(self.data.n),
-            "duration_s": round(float(self.data.time[-1] - self.data.time[0]), 4),
-            "cleaning": self.data.report.to_dict(), "concentration": self.concentration,
-            "replay": None if self.replay is None else self.replay.to_dict(),
-            "assumptions": self.assumptions(),
-        }
-
-    def assumptions(self) -> dict[str, Any]:
-        """Tool, gravity, rate and cleaning this comparison assumed (see ``structure.assumptions_of``)."""
-        from franka_vs_gym.validation.structure import assumptions_of
-
-        return assumptions_of(self.data, self.config)
 
 
 def concentration_table(data: ProcessedLog, residual: np.ndarray, n_windows: int = 10) -> list[dict[str, Any]]:

@@ -59,7 +59,6 @@ Method (all on the inverse-dynamics residual ``r = tau_J - tau_model`` of the ba
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -83,6 +82,7 @@ from franka_vs_gym.validation.effects.base import MAX_DELAY, MIN_DELAY
 from franka_vs_gym.validation.effects.timing import Delay
 from franka_vs_gym.validation.evaluate import evaluate, shift
 from franka_vs_gym.validation.logs import MeasurementLog
+from franka_vs_gym.validation.results import Ambiguity, Candidate, Diagnosis, FitResult, ModelChange, Selected
 from franka_vs_gym.validation.selection import Engine, SetFit, Term, n_eff
 from franka_vs_gym.validation.signals import CleanSettings, ProcessedLog, decimated
 
@@ -127,166 +127,6 @@ CROSSTALK_SEPARATE = ("the joint held still while the joints before it move thro
                       "sensor crosstalk follows the other joint's torque, friction needs the joint's own motion)")
 FRICTION_NAMES = ("viscous_friction", "coulomb_friction", "sigmoid_friction", "asymmetric_friction",
                   "stribeck_friction")
-
-
-@dataclass
-class Candidate:
-    """One ranking entry: an effect (or a group "a+b") with its joints, parameters, held-out RMSE per joint (Nm),
-    score, and flags. ``problems`` says why an effect is not plausible (sign, magnitude, physical range)."""
-
-    effect: str
-    members: list[str]
-    joints: list[int]
-    params: dict[str, Any]
-    rmse_tau_after: np.ndarray
-    score: float
-    significant: bool
-    plausible: bool
-    problems: list[str] = field(default_factory=list)
-    removed_rms: np.ndarray = field(default_factory=lambda: np.zeros(7))
-    joint_scores: np.ndarray = field(default_factory=lambda: np.zeros(7))
-    fits: list[Fit] = field(default_factory=list)
-    terms: list[Term] = field(default_factory=list)
-    mse_cv: np.ndarray | None = None
-
-    @property
-    def ok(self) -> bool:
-        return self.significant and self.plausible
-
-    def to_dict(self) -> dict[str, Any]:
-        d = {"effect": self.effect, "joints": list(map(int, self.joints)), "params": self.params,
-             "rmse_tau_after": np.round(self.rmse_tau_after, 4).tolist(), "score": round(float(self.score), 2),
-             "significant": bool(self.significant), "plausible": bool(self.plausible),
-             "removed_rms": np.round(self.removed_rms, 4).tolist()}
-        if len(self.members) > 1:
-            d["group"] = list(self.members)
-        if self.problems:
-            d["problems"] = self.problems
-        return d
-
-
-@dataclass
-class Selected:
-    """One effect of the selected set: its joints, parameters (fitted jointly with the rest of the set), the error it
-    removes per joint in the context of the others (``contribution``, Nm: sqrt(MSE without it - MSE with it), held
-    out) and its score in that context."""
-
-    effect: str
-    joints: list[int]
-    params: dict[str, Any]
-    contribution: np.ndarray
-    score: float
-    channel: str = "inverse_dynamics"
-    lack_of_fit: list[Any] = field(default_factory=list)  # failed lack-of-fit tests (lackfit.LackOfFit)
-    # 95 % intervals (same structure as params, [low, high] or None where not identifiable), strongly correlated
-    # parameter pairs and unidentifiable combinations in words (validation.uncertainty)
-    params_ci95: dict[str, Any] = field(default_factory=dict)
-    correlations: list[dict[str, Any]] = field(default_factory=list)
-    unidentifiable: list[str] = field(default_factory=list)
-
-    def to_dict(self) -> dict[str, Any]:
-        d = {"effect": self.effect, "joints": list(map(int, self.joints)), "params": self.params,
-             "params_ci95": self.params_ci95, "correlations": self.correlations,
-             "unidentifiable": self.unidentifiable,
-             "contribution": np.round(self.contribution, 4).tolist(), "score": round(float(self.score), 2),
-             "channel": self.channel}
-        if self.lack_of_fit:
-            d["lack_of_fit"] = {"status": "closest library effect, lack of fit",
-                                "joints": sorted({f.joint for f in self.lack_of_fit}),
-                                "tests": [f.to_dict() for f in self.lack_of_fit]}
-        return d
-
-
-@dataclass
-class Ambiguity:
-    """Explanations the log cannot tell apart: ``candidates`` (effect names, the selected one first) on ``joints``,
-    their held-out ``evidence`` (name -> score of the selected set with that candidate in place; within
-    ``AMBIGUOUS`` of each other), and ``separate_by``: in words, the motion that would separate them."""
-
-    candidates: list[str]
-    joints: list[int]
-    evidence: dict[str, float]
-    separate_by: str
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"candidates": list(self.candidates), "joints": list(map(int, self.joints)),
-                "evidence": {k: round(float(v), 2) for k, v in self.evidence.items()},
-                "separate_by": self.separate_by}
-
-    def text(self) -> str:
-        ev = ", ".join(f"{k} {v:.1f}" for k, v in self.evidence.items())
-        return (f"ambiguous on joint{'s' if len(self.joints) != 1 else ''} {', '.join(map(str, self.joints))}: "
-                f"{' or '.join(self.candidates)} explain the log equally well (held-out evidence {ev}); "
-                f"to separate them record {self.separate_by}")
-
-
-@dataclass
-class ModelChange:
-    """The model changes during the log at ``t`` (s from the start of the processed log): ``what`` in words, the
-    parameters ``before`` and ``after`` (e.g. a payload's mass and centre of mass)."""
-
-    t: float
-    what: str
-    before: dict[str, Any]
-    after: dict[str, Any]
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"t": round(float(self.t), 3), "what": self.what, "before": self.before, "after": self.after}
-
-    def text(self) -> str:
-        return f"the model changes at t = {self.t:.2f} s: {self.what}"
-
-
-@dataclass
-class Diagnosis:
-    """Result of :func:`diagnose`: baseline RMSE (7,) Nm, total, noise floor (7,), ranking (each effect alone, best
-    first), verdict (the strongest selected effect or "none"), the selected set (``selection``; ``selected`` its
-    names), the held-out RMSE of the selected set (7,), the structure test of what remains (``unexplained``), the
-    stated assumptions, notes (rejections and warnings), the baseline configuration and the context."""
-
-    rmse_tau: np.ndarray
-    rmse_tau_total: float
-    noise_floor: np.ndarray
-    ranking: list[Candidate]
-    verdict: str
-    selection: list[Selected]
-    config: ModelConfig
-    context: Context
-    rmse_tau_selected: np.ndarray | None = None
-    unexplained: Any = None
-    assumptions: dict[str, Any] = field(default_factory=dict)
-    notes: list[str] = field(default_factory=list)
-    residual: np.ndarray | None = None
-    data: ProcessedLog | None = None  # the whole processed log (the context may hold a decimated copy)
-    ambiguous: list[Ambiguity] = field(default_factory=list)
-    changes: list[ModelChange] = field(default_factory=list)
-    # each selected effect's torque (N, 7) Nm on the analysed samples (context.data.time), fitted with the set
-    contributions: dict[str, np.ndarray] = field(default_factory=dict)
-
-    @property
-    def selected(self) -> list[str]:
-        return [s.effect for s in self.selection]
-
-    @property
-    def explained(self) -> bool:
-        return self.unexplained is None or self.unexplained.explained
-
-    def to_dict(self) -> dict[str, Any]:
-        d = {"rmse_tau": np.round(self.rmse_tau, 4).tolist(), "rmse_tau_total": round(float(self.rmse_tau_total), 4),
-             "noise_floor": np.round(self.noise_floor, 4).tolist(),
-             "ranking": [c.to_dict() for c in self.ranking], "verdict": self.verdict,
-             "selected": [s.to_dict() for s in self.selection]}
-        if self.rmse_tau_selected is not None:
-            d["rmse_tau_selected"] = np.round(self.rmse_tau_selected, 4).tolist()
-        if self.unexplained is not None:
-            d["explained"] = bool(self.unexplained.explained)
-            d["unexplained"] = self.unexplained.to_dict()
-        d["ambiguous"] = [list(a.candidates) for a in self.ambiguous]
-        d["ambiguity"] = [a.to_dict() for a in self.ambiguous]
-        d["changes"] = [c.to_dict() for c in self.changes]
-        d["assumptions"] = self.assumptions
-        d["notes"] = list(self.notes)
-        return d
 
 
 def _folds(n: int, k: int) -> list[np.ndarray]:
@@ -1388,46 +1228,6 @@ def _lack_of_fit(ctx: Context, eng: Engine, chosen: list[Term], cur: SetFit, res
         for f in fl:
             unexplained.findings.append(Finding(f.joint, "lack_of_fit", f.removed_rms, f.score,
                                                 f"{f.effect}: {f.alternative} of {f.driver} {f.detail}".strip()))
-
-
-@dataclass
-class FitResult:
-    """Fitted effects applied to a model: the configuration before and after, the fits, and the per-joint RMSE
-    (Nm) of the inverse-dynamics residual before and after (the after value re-computed with the full model built
-    from the new configuration, not from the linearised fit)."""
-
-    before: ModelConfig
-    after: ModelConfig
-    effects: list[str]
-    fits: list[Fit]
-    params: dict[str, Any]
-    rmse_before: np.ndarray
-    rmse_after: np.ndarray
-    noise_floor: np.ndarray
-    data: ProcessedLog
-    residual_before: np.ndarray
-    residual_after: np.ndarray
-    holdout: dict[str, Any] | None = None
-    assumptions: dict[str, Any] = field(default_factory=dict)
-    #: effect -> what was constrained, left out or not applied, and why (one line each)
-    notes: dict[str, str] = field(default_factory=dict)
-    # 95 % intervals per effect (same structure as params), correlated pairs, unidentifiable combinations
-    params_ci95: dict[str, Any] = field(default_factory=dict)
-    correlations: list[dict[str, Any]] = field(default_factory=list)
-    unidentifiable: list[str] = field(default_factory=list)
-    # each fitted effect's torque (N, 7) Nm on contribution_time (the fitting samples; the log may be decimated)
-    contributions: dict[str, np.ndarray] = field(default_factory=dict)
-    contribution_time: np.ndarray | None = None
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"effects": self.effects, "params": self.params, "notes": self.notes, "params_ci95": self.params_ci95,
-                "correlations": self.correlations, "unidentifiable": self.unidentifiable,
-                "rmse_tau_before": np.round(self.rmse_before, 4).tolist(),
-                "rmse_tau_after": np.round(self.rmse_after, 4).tolist(),
-                "rmse_tau_total_before": round(float(rmse(self.rmse_before)), 4),
-                "rmse_tau_total_after": round(float(rmse(self.rmse_after)), 4),
-                "noise_floor": np.round(self.noise_floor, 4).tolist(), "holdout": self.holdout,
-                "assumptions": self.assumptions}
 
 
 def _split(n: int, frac: float = HOLDOUT) -> tuple[np.ndarray, np.ndarray]:

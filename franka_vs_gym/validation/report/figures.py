@@ -19,9 +19,8 @@ from typing import Any
 
 import numpy as np
 
-from franka_vs_gym.validation.compare import CompareResult
-from franka_vs_gym.validation.diagnose import Diagnosis, FitResult
 from franka_vs_gym.validation.report.content import binned_mean, envelope, finding_views
+from franka_vs_gym.validation.results import CompareResult, Diagnosis, FitResult
 
 # Cost: text layout (tick labels, titles) dominates a grid figure, not the data. Figures are therefore made on the
 # Agg canvas directly (no pyplot state, nothing to close), with fixed margins instead of tight_layout (which lays every

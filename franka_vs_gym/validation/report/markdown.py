@@ -10,8 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from franka_vs_gym.validation.compare import VELOCITY_REGIMES, CompareResult
-from franka_vs_gym.validation.diagnose import Diagnosis, FitResult
+from franka_vs_gym.validation.compare import VELOCITY_REGIMES
 from franka_vs_gym.validation.report.content import (
     fit_params,
     next_command,
@@ -20,6 +19,7 @@ from franka_vs_gym.validation.report.content import (
     value_text,
 )
 from franka_vs_gym.validation.report.figures import compare_figures, plot_before_after, plot_unexplained
+from franka_vs_gym.validation.results import CompareResult, Diagnosis, FitResult
 
 
 def _why_not(d: Diagnosis) -> dict[str, str]:
