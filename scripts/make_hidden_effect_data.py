@@ -19,7 +19,9 @@ import json
 import sys
 from pathlib import Path
 
-from franka_vs_gym.validation.hidden import injecting_effects, make_hidden_effect_log
+from franka_vs_gym.errors import is_user_error, one_line
+from franka_vs_gym.io import atomic_write
+from franka_vs_gym.validation.hidden import check_arguments, injecting_effects, make_hidden_effect_log
 from franka_vs_gym.validation.logs import save_log
 
 
@@ -46,13 +48,22 @@ def main(argv: list[str] | None = None) -> int:
     if out.suffix.lower() not in (".csv", ".npz"):
         print(f"error: {out}: use a .csv or .npz file name", file=sys.stderr)
         return 2
-    print(f"simulating {args.duration:g} s ...", file=sys.stderr)
-    log, answer = make_hidden_effect_log(args.effect, args.seed, duration=args.duration, magnitude=args.magnitude,
-                                         noise_scale=args.noise_scale)
-    save_log(log, out, overwrite=args.force)
-    if answer_path is not None:
-        answer_path.write_text(json.dumps(answer, indent=2))
-        print(f"answer written to {answer_path}", file=sys.stderr)
+    # a bad value (a negative or NaN duration, a NaN magnitude ...) or a full disk: one line, exit 2, and the files
+    # already there untouched (the log and its sidecar appear together; the answer is written atomically after them)
+    try:
+        check_arguments(args.duration, args.magnitude, args.noise_scale, args.seed)
+        print(f"simulating {args.duration:g} s ...", file=sys.stderr)
+        log, answer = make_hidden_effect_log(args.effect, args.seed, duration=args.duration,
+                                             magnitude=args.magnitude, noise_scale=args.noise_scale)
+        save_log(log, out, overwrite=args.force)
+        if answer_path is not None:
+            atomic_write(answer_path, json.dumps(answer, indent=2), force=args.force, what="answer file")
+            print(f"answer written to {answer_path}", file=sys.stderr)
+    except Exception as e:
+        if not is_user_error(e):
+            raise
+        print(f"error: {one_line(e)}", file=sys.stderr)
+        return 2
     print(f"log written to {out}", file=sys.stderr)
     return 0
 

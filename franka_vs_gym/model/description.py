@@ -17,6 +17,7 @@ Denavit-Hartenberg kinematics.
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -261,14 +262,44 @@ def register_robot(description: RobotDescription, *aliases: str) -> None:
         _ALIASES[a.lower()] = description.name
 
 
+# how people name the registered robots in words (a sidecar, a README, a ROS parameter): whole words, any case, the
+# separators " ", "_", "-", "/" alike. "Franka Emika" alone is the maker, not a robot (it built both).
+_ROBOT_WORDS: dict[str, tuple[str, ...]] = {
+    "fer": ("fer", "panda", "franka emika robot", "franka emika panda", "franka panda", "fer arm"),
+    "fr3": ("fr3", "franka research 3", "franka research3", "research 3", "franka fr3", "fr 3"),
+}
+
+
+def _words(text: str) -> str:
+    return " " + " ".join(re.split(r"[\s_\-/.,;:()\[\]{}\"']+", text.lower())).strip() + " "
+
+
+def robot_from_words(text: str) -> str | None:
+    """The registered robot a name in words stands for (``"FER (Franka Emika Robot, aka Panda)"`` -> ``"fer"``,
+    ``"Franka Research 3"``/``"franka_fr3"`` -> ``"fr3"``; any case, inside a longer phrase), or None when it names
+    none of them. A phrase naming two robots (``"FER or FR3"``) raises ValueError."""
+    w = _words(text)
+    found = {name for name, phrases in _ROBOT_WORDS.items() for ph in phrases if f" {ph} " in w}
+    found |= {name for alias, name in _ALIASES.items() if f" {' '.join(_words(alias).split())} " in w}
+    if len(found) > 1:
+        raise ValueError(f"{text!r} names more than one robot ({', '.join(sorted(found))})")
+    return found.pop() if found else None
+
+
 def robot_description(robot: RobotDescription | str | None = None) -> RobotDescription:
-    """Resolve ``robot`` (a description, a registered name such as "fer" or "fr3", or None for the FER)."""
+    """Resolve ``robot`` (a description, a registered name such as "fer" or "fr3", the robot in words as
+    :func:`robot_from_words` reads it, or None for the FER)."""
     if robot is None:
         return FER
     if isinstance(robot, RobotDescription):
         return robot
     if isinstance(robot, str):
-        key = _ALIASES.get(robot.lower())
+        key = _ALIASES.get(robot.strip().lower())
+        if key is None:
+            try:
+                key = robot_from_words(robot)
+            except ValueError as e:
+                raise ValueError(f"ambiguous robot: {e}; known robots are {sorted(ROBOTS)}") from None
         if key is None:
             raise ValueError(f"unknown robot {robot!r}: known robots are {sorted(ROBOTS)}")
         return ROBOTS[key]
@@ -276,4 +307,5 @@ def robot_description(robot: RobotDescription | str | None = None) -> RobotDescr
 
 
 __all__ = ["FER", "FR3", "FRANKA_HAND", "GRAVITY", "ROBOTS", "TAG_SIZE", "CartesianLimits", "HandDescription",
-           "JointLimits", "LinkInertial", "RobotDescription", "SigmoidFriction", "register_robot", "robot_description"]
+           "JointLimits", "LinkInertial", "RobotDescription", "SigmoidFriction", "register_robot", "robot_description",
+           "robot_from_words"]

@@ -129,6 +129,23 @@ def say_outputs(args: argparse.Namespace) -> list[str]:
     return out
 
 
+def carried_flags(args: argparse.Namespace, after_fit: bool = False) -> str:
+    """The options of this run that the suggested next command needs too, as command-line text: how the log is
+    read and processed (``--topic``, ``--rate``, ``--cutoff``, ``--max-gap``), the robot, and, before a fit, the
+    model and the tool (after a fit the calibrated model file holds both)."""
+    import shlex
+
+    out = []
+    for flag, attr in (("--robot", "robot"), ("--topic", "topic"), ("--rate", "rate"), ("--cutoff", "cutoff"),
+                       ("--max-gap", "max_gap")) + (() if after_fit else (("--model", "model"), ("--tool", "tool"))):
+        v = getattr(args, attr, None)
+        if v is not None:
+            out.append(f"{flag} {shlex.quote(str(v))}")
+    if not after_fit and getattr(args, "rigid_body", False):
+        out.append("--rigid-body")
+    return " ".join(out)
+
+
 def input_paths(args: argparse.Namespace) -> list[Path]:
     """Every file the command reads (the log, its sidecars, the files of a log folder, --model): no output may be
     one of them, whatever --force says."""

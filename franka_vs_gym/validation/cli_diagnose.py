@@ -25,6 +25,7 @@ import numpy as np
 
 from franka_vs_gym.validation.cli_common import (
     add_common,
+    carried_flags,
     input_paths,
     load_from,
     say_outputs,
@@ -70,7 +71,7 @@ def main(args: argparse.Namespace) -> int:
             if report_tmp is not None or mcap_tmp is not None:
                 from franka_vs_gym.validation.compare import compare
 
-                res = compare(d.data, d.config, do_replay=False)
+                res = compare(d.data, d.config, robot=d.config.robot, do_replay=False)
                 write_views(res, report_tmp, mcap_tmp, diagnosis=d, model_file=args.model,
                             summary={**d.to_dict(), "model_warnings": model_warnings}, verbose=verbose)
     # values a user may mean but outside the FER's specification (e.g. a 5 kg tool): said, not refused
@@ -113,5 +114,5 @@ def main(args: argparse.Namespace) -> int:
               "(--verbose shows the ranking, the notes and the assumptions)")
     for line in say_outputs(args):
         print(line)
-    print(f"next: {next_command(args.log, d)}")
+    print(f"next: {next_command(args.log, d, flags=carried_flags(args))}")
     return 0

@@ -12,6 +12,7 @@ import numpy as np
 
 from franka_vs_gym.validation.cli_common import (
     add_common,
+    carried_flags,
     input_paths,
     load_from,
     say_outputs,
@@ -59,7 +60,8 @@ def main(args: argparse.Namespace) -> int:
             if report_tmp is not None or mcap_tmp is not None:
                 from franka_vs_gym.validation.compare import compare
 
-                cmp_after = compare(res.data, res.after, do_replay=False)  # what remains with the calibrated model
+                # what remains with the calibrated model
+                cmp_after = compare(res.data, res.after, robot=res.after.robot, do_replay=False)
                 write_views(cmp_after, report_tmp, mcap_tmp, fit=res, model_file=str(out), verbose=verbose,
                             summary={**res.to_dict(), "model_file": str(out), "model_warnings": model_warnings})
     for w in model_warnings:
@@ -98,5 +100,5 @@ def main(args: argparse.Namespace) -> int:
     print(f"calibrated model: {out}")
     for line in say_outputs(args):
         print(line)
-    print(f"next: {next_command(args.log, fit=res, model_file=str(out))}")
+    print(f"next: {next_command(args.log, fit=res, model_file=str(out), flags=carried_flags(args, True))}")
     return 0

@@ -150,6 +150,35 @@ def _other_robot_hint(log: MeasurementLog, cfg: ModelConfig) -> str | None:
             f"{fits[0]})")
 
 
+#: metadata keys that name the robot of a log, in the order they are read: the workbench's own, then franka_ros's
+ROBOT_KEYS = ("robot", "arm_id")
+
+
+def declared_robot(log: MeasurementLog) -> tuple[str | None, str | None]:
+    """``(key, registered name)`` of the robot the log's metadata declares (``robot``, else franka_ros's ``arm_id``;
+    a name in words is read by :func:`~franka_vs_gym.model.description.robot_from_words`), ``(None, None)`` when it
+    declares none. A declared name that is no registered robot, or names two, raises ValueError naming the key and
+    the file (the sidecar), with the flag that overrides it."""
+    from franka_vs_gym.model.description import ROBOTS
+    from franka_vs_gym.validation.logs import metadata_file
+
+    for key in ROBOT_KEYS:
+        v = log.extra.get(key)
+        if v is None:
+            continue
+        where = metadata_file(log)
+        if not isinstance(v, str):
+            raise ValueError(f"{where}: {key!r} must name the robot in a string (e.g. \"fer\", \"fr3\"), got {v!r}; "
+                             f"or pass --robot ({', '.join(sorted(ROBOTS))})")
+        try:
+            return key, robot_description(v).name
+        except ValueError as e:
+            why = "names more than one robot" if "ambiguous" in str(e) else "is not a registered robot"
+            raise ValueError(f"{where}: {key!r} is {v!r}, which {why}; pass --robot ({', '.join(sorted(ROBOTS))}) "
+                             "to say which") from None
+    return None, None
+
+
 def baseline_config(log: MeasurementLog, model: Any = None, rigid_body: bool = False,
                     tool: str | None = None, robot: Any = None, data: ProcessedLog | None = None) -> ModelConfig:
     """The model to start from: ``model`` (a ModelConfig or a calibrated-model file) if given, else the library's
@@ -164,15 +193,13 @@ def baseline_config(log: MeasurementLog, model: Any = None, rigid_body: bool = F
     the configuration's ``notes["tool_estimate"]``, stated in every output's assumptions)."""
     if tool is not None and tool not in TOOLS:
         raise ValueError(f"unknown --tool {tool!r}: choose from {', '.join(TOOLS)}")
-    declared = log.extra.get("robot") if isinstance(log.extra.get("robot"), str) else None
     robot_note = None
-    if robot is None and declared is not None:  # e.g. `franka-vs serve --robot fr3 --record` says so
-        try:
-            robot = robot_description(declared).name
-        except ValueError:
-            raise ValueError(f"the log declares the robot {declared!r}, which is not a registered robot; pass "
-                             "--robot (fer, fr3, ...)") from None
-        robot_note = "declared by the log"
+    if robot is None:  # e.g. `franka-vs serve --robot fr3 --record` says so, or a lab's sidecar in words
+        key, declared = declared_robot(log)
+        if declared is not None:
+            robot = declared
+            robot_note = "declared by the log" + ("" if declared == log.extra.get(key) else
+                                                  f" ({key}: {log.extra.get(key)!r})")
     if model is not None:
         try:
             cfg = resolve_config(model, robot)
@@ -183,6 +210,9 @@ def baseline_config(log: MeasurementLog, model: Any = None, rigid_body: bool = F
                              "robot, or --robot to override the log") from None
     else:
         cfg = ModelConfig(robot=robot_description(robot), tool=tool_from_log(log), gravity=log.gravity)
+    if (robot_note is None and robot is not None and isinstance(model, ModelConfig)
+            and cfg.notes.get("robot_source") and robot_description(robot).name == cfg.robot.name):
+        robot_note = cfg.notes["robot_source"]  # a configuration made for this log (fit's inner diagnosis): kept
     if robot_note is None:
         robot_note = ("--robot" if robot is not None else "the model file's" if model is not None else
                       f"not declared by the log: the {cfg.robot.name.upper()} assumed (use --robot to say otherwise)")
@@ -418,4 +448,4 @@ def format_compare(res: CompareResult) -> str:
 
 __all__ = ["CompareResult", "ReplayResult", "as_processed", "baseline_config", "compare", "concentration_table",
            "end_progress", "format_compare", "progress", "progress_line", "replay", "replay_with_fallback", "rmse",
-           "tool_from_log"]
+           "tool_from_log", "declared_robot"]

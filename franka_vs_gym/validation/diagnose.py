@@ -1318,7 +1318,7 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
     fit_notes: dict[str, str] = {}  # effect -> what was constrained, left out or not applied, and why
     auto = [e.strip() for e in effects] == ["auto"]
     if auto:
-        d = diagnose(data, cfg, verbose=verbose)
+        d = diagnose(data, cfg, verbose=verbose, robot=cfg.robot)  # the robot settled above (--robot or the log)
         names = d.selected
         ctx = d.context
         joints_of = {s.effect: s.joints for s in d.selection if s.channel != "command"}

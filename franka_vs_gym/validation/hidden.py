@@ -112,6 +112,30 @@ MAX_DURATION = 3600.0  # s: the longest generated log (an hour at 1 kHz is 3.6 M
 MAX_MAGNITUDE = 10.0  # the largest effect size, in multiples of its typical size
 
 
+def _number(v: Any, name: str) -> float:
+    if isinstance(v, bool):
+        raise ValueError(f"{name} must be a number, got {v!r}")
+    try:
+        return float(v)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a number, got {v!r}") from None
+
+
+def check_arguments(duration: Any, magnitude: Any, noise_scale: Any, seed: Any) -> None:
+    """Raise ValueError (one line) for arguments :func:`make_hidden_effect_log` cannot use: a duration outside (2,
+    MAX_DURATION] s, a magnitude outside (0, MAX_MAGNITUDE], NaN or inf anywhere, a negative noise scale or seed."""
+    duration, magnitude, noise_scale = (_number(duration, "duration"), _number(magnitude, "magnitude"),
+                                        _number(noise_scale, "noise_scale"))
+    if not 2.0 < duration <= MAX_DURATION:  # NaN fails every comparison: refused here too
+        raise ValueError(f"duration must be in (2, {MAX_DURATION:g}] s, got {duration}")
+    if not 0 < magnitude <= MAX_MAGNITUDE:
+        raise ValueError(f"magnitude must be in (0, {MAX_MAGNITUDE:g}] (1: the effect's typical size), got {magnitude}")
+    if not (math.isfinite(noise_scale) and noise_scale >= 0):
+        raise ValueError(f"noise_scale must be a finite number >= 0 (1: the FER's torque noise), got {noise_scale}")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
+
+
 def make_hidden_effect_log(effect: str, seed: int = 0, *, duration: float = 20.0, magnitude: float = 1.0,
                            noise_scale: float = 1.0) -> tuple[MeasurementLog, dict[str, Any]]:
     """Simulate the FER with one hidden effect (or "none", or "random": effect and magnitude drawn from the seed,
@@ -125,14 +149,8 @@ def make_hidden_effect_log(effect: str, seed: int = 0, *, duration: float = 20.0
     from franka_vs_gym.model.franka_model import FrankaModel
     from franka_vs_gym.sim.robot import FORCE_TORQUE, JOINT_STATE, FrankaSim
 
-    if not 2.0 < duration <= MAX_DURATION:
-        raise ValueError(f"duration must be in (2, {MAX_DURATION:g}] s, got {duration}")
-    if not 0 < magnitude <= MAX_MAGNITUDE:
-        raise ValueError(f"magnitude must be in (0, {MAX_MAGNITUDE:g}] (1: the effect's typical size), got {magnitude}")
-    if not (math.isfinite(noise_scale) and noise_scale >= 0):
-        raise ValueError(f"noise_scale must be a finite number >= 0 (1: the FER's torque noise), got {noise_scale}")
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
+    check_arguments(duration, magnitude, noise_scale, seed)
+    duration, magnitude, noise_scale = float(duration), float(magnitude), float(noise_scale)
     rng = np.random.default_rng(seed)
     if effect == "random":
         effect = str(rng.choice(list(_effects()) + ["none"]))
@@ -181,4 +199,4 @@ def make_hidden_effect_log(effect: str, seed: int = 0, *, duration: float = 20.0
     return log, answer
 
 
-__all__ = ["EFFECTS", "fourier_trajectory", "injecting_effects", "make_hidden_effect_log"]
+__all__ = ["EFFECTS", "check_arguments", "fourier_trajectory", "injecting_effects", "make_hidden_effect_log"]

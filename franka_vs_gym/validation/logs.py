@@ -226,6 +226,26 @@ def sidecar_path(path: str | os.PathLike) -> Path:
     return p.with_name(p.name + ".json")
 
 
+def metadata_file(log: MeasurementLog) -> str:
+    """The file a log's metadata was read from, for messages: its sidecar when there is one, else the log."""
+    if not log.source:
+        return "the log's metadata"
+    p = Path(log.source)
+    for s in (sidecar_path(p), p.with_suffix(".json"), p / "log.json"):
+        if s != p and os.path.isfile(s):
+            return str(s)
+    return str(p)
+
+
+def _meta_where(p: Path) -> str:
+    """The sidecar a log's metadata was read from (for messages), else the log itself."""
+    q = p / "log" if p.is_dir() and not os.path.isfile(p / "metadata.yaml") else p
+    for s in (sidecar_path(q), q.with_suffix(".json")):
+        if s != p and os.path.isfile(s):
+            return str(s)
+    return str(p)
+
+
 def _read_sidecar(path: Path) -> dict[str, Any]:
     for s in (sidecar_path(path), path.with_suffix(".json")):
         if os.path.lexists(s) and s != path:
@@ -241,7 +261,24 @@ def _read_sidecar(path: Path) -> dict[str, Any]:
     return {}
 
 
-def _meta_kwargs(meta: dict[str, Any]) -> dict[str, Any]:
+# the tool in words: the Franka Hand (its names in Franka's documents and ROS packages) or no tool at all
+_HAND_WORDS = ("franka hand", "franka gripper", "panda hand", "fer hand", "fr3 hand", "hand", "gripper", "franka_hand")
+_NO_TOOL_WORDS = ("none", "no tool", "no hand", "no gripper", "without tool", "without hand", "without gripper",
+                  "nothing", "null", "bare flange", "flange only", "no end effector", "")
+
+
+def tool_from_words(text: str) -> str | None | bool:
+    """``"franka_hand"`` for the Franka Hand named in words ("Franka Hand", "hand", "gripper", any case, inside a
+    longer phrase), None for no tool ("none", "no tool", "without gripper" ...), False when neither (or both)."""
+    w = " " + " ".join(re.split(r"[\s_\-/.,;:()\[\]]+", text.lower())).strip() + " "
+    none = any(f" {x} " in w for x in _NO_TOOL_WORDS if x) or not w.strip()
+    hand = any(f" {x} " in w for x in _HAND_WORDS)
+    if none:
+        return None  # "no gripper" names the gripper too: the negation decides
+    return "franka_hand" if hand else False
+
+
+def _meta_kwargs(meta: dict[str, Any], where: str = "the log metadata") -> dict[str, Any]:
     from franka_vs_gym.model import checks
     from franka_vs_gym.model.config import RigidBody
 
@@ -249,11 +286,15 @@ def _meta_kwargs(meta: dict[str, Any]) -> dict[str, Any]:
     kw: dict[str, Any] = {}
     kw["tool_declared"] = "tool" in meta
     kw["tool"] = meta.pop("tool", _TOOL_DEFAULT)
-    if isinstance(kw["tool"], str) and kw["tool"] not in ("franka_hand", "none"):
-        raise ValueError(f"unknown tool {kw['tool']!r} in the log metadata: use 'franka_hand', null, or an object "
-                         "with mass, com, inertia")
-    if kw["tool"] == "none":
-        kw["tool"] = None
+    if isinstance(kw["tool"], str):
+        words = tool_from_words(kw["tool"])
+        if words is False:
+            raise ValueError(f"{where}: unknown tool {kw['tool']!r} in 'tool': it names neither the Franka Hand nor "
+                             "no tool; write \"franka_hand\", null, or an object with mass, com, inertia; or pass --tool "
+                             "(franka_hand, none, unknown)")
+        if kw["tool"] not in ("franka_hand", "none"):
+            meta["tool_declared_as"] = kw["tool"]
+        kw["tool"] = words
     if kw["tool"] is not None and not isinstance(kw["tool"], (str, dict)):
         raise ValueError(f"tool in the log metadata must be 'franka_hand', null, or an object with mass, com, "
                          f"inertia; got {type(kw['tool']).__name__}")
@@ -375,12 +416,33 @@ def _load_csv(path: Path) -> dict[str, np.ndarray]:
         raise ValueError(f"{path}: no data rows")
     if data.shape[1] != len(header):
         raise ValueError(f"{path}: rows have {data.shape[1]} values, the header has {len(header)} columns")
+    bad = ~np.isfinite(data)
+    if bad.any():  # named by its line and column here, where they are known (a NaN, or a huge number: a blob?)
+        r, c = (int(x) for x in np.argwhere(bad)[0])
+        raise ValueError(f"{path}: {header[c].strip()} contains NaN or inf (first at row {r}, line {r + 2} of the "
+                         f"file: {_describe_cell(path, r + 2, c, delimiter)})")
     from franka_vs_gym.validation.readers import is_libfranka_csv, libfranka_columns
 
     if is_libfranka_csv(header):  # libfranka's logToCSV: state./cmd. prefixes, time in ms
         header, to_s = libfranka_columns(header)
         data[:, [h.strip() for h in header].index("time")] *= to_s
     return _columns_to_fields(header, data, str(path))
+
+
+def _describe_cell(path: Path, lineno: int, col: int, delimiter: str | None) -> str:
+    """What is wrong with the non-finite value at ``lineno`` (1-based, header included), column ``col``: the text of
+    the cell read again from the file (a line at a time: a 20 MB field costs 20 MB once)."""
+    with io.open_input(path, "r", what="log", newline="") as fh:
+        for k, line in enumerate(fh, start=1):
+            if k == lineno:
+                cells = line.rstrip("\r\n").split(delimiter)
+                text = cells[col].strip() if col < len(cells) else ""
+                break
+        else:
+            return "not a finite number"
+    if len(text) > 64:
+        return f"a value of {len(text)} characters ({text[:16]}...): a blob in the column or a corrupt file?"
+    return f"{text!r}"
 
 
 def _isfloat(s: str) -> bool:
@@ -608,7 +670,7 @@ def load_log(path: str | os.PathLike, topic: str | None = None, progress: bool =
             raise ValueError(f"{p}: not a readable table: {e} (a cell of over 128 KiB; a blob in a column or a "
                              "corrupt file?)") from None
         meta = _with_sidecar(meta, _read_sidecar(p))
-    kw = _meta_kwargs(meta)
+    kw = _meta_kwargs(meta, _meta_where(p))
     t = arrays.pop("time")
     return MeasurementLog(t, **arrays, **kw, source=str(p))
 
@@ -642,5 +704,5 @@ def save_log(log: MeasurementLog, path: str | os.PathLike, overwrite: bool = Fal
     return p
 
 
-__all__ = ["MeasurementLog", "load_log", "save_log", "sidecar_path", "validate", "JOINT_FIELDS", "REQUIRED",
-           "OPTIONAL"]
+__all__ = ["MeasurementLog", "load_log", "metadata_file", "save_log", "sidecar_path", "tool_from_words", "validate",
+           "JOINT_FIELDS", "REQUIRED", "OPTIONAL"]

@@ -48,8 +48,19 @@ from franka_vs_gym import io
 
 JOINT_FIELDS = ("q", "dq", "tau_J", "tau_J_d", "q_d", "dq_d", "ddq_d", "tau_ext_hat_filtered")
 REQUIRED = ("q", "dq", "tau_J")
+# time columns in the order they are preferred, each with its unit (None: detected from the median step). The robot's
+# or the message's own time first, then a header stamp (rostopic echo -p's ``field.header.stamp``, ns), then common
+# generic names, then a bag's receive time (rostopic's ``%time``, ns); one that does not advance (zero stamps) is
+# passed over. Names are matched in any case, after any prefix (``field.``, ``header.``, ``state.``).
 TIME_NAMES = {"time": None, "robot_time": None, "time_s": "s", "time_sec": "s", "time_ms": "ms", "time_msec": "ms",
-              "robot_time_ms": "ms", "robot_time_s": "s"}
+              "robot_time_ms": "ms", "robot_time_s": "s", "time_us": "us", "time_ns": "ns", "stamp": None,
+              "timestamp": None, "timestamp_s": "s", "timestamp_ms": "ms", "timestamp_ns": "ns", "t": None,
+              "%time": None}
+#: a ROS JointState's fields, read as the log's fields when the columns carry no libfranka names
+JOINT_STATE_FIELDS = {"position": "q", "velocity": "dq", "effort": "tau_J"}
+#: unit -> (factor to s, its name, the median step range read as this unit when the name does not say it)
+_UNITS = {"s": (1.0, "seconds"), "ms": (1e-3, "milliseconds"), "us": (1e-6, "microseconds"),
+          "ns": (1e-9, "nanoseconds")}
 SIDECAR_KEYS = {"tool", "gravity", "controller"}
 TOOL_FIELDS = ("m_total", "F_x_Ctotal", "I_total", "m_ee", "F_x_Cee", "I_ee", "m_load", "F_x_Cload", "I_load",
                "O_ddP_O")
@@ -220,7 +231,10 @@ def tool_from_state(s: dict[str, Any]) -> tuple[Any, str]:
 
 # ------------------------------------------------------------------------------------------------- columns
 def parse_name(name: str) -> tuple[str, int | None] | None:
-    """``state.q[3]`` -> ("q", 3), ``q_3``/``q.3``/``q3`` -> ("q", 3), ``q`` -> ("q", None); None if no match."""
+    """``state.q[3]`` -> ("q", 3), ``q_3``/``q.3``/``q3`` -> ("q", 3), ``q`` -> ("q", None); rostopic's ``%time`` ->
+    ("%time", None); None if no match."""
+    if name.strip() == "%time":
+        return "%time", None
     m = _NAME.match(name.strip())
     if not m:
         return None
@@ -243,16 +257,18 @@ def time_to_seconds(t: np.ndarray, name: str, unit: str | None, where: str) -> t
         how = f"detected from its median step {med:.4g}"
         if 0 < med < MAX_STEP_S:  # 2 Hz or faster in seconds; in ms that would be 2 kHz or faster
             unit = "s"
-        elif MAX_STEP_S <= med < 1000 * MAX_STEP_S:  # 1 kHz to 2 Hz in milliseconds
+        elif MAX_STEP_S <= med < 1e3 * MAX_STEP_S:  # 2 kHz to 2 Hz in milliseconds
             unit = "ms"
-        else:
+        elif 1e6 * MAX_STEP_S <= med < 1e9 * MAX_STEP_S:  # 2 kHz to 2 Hz in nanoseconds (ROS stamps, time_ns)
+            unit = "ns"
+        else:  # between: microseconds, or a sample index times a constant; the name must say it (time_us)
             raise ValueError(f"{where}: cannot tell the unit of {name!r} (median step {med:.4g}): expected seconds "
-                             f"(step < {MAX_STEP_S:g}, 2 Hz or faster) or milliseconds (step {MAX_STEP_S:g}-"
-                             f"{1000 * MAX_STEP_S:g})")
-    scale = 1e-3 if unit == "ms" else 1.0
+                             f"(step < {MAX_STEP_S:g}, 2 Hz or faster), milliseconds (step {MAX_STEP_S:g}-"
+                             f"{1e3 * MAX_STEP_S:g}) or nanoseconds (step {1e6 * MAX_STEP_S:g}-{1e9 * MAX_STEP_S:g}); "
+                             "name the column time_s, time_ms, time_us or time_ns to say it")
+    scale, word = _UNITS[unit]
     out = (t - t[0]) * scale
-    text = (f"time from {name!r} in {'milliseconds' if unit == 'ms' else 'seconds'} ({how}), "
-            f"converted to s from its first sample ({t[0] * scale:.6g} s)")
+    text = (f"time from {name!r} in {word} ({how}), converted to s from its first sample ({t[0] * scale:.6g} s)")
     return out, text
 
 
@@ -282,13 +298,14 @@ def table_to_fields(cols: dict[str, np.ndarray], where: str, kind: str) -> tuple
                              f"{'' if idx is None else f'[{idx}]'}")
         slot[idx] = (name, v)
     found = sorted(groups)
-    tname = next((k for k in TIME_NAMES if k in groups and None in groups[k]), None)
-    if tname is None:
-        raise ValueError(f"{where}: no time field (looked for 'time' or 'robot_time', in s or ms); found "
-                         f"{_short(found)}")
+    notes: list[str] = []
+    _joint_state_columns(groups, where, notes)
+    times = [(k, g) for name in TIME_NAMES for k, g in groups.items() if k.lower() == name and None in g]
+    if not times:
+        raise ValueError(f"{where}: no time field (looked for 'time' or 'robot_time', in s or ms); also looked for "
+                         f"{', '.join(repr(k) for k in list(TIME_NAMES)[8:])}; found {_short(found)}")
     n = None
     out: dict[str, np.ndarray] = {}
-    notes: list[str] = []
     for f in JOINT_FIELDS:
         g = groups.get(f)
         if not g:
@@ -321,12 +338,18 @@ def table_to_fields(cols: dict[str, np.ndarray], where: str, kind: str) -> tuple
         elif len(a) != n:
             raise ValueError(f"{where}: {f} has {len(a)} samples, the other fields {n}")
         out[f] = a
-    t = _floats(groups[tname][None][1], tname, where)
-    if t.ndim == 2 and t.shape[1] == 1:
-        t = t[:, 0]
-    if t.ndim != 1 or len(t) != n:
-        raise ValueError(f"{where}: {tname!r} must hold one number per sample ({n}), got shape {t.shape}")
-    out["time"], read_as = time_to_seconds(t, tname, TIME_NAMES[tname], where)
+    for k, (base, g) in enumerate(times):
+        tname, unit = g[None][0], TIME_NAMES[base.lower()]
+        t = _floats(g[None][1], tname, where)
+        if t.ndim == 2 and t.shape[1] == 1:
+            t = t[:, 0]
+        if t.ndim != 1 or len(t) != n:
+            raise ValueError(f"{where}: {tname!r} must hold one number per sample ({n}), got shape {t.shape}")
+        if k + 1 < len(times) and np.isfinite(t).all() and not (np.diff(t) > 0).any():
+            notes.append(f"{tname!r} does not advance: passed over")
+            continue
+        break
+    out["time"], read_as = time_to_seconds(t, tname, unit, where)
     meta: dict[str, Any] = {"source_format": kind, "read_as": "; ".join([f"{kind}: {read_as}"] + notes)}
     state = {}
     for k in TOOL_FIELDS:
@@ -347,6 +370,60 @@ def table_to_fields(cols: dict[str, np.ndarray], where: str, kind: str) -> tuple
 
 
 _WHAT = {"q": "joint positions", "dq": "joint velocities", "tau_J": "measured joint torques"}
+
+
+def _names_of(g: dict[int | None, tuple[str, Any]]) -> list[str]:
+    """The joint names of a JointState ``name`` column: one list cell (``"['panda_joint1', ...]"``) or one column
+    per joint (rostopic's ``field.name0``...), read from the first sample."""
+    if None in g:
+        v = g[None][1]
+        first = v[0] if isinstance(v, (list, np.ndarray)) and len(v) else v
+        if isinstance(first, (list, tuple)):
+            return [str(x) for x in first]
+        return [x.strip(" '\"") for x in re.split(r"[,;\s]+", str(first).strip().strip("[]()")) if x.strip(" '\"")]
+    return [str(g[i][1][0]).strip(" '\"") for i in sorted(k for k in g if k is not None)]
+
+
+def _joint_state_columns(groups: dict[str, dict[int | None, tuple[str, Any]]], where: str, notes: list[str]) -> None:
+    """A ROS JointState written as a table (rostopic echo -p: ``field.position0``..., ``field.name0``...; or whole
+    ``position``/``velocity``/``effort`` list cells): read as q, dq, tau_J when no libfranka-named columns are there,
+    the arm's seven joints picked by their names (the hand's fingers left out). Changes ``groups`` in place."""
+    from franka_vs_gym.validation.readers.rosbag import joint_index
+
+    present = [s for s in JOINT_STATE_FIELDS if s in groups]
+    if not present or any(f in groups for f in REQUIRED):
+        return
+    names = _names_of(groups["name"]) if "name" in groups else None
+    pick = None
+    if names:
+        idx = [joint_index(x) for x in names]
+        pick = [idx.index(j) if idx.count(j) == 1 else None for j in range(7)]
+        if None in pick:
+            raise ValueError(f"{where}: the joint names {names} do not name the arm's seven joints once each (e.g. "
+                             "panda_joint1..7, fr3_joint1..7)")
+    for s in present:
+        g = groups.pop(s)
+        if None in g:
+            a = _floats(g[None][1], g[None][0], where)
+            if a.ndim == 2 and pick is not None and a.shape[1] == len(names):
+                a = a[:, pick]
+            elif a.ndim == 2 and a.shape[1] != 7:
+                raise ValueError(f"{where}: {g[None][0]!r} has {a.shape[1]} values per sample and no joint names "
+                                 "say which are the arm's seven")
+            groups[JOINT_STATE_FIELDS[s]] = {None: (g[None][0], a)}
+        else:
+            cols = sorted(k for k in g if k is not None)
+            if pick is not None:
+                if cols != list(range(len(names))):
+                    raise ValueError(f"{where}: {s} has columns {cols} but there are {len(names)} joint names")
+                g = {j: g[pick[j]] for j in range(7)}
+            elif len(cols) != 7:
+                raise ValueError(f"{where}: {s} has {len(cols)} joint columns and no joint names say which are the "
+                                 "arm's seven")
+            groups[JOINT_STATE_FIELDS[s]] = g
+    notes.append("JointState columns " + "/".join(present) + " read as " + "/".join(JOINT_STATE_FIELDS[s]
+                                                                                      for s in present)
+                 + (f", the arm's joints by name ({', '.join(names[i] for i in pick)})" if pick else ""))
 
 
 def _short(names: list[str], k: int = 12) -> str:
@@ -373,6 +450,9 @@ def _parse_cells(cells: list[str], name: str, where: str) -> np.ndarray:
     width = None
     for r, c in enumerate(cells):
         s = c.strip().strip("[]()")
+        if len(s) > 100_000:  # no list of seven numbers is this long: a blob in the column or a corrupt file
+            raise ValueError(f"{where}: line {r + 2}: column {name!r} holds a value of {len(s)} characters "
+                             f"({s[:16]}...), not a number or a list of numbers (a blob or a corrupt file?)")
         try:
             vals = [float(x) for x in _SPLIT.split(s.strip()) if x] if s.strip() else []
         except ValueError:
@@ -471,13 +551,19 @@ def _ticks_to_columns(ticks: list[Any], where: str) -> dict[str, Any]:
         if any(x is None for x in v):
             missing = v.index(None)
             base = parse_name(k)
-            if base is not None and (base[0] in REQUIRED or base[0] in TIME_NAMES):
+            if base is not None and (base[0] in REQUIRED or base[0].lower() in TIME_NAMES):
                 raise ValueError(f"{where}: robot state {missing} has no {k!r} (state 0 has it)")
             continue
         if isinstance(first[k], (str, bool)) or first[k] is None:
             continue
         out[k] = v
     return out
+
+
+def _wanted(base: str) -> bool:
+    """Whether a column of this base name is read (joint fields, time, the declared tool, a JointState's fields)."""
+    return (base in JOINT_FIELDS or base.lower() in TIME_NAMES or base in TOOL_FIELDS or base in JOINT_STATE_FIELDS
+            or base == "name")
 
 
 def read_csv_dump(path: Path, first_line: str) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
@@ -492,7 +578,17 @@ def read_csv_dump(path: Path, first_line: str) -> tuple[dict[str, np.ndarray], d
     if delim is None:  # whitespace-separated: no list cells possible
         rows = [ln.split() for ln in text.splitlines() if ln.strip()]
     else:
-        rows = [r for r in csv.reader(_pyio.StringIO(text), delimiter=delim) if r]
+        reader = csv.reader(_pyio.StringIO(text), delimiter=delim)
+        try:
+            rows = [r for r in reader if r]
+        except csv.Error as e:  # e.g. a field over csv's limit (128 KiB): name the line and the column
+            line = text.splitlines()[reader.line_num - 1] if reader.line_num else ""
+            cells = line.split(delim)
+            head = first_line.rstrip("\r\n").split(delim)
+            c = max(range(len(cells)), key=lambda k: len(cells[k])) if cells else 0
+            col = f", column {head[c].strip()!r}" if c < len(head) else ""
+            raise ValueError(f"{path}: line {reader.line_num}{col}: {e} (a value of {len(cells[c]) if cells else 0} "
+                             "characters: a blob in the column or a corrupt file?)") from None
     header = [h.strip() for h in rows[0]]
     body = rows[1:]
     if not body:
@@ -503,7 +599,7 @@ def read_csv_dump(path: Path, first_line: str) -> tuple[dict[str, np.ndarray], d
     needed = {}
     for c, h in enumerate(header):
         p = parse_name(h)
-        if p is not None and (p[0] in JOINT_FIELDS or p[0] in TIME_NAMES or p[0] in TOOL_FIELDS):
+        if p is not None and _wanted(p[0]):
             needed[h] = [r[c] for r in body]
     return table_to_fields(needed, str(path), "CSV")
 
@@ -513,7 +609,7 @@ def read_npz_dump(path: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     cols = {}
     for k in z:
         p = parse_name(k)
-        if p is not None and (p[0] in JOINT_FIELDS or p[0] in TIME_NAMES or p[0] in TOOL_FIELDS):
+        if p is not None and _wanted(p[0]) and p[0] != "name":
             a = z[k]
             if a.dtype.kind not in "fiub":
                 raise ValueError(f"{path}: array {k!r} is not numeric (dtype {a.dtype})")

@@ -193,17 +193,26 @@ def correlation_lines(correlations: list[dict[str, Any]] | None, unidentifiable:
     return lines
 
 
-def next_command(log_source: str, diagnosis=None, fit=None, model_file: str | None = None) -> str:
-    """The one command to run next."""
-    src = str(log_source or "LOG")
+def next_command(log_source: str, diagnosis=None, fit=None, model_file: str | None = None, flags: str = "") -> str:
+    """The one command to run next. ``flags``: options of this run the next one needs as well (``--topic``,
+    ``--rate`` ...); a robot given with ``--robot`` is carried over from the run's configuration."""
+    import shlex
+
+    src = shlex.quote(str(log_source or "LOG"))
+    cfg = fit.after if fit is not None else getattr(diagnosis, "config", None)
+    notes = getattr(cfg, "notes", None) or {}
+    if cfg is not None and str(notes.get("robot_source", "")).startswith("--robot") and "--robot" not in flags:
+        flags = f"--robot {cfg.robot.name} {flags}".strip()
+    flags = f" {flags}" if flags else ""
     if fit is not None:
-        return f"franka-vs diagnose {src} --model {model_file or 'calibrated.json'} --report report_after"
+        return (f"franka-vs diagnose {src} --model {shlex.quote(model_file or 'calibrated.json')}{flags} "
+                "--report report_after")
     if diagnosis is not None:
         if diagnosis.selection:
             names = ",".join(s.effect for s in diagnosis.selection)
-            return f"franka-vs fit {src} --add {names} -o calibrated.json --report fit_report"
-        return f"franka-vs compare {src} --report compare_report"
-    return f"franka-vs diagnose {src} --report diagnose_report"
+            return f"franka-vs fit {src} --add {names} -o calibrated.json{flags} --report fit_report"
+        return f"franka-vs compare {src}{flags} --report compare_report"
+    return f"franka-vs diagnose {src}{flags} --report diagnose_report"
 
 
 # ----------------------------------------------------------------------------------------------- signals
