@@ -144,16 +144,19 @@ def find_logs(folder: str | os.PathLike) -> list[Path]:
     return sorted(logs)
 
 
-def _diagnose_one(path: str, model: Any, fit: bool, rigid_body: bool) -> dict[str, Any]:
+def _diagnose_one(path: str, model: Any, fit: bool, rigid_body: bool, robot: Any = None,
+                  tool: str | None = None) -> dict[str, Any]:
     """The workbench's diagnose (and fit) of one log, as JSON-ready values (runs in a Ray task)."""
     from franka_vs_gym.errors import UserError
     from franka_vs_gym.validation import diagnose, fit_effects
+    from franka_vs_gym.validation.logs import load_log
 
     try:
-        d = diagnose(path, model, rigid_body=rigid_body)
+        log = load_log(path, tool=tool)
+        d = diagnose(log, model, rigid_body=rigid_body, robot=robot, tool=tool)
         out: dict[str, Any] = {"log": path, "diagnosis": d.to_dict()}
         if fit:
-            f = fit_effects(path, ["auto"], model, rigid_body=rigid_body)
+            f = fit_effects(log, ["auto"], model, rigid_body=rigid_body, robot=robot, tool=tool)
             out["fit"] = f.to_dict() | {"config": f.after.to_dict()}
     except (ValueError, FileNotFoundError, UserError) as e:  # a log the workbench refuses: said, the folder goes on
         return {"log": path, "error": str(e)}
@@ -162,22 +165,32 @@ def _diagnose_one(path: str, model: Any, fit: bool, rigid_body: bool) -> dict[st
 
 def diagnose_folder(folder: str | os.PathLike, model: Any = None, *, fit: bool = False, rigid_body: bool = False,
                     address: str | None = None, num_cpus: int | None = None, use_ray: bool = True,
-                    progress: bool = False) -> list[dict[str, Any]]:
+                    progress: bool = False, robot: Any = None, tool: str | None = None) -> list[dict[str, Any]]:
     """Diagnose (and with ``fit`` also fit) every log of ``folder`` in parallel on Ray (``use_ray=False``: one after
     the other in this process, the same results); one result per log, in file-name order:
     ``{"log", "diagnosis": Diagnosis.to_dict(), "fit": FitResult.to_dict() + {"config"}}``, or ``{"log", "error"}``
-    (the one-line reason) for a log the workbench refuses, so one bad file does not stop the folder."""
+    (the one-line reason) for a log the workbench refuses, so one bad file does not stop the folder. ``robot`` and
+    ``tool`` are ``--robot`` and ``--tool`` of ``diagnose``: they override what each log declares."""
+    if tool is not None:
+        from franka_vs_gym.validation.compare import TOOLS
+
+        if tool not in TOOLS:
+            raise ValueError(f"unknown --tool {tool!r}: choose from {', '.join(TOOLS)}")
+    if robot is not None:
+        from franka_vs_gym.model.description import robot_description
+
+        robot = robot_description(robot).name  # an unknown name is refused before any log is read
     logs = [str(p) for p in find_logs(folder)]
     if not use_ray:
         out = []
         for n, p in enumerate(logs):
-            out.append(_diagnose_one(p, model, fit, rigid_body))
+            out.append(_diagnose_one(p, model, fit, rigid_body, robot, tool))
             if progress:
                 print(f"diagnose: {n + 1}/{len(logs)} logs done", flush=True)
         return out
     with ray_session(address, num_cpus) as ray:
         task = ray.remote(num_cpus=1)(_diagnose_one)
-        refs = [task.remote(p, model, fit, rigid_body) for p in logs]
+        refs = [task.remote(p, model, fit, rigid_body, robot, tool) for p in logs]
         pending, n = list(refs), 0
         while pending:
             _, pending = ray.wait(pending, num_returns=1)
@@ -198,6 +211,11 @@ def add_arguments(parser: Any) -> None:
                         "baseline)")
     parser.add_argument("--fit", action="store_true", help="also fit the diagnosed effects (fit --add auto)")
     parser.add_argument("--rigid-body", action="store_true", help="start from the rigid-body model (no friction)")
+    parser.add_argument("--robot", default=None,
+                        help="the robot every log comes from (fer, fr3, ...): overrides what the logs declare")
+    parser.add_argument("--tool", choices=("franka_hand", "none", "unknown"), default=None,
+                        help="the tool on the flange in every log (default: what each log declares); 'unknown' fits "
+                             "the tool's mass, centre of mass and inertia")
     parser.add_argument("--ray", nargs="?", const="", default=None, metavar="ADDRESS",
                         help="Ray cluster address; without one (or without --ray when Ray is installed) a local Ray "
                         "instance; without --ray and without Ray, the logs one after the other")
@@ -219,7 +237,7 @@ def main(args: Any) -> int:
     use_ray = args.ray is not None or importlib.util.find_spec("ray") is not None
     res = diagnose_folder(args.folder, args.model, fit=args.fit, rigid_body=args.rigid_body,
                           address=args.ray or None, num_cpus=args.ray_cpus, use_ray=use_ray,
-                          progress=not args.quiet)
+                          progress=not args.quiet, robot=args.robot, tool=args.tool)
     for r in res:
         if "error" in r:
             print(f"{Path(r['log']).name}: not diagnosed: {r['error']}")

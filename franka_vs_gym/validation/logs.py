@@ -289,9 +289,9 @@ def _meta_kwargs(meta: dict[str, Any], where: str = "the log metadata") -> dict[
     if isinstance(kw["tool"], str):
         words = tool_from_words(kw["tool"])
         if words is False:
-            raise ValueError(f"{where}: unknown tool {kw['tool']!r} in 'tool': it names neither the Franka Hand nor "
-                             "no tool; write \"franka_hand\", null, or an object with mass, com, inertia; or pass --tool "
-                             "(franka_hand, none, unknown)")
+            raise ValueError(f"{where}: unknown tool {kw['tool']!r} in 'tool': it names neither the Franka Hand "
+                             "nor no tool; write \"franka_hand\", null, or an object with mass, com, inertia; or "
+                             "pass --tool (franka_hand, none, unknown)")
         if kw["tool"] not in ("franka_hand", "none"):
             meta["tool_declared_as"] = kw["tool"]
         kw["tool"] = words
@@ -634,7 +634,8 @@ def _with_sidecar(meta: dict[str, Any], side: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def load_log(path: str | os.PathLike, topic: str | None = None, progress: bool = False) -> MeasurementLog:
+def load_log(path: str | os.PathLike, topic: str | None = None, progress: bool = False,
+             tool: str | None = None) -> MeasurementLog:
     """Read a log: a CSV file (ours or libfranka's logToCSV), an NPZ file, a ROS 1 or ROS 2 bag of Franka robot
     states or JointState messages (``topic`` chooses the topic, else it is chosen and the choice stated; see
     :mod:`franka_vs_gym.validation.readers`), a Gaz et al. 2019 text folder (see
@@ -643,7 +644,9 @@ def load_log(path: str | os.PathLike, topic: str | None = None, progress: bool =
     :mod:`franka_vs_gym.validation.readers.robot_states`). The format of a file is detected from its content.
 
     The sidecar ``<log>.json`` supplies tool, gravity and controller. ``progress`` shows a progress bar on stderr
-    while a ROS bag is decoded. Raises FileNotFoundError when the path does
+    while a ROS bag is decoded. ``tool`` ("franka_hand", "none" or "unknown", as ``--tool``) replaces the tool the
+    metadata declares, which is then not read (the declared text is kept in ``extra["tool_declared_as"]``). Raises
+    FileNotFoundError when the path does
     not exist and ValueError when the content is malformed. The file is only read.
     """
     from franka_vs_gym.validation.readers import is_rosbag, read_rosbag
@@ -670,6 +673,11 @@ def load_log(path: str | os.PathLike, topic: str | None = None, progress: bool =
             raise ValueError(f"{p}: not a readable table: {e} (a cell of over 128 KiB; a blob in a column or a "
                              "corrupt file?)") from None
         meta = _with_sidecar(meta, _read_sidecar(p))
+    if tool is not None:  # --tool: the declaration is overridden, not read (a name it cannot read is no error)
+        if "tool" in meta and meta["tool"] not in ("franka_hand", None, "none"):
+            meta["tool_declared_as"] = meta["tool"] if isinstance(meta["tool"], str) else "an object"
+        meta["tool"] = "franka_hand" if tool == "franka_hand" else None
+        meta["tool_source"] = "--tool"
     kw = _meta_kwargs(meta, _meta_where(p))
     t = arrays.pop("time")
     return MeasurementLog(t, **arrays, **kw, source=str(p))

@@ -339,6 +339,11 @@ def assumptions_of(data: ProcessedLog, config: Any, tool: str | None = None) -> 
                                        if tool == "unknown" else "")
     elif log.tool_declared:
         tool_src = "declared by the log" + (f" ({log.extra['tool_source']})" if log.extra.get("tool_source") else "")
+        said = log.extra.get("tool_declared_as")
+        if log.extra.get("tool_source") == "--tool":  # read with --tool: the log's own declaration overridden
+            tool_src = "--tool" + (f" (the log's {said!r} overridden)" if isinstance(said, str) else "")
+        elif isinstance(said, str):  # named in words: what it said, as it was read
+            tool_src += f" as {said!r}"
     elif getattr(config, "notes", {}).get("tool_estimate"):
         tool_src = config.notes["tool_estimate"]
     else:

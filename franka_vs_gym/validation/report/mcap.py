@@ -23,7 +23,10 @@ run's summary is also an MCAP metadata record named ``franka_vs``.
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import json
+import os
 from pathlib import Path
 from typing import Any
 
@@ -126,9 +129,29 @@ def write_mcap(path: str | Path, res, diagnosis=None, fit=None, summary: dict[st
         if fit is not None:
             meta["effects"] = ",".join(fit.effects)
         writer.write_metadata("franka_vs", meta)
-    finally:
         writer.close()
+    except RuntimeError as e:  # the MCAP library reports a failed write (a full disk...) as a RuntimeError
+        with contextlib.suppress(RuntimeError):
+            writer.close()  # refuses once a write failed: the staged file is removed by the caller
+        raise _write_error(p, e) from None
+    except BaseException:
+        with contextlib.suppress(RuntimeError):
+            writer.close()
+        raise
     return p
+
+
+def _write_error(p: Path, e: RuntimeError) -> OSError:
+    """The OSError a failed MCAP write stands for: ENOSPC when the target's file system has (almost) no room left,
+    else EIO with the library's message."""
+    try:
+        st = os.statvfs(p.parent)
+        full = st.f_bavail * st.f_frsize < (1 << 20)
+    except OSError:
+        full = False
+    if full:
+        return OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(p))
+    return OSError(errno.EIO, f"writing the MCAP log failed: {' '.join(str(e).split())}", str(p))
 
 
 def _jsonable(o: Any) -> Any:
