@@ -160,7 +160,8 @@ def test_the_hint_to_pass_robot_fr3_works(tmp_path, capsys):
 # ----------------------------------------------------------------------------------------------- the tool in words
 @pytest.mark.parametrize("text, tool", [
     ("Franka Hand", "franka_hand"), ("hand", "franka_hand"), ("gripper", "franka_hand"),
-    ("franka_hand", "franka_hand"), ("the Franka Hand (fingers closed)", "franka_hand"), ("Franka Gripper", "franka_hand"),
+    ("franka_hand", "franka_hand"), ("the Franka Hand (fingers closed)", "franka_hand"),
+    ("Franka Gripper", "franka_hand"),
     ("none", None), ("no tool", None), ("None", None), ("no gripper", None), ("without hand", None), ("", None),
 ])
 def test_a_tool_named_in_words_is_recognised(text, tool):
@@ -308,3 +309,169 @@ def test_diagnose_folder_takes_robot_and_tool(fer_csv, tmp_path, capsys):
     assert res[0]["diagnosis"]["rmse_tau_total"] < 0.05
     with pytest.raises(ValueError, match="unknown robot"):
         diagnose_folder(tmp_path, use_ray=False, robot="kuka")
+
+
+# ----------------------------------------------------------------------------------------------- other suggestions
+def test_the_max_gap_it_suggests_works(tmp_path, capsys):
+    log = _log(n=2400)
+    keep = np.r_[0:1000, 1100:2400]  # a 0.25 s hole
+    p = save_log(MeasurementLog(log.time[keep], log.q[keep], log.dq[keep], log.tau_J[keep], tool=None),
+                 tmp_path / "gap.csv")
+    line = _one_line_error(capsys, ["compare", str(p), "--no-replay", "--quiet"])
+    gap = re.search(r"a ([\d.]+) ms gap", line)
+    assert gap and "allow it with --max-gap" in line, line
+    rc, out, err = _cli(capsys, ["compare", str(p), "--no-replay", "--quiet", "--json", "--max-gap",
+                                 str(1.01 * float(gap.group(1)) / 1000)])
+    assert rc == 0, err
+
+
+def test_the_tool_it_estimates_can_be_said_with_the_flags_it_names(fer_csv, tmp_path, capsys):
+    """A log that declares no tool: the tool is estimated and 'use --tool to say which' is said; --tool none and
+    --tool unknown (named by the hints) both run, and --tool none is exact on this log (it has no tool)."""
+    p = tmp_path / "undeclared.csv"
+    p.write_bytes(fer_csv.read_bytes())
+    Path(str(p) + ".json").write_text(json.dumps({"robot": "fer"}))
+    rc, out, err = _cli(capsys, ["compare", str(p), "--no-replay", "--quiet", "--json"])
+    assert rc == 0 and "--tool" in json.loads(out)["assumptions"]["tool_source"], err
+    for tool in ("none", "unknown", "franka_hand"):
+        rc, out, err = _cli(capsys, ["diagnose", str(p), "--quiet", "--json", "--tool", tool, "--effects",
+                                     "payload"])
+        assert rc == 0, err
+        if tool == "none":
+            assert max(json.loads(out)["rmse_tau"]) < 0.05
+
+
+def test_the_next_command_of_diagnose_carries_its_options_and_works(fer_csv, tmp_path, capsys):
+    p = _with_sidecar(fer_csv, tmp_path, {"robot": "lab arm 2", "tool": "none"})
+    rc, out, err = _cli(capsys, ["diagnose", str(p), "--robot", "fer", "--rate", "200", "--quiet"])
+    assert rc == 0, err
+    nxt = next(ln for ln in out.splitlines() if ln.startswith("next: "))[len("next: "):]
+    argv = shlex.split(nxt)[1:]
+    assert "--robot" in argv and "--rate" in argv, nxt
+    argv[argv.index("--report") + 1] = str(tmp_path / "next_report")
+    if "-o" in argv:
+        argv[argv.index("-o") + 1] = str(tmp_path / "next.json")
+    rc, _, err = _cli(capsys, [*argv, "--quiet"])
+    assert rc == 0, err
+
+
+# ----------------------------------------------------------------------------------------------- the last bad inputs
+def _blob_csv(src: Path, d: Path, column: int, name: str) -> Path:
+    lines = src.read_text().splitlines()[:400]
+    cells = lines[10].split(",")
+    cells[column] = "1" * 20_000_000  # a 20 MB number: float() makes it inf
+    lines[10] = ",".join(cells)
+    p = d / name
+    p.write_text("\n".join(lines) + "\n")
+    return p
+
+
+def test_a_20_mb_field_is_named_by_its_line_and_column(fer_csv, tmp_path, capsys):
+    p = _blob_csv(fer_csv, tmp_path, 0, "blob.csv")
+    line = _one_line_error(capsys, ["compare", str(p), "--no-replay", "--quiet"])
+    assert "line 11 of the file" in line and "time contains NaN or inf" in line and "20000000 characters" in line, line
+    p = _blob_csv(fer_csv, tmp_path, 5, "blob_q.csv")
+    line = _one_line_error(capsys, ["compare", str(p), "--no-replay", "--quiet"])
+    assert "q[4] contains NaN or inf" in line and "line 11 of the file" in line, line
+    # the same in a table of another layout (t, q0...): its line and its column
+    log = _log(n=400)
+    q = tmp_path / "t.csv"
+    q.write_text(_table(log, "t", 1.0, 0.0))
+    r = _blob_csv(q, tmp_path, 0, "blob_t.csv")
+    line = _one_line_error(capsys, ["compare", str(r), "--no-replay", "--quiet"])
+    assert "line 11, column 't'" in line and "20000000 characters" in line, line
+
+
+def _enospc(*_a, **_k):
+    import errno
+
+    raise OSError(errno.ENOSPC, "No space left on device")
+
+
+def test_disk_full_mid_write_of_the_model_keeps_the_older_model(fer_csv, tmp_path, capsys, monkeypatch):
+    """The model file is staged beside its target and renamed in only when complete: a write that fills the disk
+    half way leaves the older model of the same name byte-identical and no staged file behind."""
+    import errno
+
+    from franka_vs_gym.model.config import ModelConfig
+
+    p = _with_sidecar(fer_csv, tmp_path, {"robot": "fer", "tool": None})
+    out = tmp_path / "cal.json"
+    out.write_text("the older model")
+
+    def half(self, path, overwrite=False):
+        with open(path, "w") as fh:
+            fh.write('{"format": "franka')
+        raise OSError(errno.ENOSPC, "No space left on device", str(path))
+
+    monkeypatch.setattr(ModelConfig, "save", half)
+    line = _one_line_error(capsys, ["fit", str(p), "--add", "torque_offset", "-o", str(out), "--force", "--quiet"])
+    assert "No space left on device" in line and "nothing was replaced" in line, line
+    assert out.read_text() == "the older model"
+    assert sorted(f.name for f in tmp_path.iterdir()) == ["cal.json", "run.csv", "run.csv.json"]
+
+
+@pytest.mark.parametrize("where", ["html", "markdown", "mcap"])
+def test_disk_full_during_the_report_is_one_line_and_loses_nothing(fer_csv, tmp_path, capsys, monkeypatch, where):
+    import franka_vs_gym.validation.report as report
+
+    p = _with_sidecar(fer_csv, tmp_path, {"robot": "fer", "tool": None})
+    out = tmp_path / "cal.json"
+    out.write_text("the older model")
+    (tmp_path / "rep").mkdir()
+    (tmp_path / "rep" / "report.md").write_text("the older report")
+    argv = ["fit", str(p), "--add", "torque_offset", "-o", str(out), "--force", "--quiet", "--report",
+            str(tmp_path / "rep")]
+    if where == "mcap":  # the MCAP library says a failed write as a RuntimeError; the disk is full
+        import os
+
+        import foxglove
+
+        class Full:
+            def write_metadata(self, *a):
+                raise RuntimeError("FoxgloveError: MCAP error: I/O error from writing, or reading a compression stream")
+
+            def close(self):
+                raise RuntimeError("FoxgloveError: MCAP error: attempted another write after a write method failed")
+
+        monkeypatch.setattr(foxglove, "open_mcap", lambda *a, **k: Full())
+        monkeypatch.setattr(os, "statvfs", lambda d: os.statvfs_result((4096, 4096, 100, 0, 0, 100, 0, 0, 0, 255)))
+        argv += ["--mcap", str(tmp_path / "run.mcap")]
+    else:
+        monkeypatch.setattr(report, f"{where}_report", _enospc)
+        monkeypatch.setattr("franka_vs_gym.validation.cli_common.alongside", lambda work: (work(), lambda: None)[1])
+    line = _one_line_error(capsys, argv)
+    assert "No space left on device" in line, line
+    assert out.read_text() == "the older model" and (tmp_path / "rep" / "report.md").read_text() == "the older report"
+    assert not (tmp_path / "run.mcap").exists()
+    assert not [f for f in tmp_path.rglob("*") if "partial" in f.name]
+
+
+def _generator_main():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("make_hidden_effect_data", Path(__file__).resolve().parents[1] /
+                                                  "scripts" / "make_hidden_effect_data.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod.main
+
+
+@pytest.mark.parametrize("argv, match", [
+    (["--duration", "-5"], "duration must be in"), (["--duration", "nan"], "duration must be in"),
+    (["--magnitude", "nan"], "magnitude must be in"), (["--seed", "-1"], "seed must be an integer"),
+])
+def test_the_hidden_effect_generator_refuses_bad_values_in_one_line(tmp_path, capsys, argv, match):
+    from franka_vs_gym.validation.hidden import make_hidden_effect_log
+
+    out = tmp_path / "h.csv"
+    out.write_text("an older log")
+    rc = _generator_main()(["--effect", "payload", "-o", str(out), "--force", *argv])
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert rc == 2 and len(lines) == 1 and match in lines[0] and "Traceback" not in err, err
+    assert out.read_text() == "an older log" and sorted(f.name for f in tmp_path.iterdir()) == ["h.csv"]
+    kw = {"--duration": "duration", "--magnitude": "magnitude"}
+    if argv[0] in kw:  # the API says the same
+        with pytest.raises(ValueError, match=match):
+            make_hidden_effect_log("payload", **{kw[argv[0]]: float(argv[1])})

@@ -587,8 +587,9 @@ def read_csv_dump(path: Path, first_line: str) -> tuple[dict[str, np.ndarray], d
             head = first_line.rstrip("\r\n").split(delim)
             c = max(range(len(cells)), key=lambda k: len(cells[k])) if cells else 0
             col = f", column {head[c].strip()!r}" if c < len(head) else ""
-            raise ValueError(f"{path}: line {reader.line_num}{col}: {e} (a value of {len(cells[c]) if cells else 0} "
-                             "characters: a blob in the column or a corrupt file?)") from None
+            size = len(cells[c]) if cells else 0
+            raise ValueError(f"{path}: line {reader.line_num}{col}: a cell of over 128 KiB ({size} characters; {e}): "
+                             "a blob in the column or a corrupt file?") from None
     header = [h.strip() for h in rows[0]]
     body = rows[1:]
     if not body:
