@@ -253,28 +253,35 @@ def test_real_time_late_command_is_dropped():
 
 def test_serve_command_line():
     """`franka-vs serve` prints one ready line, serves a client, stops on SIGINT; bad input is one line, exit 2."""
+    import selectors
     import signal
 
+    # the limits below guard against a hang, they time nothing: each is minutes, as a start of the interpreter with
+    # MuJoCo and pinocchio can take tens of seconds on a loaded 2-core machine
+    hang = 300
     host = loopback_host(28)
     p = subprocess.Popen([sys.executable, "-m", "franka_vs_gym.cli", "serve", "--host", host, "--lockstep",
                           "--scene", "tag", "--no-camera"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
+        with selectors.DefaultSelector() as sel:
+            sel.register(p.stdout, selectors.EVENT_READ)
+            assert sel.select(timeout=hang), "the server printed no ready line"
         line = p.stdout.readline()
         assert "ready at " + host in line and "lock-step" in line
-        out = run_client(CLIENTS / "read_state.py", host)
+        out = run_client(CLIENTS / "read_state.py", host, timeout=hang)
         assert out["robot_mode"].endswith("Idle")
         r = subprocess.run([sys.executable, "-m", "franka_vs_gym.cli", "serve", "--host", host], capture_output=True,
-                           text=True, timeout=60)
+                           text=True, timeout=hang)
         assert r.returncode == 2 and "in use" in r.stderr, r.stderr  # a second server on the same address
     finally:
         p.send_signal(signal.SIGINT)
-        p.wait(timeout=20)
+        p.wait(timeout=hang)
     assert p.returncode == 0
     for args, msg in ((["--robot", "ur5"], "unknown robot"), (["--host", "10.255.255.1"], "cannot bind"),
                       (["--q0", "0", "0", "0", "0", "0", "0", "0"], "joint limits"),
                       (["--table", "-0.3"], "--table -0.3"), (["--table", "nan"], "--table nan")):
         r = subprocess.run([sys.executable, "-m", "franka_vs_gym.cli", "serve", *args], capture_output=True,
-                           text=True, timeout=60)
+                           text=True, timeout=hang)
         assert r.returncode == 2 and msg in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
 
 
