@@ -411,7 +411,26 @@ def test_disk_full_mid_write_of_the_model_keeps_the_older_model(fer_csv, tmp_pat
     assert sorted(f.name for f in tmp_path.iterdir()) == ["cal.json", "run.csv", "run.csv.json"]
 
 
-@pytest.mark.parametrize("where", ["html", "markdown", "mcap"])
+class _FillsUp:
+    """A file on a disk that fills after ``room`` bytes: the write that passes it raises ENOSPC."""
+
+    def __init__(self, fh, room: int) -> None:
+        self.fh, self.room = fh, room
+
+    def write(self, b) -> int:
+        import errno
+
+        n = len(memoryview(b).cast("B"))
+        if n > self.room:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        self.room -= n
+        return self.fh.write(b)
+
+    def __getattr__(self, name):
+        return getattr(self.fh, name)
+
+
+@pytest.mark.parametrize("where", ["html", "markdown", "mcap", "mcap_library"])
 def test_disk_full_during_the_report_is_one_line_and_loses_nothing(fer_csv, tmp_path, capsys, monkeypatch, where):
     import franka_vs_gym.validation.report as report
 
@@ -422,7 +441,14 @@ def test_disk_full_during_the_report_is_one_line_and_loses_nothing(fer_csv, tmp_
     (tmp_path / "rep" / "report.md").write_text("the older report")
     argv = ["fit", str(p), "--add", "torque_offset", "-o", str(out), "--force", "--quiet", "--report",
             str(tmp_path / "rep")]
-    if where == "mcap":  # the MCAP library says a failed write as a RuntimeError; the disk is full
+    if where == "mcap":  # the disk fills part way through the MCAP file
+        import builtins
+
+        import franka_vs_gym.validation.report.mcap as mcap
+
+        monkeypatch.setattr(mcap, "open", lambda *a, **k: _FillsUp(builtins.open(*a, **k), 100_000), raising=False)
+        argv += ["--mcap", str(tmp_path / "run.mcap")]
+    elif where == "mcap_library":  # the MCAP library says a failed write as a RuntimeError; the disk is full
         import os
 
         import foxglove

@@ -103,7 +103,8 @@ def write_mcap(path: str | Path, res, diagnosis=None, fit=None, summary: dict[st
                     [json.dumps(summary, default=_jsonable).encode()]))
 
     ctx = foxglove.Context()  # this file's own: channels of other writers (or a live server) see nothing
-    writer = foxglove.open_mcap(p, allow_overwrite=True, context=ctx, writer_options=MCAPWriteOptions(
+    sink = _Sink(open(p, "wb"), p)  # noqa: SIM115 - closed below, after the writer
+    writer = foxglove.open_mcap(sink, context=ctx, writer_options=MCAPWriteOptions(
         compression=MCAPCompression.Zstd, profile="", chunk_size=4 << 20))
     try:
         channels = []
@@ -130,15 +131,75 @@ def write_mcap(path: str | Path, res, diagnosis=None, fit=None, summary: dict[st
             meta["effects"] = ",".join(fit.effects)
         writer.write_metadata("franka_vs", meta)
         writer.close()
-    except RuntimeError as e:  # the MCAP library reports a failed write (a full disk...) as a RuntimeError
+    except RuntimeError as e:  # the MCAP library reports a failed write as a RuntimeError
         with contextlib.suppress(RuntimeError):
             writer.close()  # refuses once a write failed: the staged file is removed by the caller
-        raise _write_error(p, e) from None
+        sink.close()
+        raise sink.error or _write_error(p, e) from None
     except BaseException:
         with contextlib.suppress(RuntimeError):
             writer.close()
+        sink.close()
         raise
+    sink.close()
+    if sink.error is not None:  # e.g. ENOSPC: the file is incomplete; said once, by its path
+        raise sink.error
     return p
+
+
+class _Sink:
+    """The MCAP file as the writer sees it: the first OSError of a write (a full disk, a quota) is kept and from
+    then on the writer writes into nothing (its position kept as if the bytes had gone out), so that it finishes
+    without printing an error per message; the error is raised, with the file's path, once the writer is closed."""
+
+    def __init__(self, fh: Any, path: Path) -> None:
+        self.fh, self.path, self.error = fh, path, None
+        self.pos = self.size = 0
+
+    def _fail(self, e: OSError) -> None:
+        if self.error is None:
+            self.error = OSError(e.errno, e.strerror or str(e), str(self.path))
+
+    def write(self, b: Any) -> int:
+        n = len(memoryview(b).cast("B"))
+        if self.error is None:
+            try:
+                self.fh.write(b)
+            except OSError as e:
+                self._fail(e)
+        self.pos += n
+        self.size = max(self.size, self.pos)
+        return n
+
+    def seek(self, offset: int, whence: int = 0) -> int:
+        self.pos = offset if whence == 0 else self.pos + offset if whence == 1 else self.size + offset
+        if self.error is None:
+            try:
+                self.fh.seek(self.pos)
+            except OSError as e:
+                self._fail(e)
+        return self.pos
+
+    def tell(self) -> int:
+        return self.pos
+
+    def flush(self) -> None:
+        if self.error is None:
+            try:
+                self.fh.flush()
+            except OSError as e:
+                self._fail(e)
+
+    def close(self) -> None:
+        try:
+            self.flush()
+            if self.error is None:
+                os.fsync(self.fh.fileno())
+        except OSError as e:
+            self._fail(e)
+        finally:
+            with contextlib.suppress(OSError):
+                self.fh.close()
 
 
 def _write_error(p: Path, e: RuntimeError) -> OSError:
