@@ -283,14 +283,19 @@ def _check_excerpt(block: Block, work: Path, env: dict[str, str]) -> None:
 
 
 _SHARED_PATH = re.compile(r"\.\./shared/data/[\w.\-/]*[\w\-]")
+_SHARED_JOIN = re.compile(r"[\"']shared[\"']\s*/\s*[\"']data[\"']\s*/\s*[\"']([\w.\-]+)[\"']")  # "shared" / "data" / "x"
 
 
 def _missing_shared_data(block: Block) -> list[str]:
     """The ``../shared/data/...`` paths a block reads (its code, or the file it is an excerpt of) that are absent
     here, e.g. in a plain clone without the shared folder beside it."""
     text = _code(block)
-    if "excerpt" in block.opts and (ROOT / block.opts["excerpt"]).is_file():
-        text += "\n" + (ROOT / block.opts["excerpt"]).read_text()
+    files = [block.opts["excerpt"]] if "excerpt" in block.opts else []
+    files += re.findall(r"(?:examples|scripts)/[\w/]+\.py", text)  # a script the block runs may read the data
+    for f in files:
+        if (ROOT / f).is_file():
+            src = (ROOT / f).read_text()
+            text += "\n" + src + "\n" + "\n".join(f"../shared/data/{m}" for m in _SHARED_JOIN.findall(src))
     return [m for m in _SHARED_PATH.findall(text) if not (SHARED.parent / m[len("../"):]).exists()]
 
 
