@@ -283,7 +283,8 @@ def _check_excerpt(block: Block, work: Path, env: dict[str, str]) -> None:
 
 
 _SHARED_PATH = re.compile(r"\.\./shared/data/[\w.\-/]*[\w\-]")
-_SHARED_JOIN = re.compile(r"[\"']shared[\"']\s*/\s*[\"']data[\"']\s*/\s*[\"']([\w.\-]+)[\"']")  # "shared" / "data" / "x"
+# a path a script builds: "shared" / "data" / "gaz2019_traj1"
+_SHARED_JOIN = re.compile(r"[\"']shared[\"']\s*/\s*[\"']data[\"']\s*/\s*[\"']([\w.\-]+)[\"']")
 
 
 def _missing_shared_data(block: Block) -> list[str]:
