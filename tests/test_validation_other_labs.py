@@ -501,3 +501,18 @@ def test_the_hidden_effect_generator_refuses_bad_values_in_one_line(tmp_path, ca
     if argv[0] in kw:  # the API says the same
         with pytest.raises(ValueError, match=match):
             make_hidden_effect_log("payload", **{kw[argv[0]]: float(argv[1])})
+
+
+def test_excite_designs_for_the_robot_its_log_declares_in_words_and_robot_overrides(tmp_path, capsys):
+    from franka_vs_gym.model.description import FR3
+
+    p = save_log(_log(rate=250.0, n=2000, robot="fr3", q6=4.1), tmp_path / "fr3.csv")
+    Path(str(p) + ".json").write_text(json.dumps({"robot": "Franka Research 3", "tool": None}))
+    base = ["excite", "--effects", "payload", "--log", str(p), "--duration", "6", "--rest", "0.5", "--evaluations",
+            "2", "--time-budget", "30", "--quiet", "--json"]
+    rc, out, err = _cli(capsys, [*base, "-o", str(tmp_path / "a")])
+    assert rc == 0, err
+    assert json.loads(out)["limits"]["robot_limits"]["q_max_rad"] == list(FR3.limits.q_max)
+    rc, out, err = _cli(capsys, [*base, "-o", str(tmp_path / "b"), "--robot", "fer"])
+    assert rc == 0, err
+    assert json.loads(out)["limits"]["robot_limits"]["q_max_rad"] == list(FER.limits.q_max)

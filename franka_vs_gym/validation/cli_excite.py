@@ -142,6 +142,15 @@ def main(args: argparse.Namespace) -> int:
 
             progress(f"reading the reference log {args.log}", verbose)
             reference = as_processed(load_log(args.log, progress=verbose))
+            if args.robot is None and args.model is None:  # the robot the log declares (in words too), as compare
+                from franka_vs_gym.model.config import resolve_config
+                from franka_vs_gym.validation.compare import declared_robot
+
+                key, declared = declared_robot(reference.log)
+                if declared is not None and declared != cfg.robot.name:
+                    cfg = resolve_config(None, declared)
+                    progress(f"designing for the {declared.upper()}: the log's {key!r} says so (--robot overrides)",
+                             verbose)
         try:
             d = design_excitation(effects, separate=groups, duration=args.duration, config=cfg,
                                   criterion=args.criterion, rest=args.rest, fraction=args.fraction,
