@@ -516,3 +516,29 @@ def test_excite_designs_for_the_robot_its_log_declares_in_words_and_robot_overri
     rc, out, err = _cli(capsys, [*base, "-o", str(tmp_path / "b"), "--robot", "fer"])
     assert rc == 0, err
     assert json.loads(out)["limits"]["robot_limits"]["q_max_rad"] == list(FER.limits.q_max)
+
+
+def test_a_model_of_another_robot_than_declared_and_the_robot_flag_it_names(tmp_path, capsys):
+    """A log declared as the FR3 with a FER model file: one line saying to give a model of that robot or --robot to
+    override the log; --robot fer then compares the FER model with it."""
+    from franka_vs_gym.model.config import ModelConfig
+
+    p = save_log(_log(rate=250.0, n=2000, robot="fr3", q6=3.0), tmp_path / "fr3.csv")
+    Path(str(p) + ".json").write_text(json.dumps({"robot": "Franka Research 3", "tool": None}))
+    model = ModelConfig(robot="fer").save(tmp_path / "fer_model.json")
+    line = _one_line_error(capsys, ["compare", str(p), "--model", str(model), "--no-replay", "--quiet"])
+    assert "--robot to override the log" in line, line
+    rc, out, err = _cli(capsys, ["compare", str(p), "--model", str(model), "--no-replay", "--quiet", "--json",
+                                 "--robot", "fer"])
+    assert rc == 0 and json.loads(out)["assumptions"]["robot"] == "fer", err
+
+
+def test_an_existing_output_says_force_and_force_replaces_it(fer_csv, tmp_path, capsys):
+    p = _with_sidecar(fer_csv, tmp_path, {"robot": "fer", "tool": None})
+    out = tmp_path / "cal.json"
+    out.write_text("an older model")
+    argv = ["fit", str(p), "--add", "torque_offset", "-o", str(out), "--quiet"]
+    line = _one_line_error(capsys, argv)
+    assert "pass --force to replace it" in line and out.read_text() == "an older model", line
+    rc, _, err = _cli(capsys, [*argv, "--force"])
+    assert rc == 0 and json.loads(out.read_text())["robot"] == "fer", err
