@@ -219,6 +219,23 @@ def test_common_time_columns_are_read_with_their_unit_stated(tmp_path, tname, sc
     assert f"time from {tname!r} in {unit}" in back.extra["read_as"], back.extra["read_as"]
 
 
+@pytest.mark.parametrize("sec, nsec", [("header.stamp.sec", "header.stamp.nanosec"),
+                                       ("field.header.stamp.secs", "field.header.stamp.nsecs")])
+def test_a_stamp_in_two_columns_is_one_time(tmp_path, sec, nsec):
+    """ROS 2's builtin_interfaces/Time (sec, nanosec) and ROS 1's (secs, nsecs) as two columns of integers."""
+    log = _log(n=300, rate=30.0)
+    ns = 1692348750 * 10**9 + np.round(log.time * 1e9).astype(np.int64)
+    text = _table(log, "x", 1.0, 0.0).splitlines()
+    rows = [f"{sec},{nsec}," + text[0].split(",", 1)[1]]
+    rows += [f"{v // 10**9},{v % 10**9}," + line.split(",", 1)[1] for v, line in zip(ns.tolist(), text[1:],
+                                                                                      strict=True)]
+    p = tmp_path / "split.csv"
+    p.write_text("\n".join(rows) + "\n")
+    back = load_log(p)
+    np.testing.assert_allclose(back.time, log.time, atol=1e-6)
+    assert f"time from '{sec} + {nsec}' in nanoseconds" in back.extra["read_as"], back.extra["read_as"]
+
+
 def test_a_time_in_microseconds_must_say_so_in_its_name(tmp_path):
     log = _log(n=400)
     p = tmp_path / "us.csv"

@@ -300,6 +300,7 @@ def table_to_fields(cols: dict[str, np.ndarray], where: str, kind: str) -> tuple
     found = sorted(groups)
     notes: list[str] = []
     _joint_state_columns(groups, where, notes)
+    _split_stamp(groups, where)
     times = [(k, g) for name in TIME_NAMES for k, g in groups.items() if k.lower() == name and None in g]
     if not times:
         raise ValueError(f"{where}: no time field (looked for 'time' or 'robot_time', in s or ms); also looked for "
@@ -370,6 +371,24 @@ def table_to_fields(cols: dict[str, np.ndarray], where: str, kind: str) -> tuple
 
 
 _WHAT = {"q": "joint positions", "dq": "joint velocities", "tau_J": "measured joint torques"}
+
+
+#: a stamp written as two columns: ROS 2's builtin_interfaces/Time (sec, nanosec), ROS 1's time (secs, nsecs)
+_STAMP_PARTS = (("sec", "nanosec"), ("secs", "nsecs"))
+
+
+def _split_stamp(groups: dict[str, dict[int | None, tuple[str, Any]]], where: str) -> None:
+    """``header.stamp.sec`` + ``header.stamp.nanosec`` (or ``secs`` + ``nsecs``) -> one ``stamp`` column in ns,
+    named after both (when no column is a stamp already). Changes ``groups`` in place."""
+    if any(k.lower() == "stamp" for k in groups):
+        return
+    for s_name, ns_name in _STAMP_PARTS:
+        a, b = groups.get(s_name, {}).get(None), groups.get(ns_name, {}).get(None)
+        if a is not None and b is not None:
+            sec, nsec = _floats(a[1], a[0], where), _floats(b[1], b[0], where)
+            if sec.shape == nsec.shape and sec.ndim == 1:
+                groups["stamp"] = {None: (f"{a[0]} + {b[0]}", sec * 1e9 + nsec)}
+                return
 
 
 def _names_of(g: dict[int | None, tuple[str, Any]]) -> list[str]:
@@ -563,7 +582,7 @@ def _ticks_to_columns(ticks: list[Any], where: str) -> dict[str, Any]:
 def _wanted(base: str) -> bool:
     """Whether a column of this base name is read (joint fields, time, the declared tool, a JointState's fields)."""
     return (base in JOINT_FIELDS or base.lower() in TIME_NAMES or base in TOOL_FIELDS or base in JOINT_STATE_FIELDS
-            or base == "name")
+            or base == "name" or any(base in pair for pair in _STAMP_PARTS))
 
 
 def read_csv_dump(path: Path, first_line: str) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
