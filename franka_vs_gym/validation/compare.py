@@ -282,8 +282,46 @@ class _SteadyEq2:
         return tau + self.m.friction(dq) if self.friction else tau
 
 
+#: the replay's plant step: about this (s), a whole number of plant steps per log sample; the control laws' gains
+#: (eq. (2): 400-900 s^-2) are made for the robot's 1 ms cycle
+PLANT_DT = 1e-3
+PLANT_DT_SLACK = 0.05  # a log sample period up to 5 % above PLANT_DT is one plant step (a 974 Hz log: 1.03 ms)
+
+
+def plant_substeps(dt: float) -> int:
+    """Plant steps per log sample of period ``dt`` (s): the fewest that keep the plant's step within
+    :data:`PLANT_DT_SLACK` of :data:`PLANT_DT` (1 for a 1 kHz log, 10 at 100 Hz, 34 steps of 0.98 ms at 30 Hz)."""
+    return max(1, int(math.ceil(dt / PLANT_DT - PLANT_DT_SLACK)))
+
+
+def hermite_segment(h: float, s: np.ndarray, p0: np.ndarray, v0: np.ndarray, a0: np.ndarray, p1: np.ndarray,
+                    v1: np.ndarray, a1: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The quintic Hermite curve between two samples ``h`` seconds apart that passes through their positions with
+    their velocities and accelerations, at the fractions ``s`` (m,) of the interval: position, velocity and
+    acceleration, each (m, 7). Between samples of a slow log the replay's reference follows it: its position,
+    velocity and acceleration agree with each other and with the log at every sample."""
+    P = p1 - p0
+    V0, V1, A0, A1 = h * v0, h * v1, h * h * a0, h * h * a1
+    c = np.stack([p0, V0, 0.5 * A0,
+                  10 * P - 6 * V0 - 4 * V1 - 0.5 * (3 * A0 - A1),
+                  -15 * P + 8 * V0 + 7 * V1 + 0.5 * (3 * A0 - 2 * A1),
+                  6 * P - 3 * (V0 + V1) - 0.5 * (A0 - A1)])  # (6, 7) polynomial coefficients in s
+    s = np.asarray(s, dtype=float)[:, None]
+    pos = c[0] + s * (c[1] + s * (c[2] + s * (c[3] + s * (c[4] + s * c[5]))))
+    vel = c[1] + s * (2 * c[2] + s * (3 * c[3] + s * (4 * c[4] + s * 5 * c[5])))
+    acc = 2 * c[2] + s * (6 * c[3] + s * (12 * c[4] + s * 20 * c[5]))
+    return pos, vel / h, acc / (h * h)
+
+
 def replay(data: ProcessedLog, config: ModelConfig, mode: str | None = None) -> ReplayResult:
-    """Re-run the logged experiment in the MuJoCo plant built from ``config`` (see the module docstring)."""
+    """Re-run the logged experiment in the MuJoCo plant built from ``config`` (see the module docstring).
+
+    The plant runs at the robot's own cycle whatever the log's rate: :func:`plant_substeps` steps of about 1 ms per
+    log sample (a 30 Hz log: 34 steps of 0.98 ms). Between samples the references (the measured motion in
+    ``tracking`` mode, the logged desired motion in ``controller`` mode) follow :func:`hermite_segment` through the
+    samples' positions, velocities and accelerations, and logged commands (``torque`` mode) are interpolated
+    linearly. The simulated torque and position are taken at the log's samples (the torque of the plant step that
+    starts there) and compared with the log there. A 1 kHz log is replayed one plant step per sample, as before."""
     from franka_vs_gym.control.computed_torque import ComputedTorque
     from franka_vs_gym.model.franka_model import FrankaModel
     from franka_vs_gym.sim.reflexes import ControlException
@@ -317,7 +355,8 @@ def replay(data: ProcessedLog, config: ModelConfig, mode: str | None = None) -> 
         from dataclasses import replace as _replace
 
         plant_config = plant_config.copy(robot=_replace(config.robot, rotor_inertia=tuple(float(v) for v in rotor)))
-    sim = FrankaSim(model=plant_config, camera=False, table=False, timestep=data.dt,
+    n_sub = plant_substeps(data.dt)
+    sim = FrankaSim(model=plant_config, camera=False, table=False, timestep=data.dt / n_sub,
                     undeclared_payload=config.payload, rotor_inertia=rotor is not None)
     lim_lo, lim_hi = sim.q_min + 1e-6, sim.q_max - 1e-6
     start = 0
@@ -354,17 +393,30 @@ def replay(data: ProcessedLog, config: ModelConfig, mode: str | None = None) -> 
     stop: dict[str, Any] | None = None
     t = data.time
     k = start
+    frac = np.arange(n_sub) / n_sub  # the plant steps' starts within a log sample's interval
     try:
         for k in range(start, n):
-            q, dq = sim.get_position(), sim.get_velocity()
-            q_sim[k] = q
+            last = k == n - 1 or n_sub == 1
             if mode == "torque":
-                cmd = opt["tau_J_d"][k]
+                cmds = (opt["tau_J_d"][k][None] if last else
+                        opt["tau_J_d"][k] + frac[:, None] * (opt["tau_J_d"][k + 1] - opt["tau_J_d"][k]))
+            elif last:
+                ref = (qd[k][None], dqd[k][None], ddqd[k][None])
             else:
-                cmd = law(float(t[k]), q, dq, qd[k], dqd[k], ddqd[k])
-            sim.set_force_torque(JOINT_STATE, cmd)
-            sim.step()
-            tau_sim[k] = sim.get_force_torque()
+                ref = hermite_segment(float(t[k + 1] - t[k]), frac, qd[k], dqd[k], ddqd[k], qd[k + 1], dqd[k + 1],
+                                      ddqd[k + 1])
+            for i in range(1 if last else n_sub):
+                q, dq = sim.get_position(), sim.get_velocity()
+                if i == 0:
+                    q_sim[k] = q
+                if mode == "torque":
+                    cmd = cmds[i]
+                else:
+                    cmd = law(float(t[k]) + frac[i] * data.dt, q, dq, ref[0][i], ref[1][i], ref[2][i])
+                sim.set_force_torque(JOINT_STATE, cmd)
+                sim.step()
+                if i == 0:
+                    tau_sim[k] = sim.get_force_torque()
     except (SimulationDiverged, ControlException, ValueError) as e:
         # diverged, a reflex aborted the motion (as libfranka would), or the plant refused a state or command (e.g.
         # outside the joint limits): reported with the mode, time and joint, the samples before kept
@@ -382,9 +434,10 @@ def replay(data: ProcessedLog, config: ModelConfig, mode: str | None = None) -> 
         tau_sim[start:] = shift(tau_sim[start:], t[start:], measured_lag)
     ok = np.isfinite(q_sim[:, 0]) & np.isfinite(tau_sim[:, 0])
     if not ok.any():  # stopped at its first sample: nothing to compare
-        return ReplayResult(mode, np.full(7, np.nan), np.full(7, np.nan), q_sim, tau_sim, diverged, stop)
+        return ReplayResult(mode, np.full(7, np.nan), np.full(7, np.nan), q_sim, tau_sim, diverged, stop,
+                            plant_dt=sim.dt)
     return ReplayResult(mode, rmse(q_sim[ok] - data.q[ok]), rmse(tau_sim[ok] - data.tau[ok]), q_sim, tau_sim,
-                        diverged, stop)
+                        diverged, stop, plant_dt=sim.dt)
 
 
 def replay_with_fallback(data: ProcessedLog, config: ModelConfig, mode: str | None = None) -> ReplayResult:

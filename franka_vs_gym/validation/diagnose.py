@@ -603,7 +603,17 @@ class _Selector:
             if won == list(c.joints):
                 out.append(c)
                 continue
+            lost = []
+            for j in c.joints:
+                if j in won:
+                    continue
+                o = max((o for o in single if o is not c and j in o.joints), key=lambda o: o.joint_scores[j])
+                lost.append(f"joint {j} to {o.effect} ({o.joint_scores[j]:.1f} vs {c.joint_scores[j]:.1f})")
+            lost_s = (f"score {c.score:.1f}, but on each joint it was fitted on another law has at least "
+                      f"{AMBIGUOUS:g} more held-out evidence: {', '.join(lost)}")
             if not won:
+                self.rejections.setdefault(c.effect, lost_s)
+                progress(f"{c.effect} waits: {lost_s}", self.verbose)
                 continue
             t = c.terms[0]
             e = t.effect
@@ -611,9 +621,22 @@ class _Selector:
             gain = self._gain(cur.mse_cv, sf.mse_cv, neff)
             score = float(gain[won].sum() - e.n_params * np.log(neff[won]).sum())
             removed = np.sqrt(np.maximum(cur.mse_cv - sf.mse_cv, 0.0))
+            why = None
             if score <= SCORE_MIN or not np.any(removed[won] >= PRACTICAL * self.noise[won]):
-                continue
-            if e.problems(self.ctx, sf.fits[-1]):
+                why = (f"score {c.score:.1f} on joints {list(c.joints)}; it loses {', '.join(lost)}; on the joints "
+                       f"it keeps ({won}) it scores {score:.1f} with the present residual's effective samples "
+                       f"({', '.join(f'{neff[j]:.0f}' for j in won)}) and removes at most "
+                       f"{float(np.max(removed[won])):.3f} Nm (needs > {SCORE_MIN:g} and "
+                       f"{PRACTICAL:g} x the noise floor)")
+            else:
+                bad = e.problems(self.ctx, sf.fits[-1])
+                if bad:
+                    why = (f"score {c.score:.1f} on joints {list(c.joints)}; it loses {', '.join(lost)}; on the "
+                           f"joints it keeps ({won}) its values are implausible: "
+                           + "; ".join(m for _, m in sorted(bad.items())))
+            if why is not None:
+                self.rejections.setdefault(c.effect, why)
+                progress(f"{c.effect} waits: {why}", self.verbose)
                 continue
             after = np.sqrt(cur.mse_cv.copy())
             after[won] = np.sqrt(sf.mse_cv[won])
@@ -1289,8 +1312,8 @@ def _apply_fits(cfg: ModelConfig, ctx: Context, members: list[Effect],
                     continue
                 msgs.append(f"not applied: {err}")
                 break
-            except NotApplicable as err:
-                msgs.append(f"not applied: {err}")
+            except (NotApplicable, ValueError) as err:  # e.g. a gravity whose norm is not Earth's
+                msgs.append(f"not applied: {' '.join(str(err).split())}")
                 break
         applied[i] = f if out is not None else None
         if out is not None:
@@ -1306,10 +1329,18 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
     """Fit ``effects`` (names, or ["auto"] for the diagnosis' selection) and apply them to the model configuration
     (model and plant), then re-compare.
 
-    Held-out validation (default, ``holdout`` = 0.25): the effects are first fitted on the first 75% of the log and
-    the RMSE of the full calibrated model is measured on the last 25%; an effect whose removal does not raise that
-    held-out RMSE is dropped (``dropped`` says which). The kept effects are then fitted on the whole log (with the
-    non-linear refinements) for the final model. ``holdout=None`` skips the check."""
+    ``["auto"]`` fits what :func:`diagnose` selects on the same data with the same model, robot and tool (the
+    effects, their joints and the delay's channel): one selection, the one ``franka-vs diagnose`` shows. The held-out
+    check is reported beside the fit and does not change that set: an effect whose removal does not raise the
+    held-out RMSE is named in ``holdout["no_gain"]`` and in the notes, and kept (``dropped``, ``added`` and
+    ``joints_added`` stay empty). An effect the fit cannot keep (the
+    model cannot take it, e.g. a gravity whose norm is not Earth's once fitted on the whole log) is dropped with its
+    reason in the notes, and the others are fitted again without it.
+
+    Named effects: held-out validation (default, ``holdout`` = 0.25): the effects are first fitted on the first 75%
+    of the log and the RMSE of the full calibrated model is measured on the last 25%; an effect whose removal does
+    not raise that held-out RMSE is dropped (``dropped`` says which). The kept effects are then fitted on the whole
+    log (with the non-linear refinements) for the final model. ``holdout=None`` skips the check."""
     from franka_vs_gym.validation.structure import assumptions_of
 
     data = as_processed(log, settings)
@@ -1317,11 +1348,16 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
     joints_of: dict[str, list[int]] = {}
     fit_notes: dict[str, str] = {}  # effect -> what was constrained, left out or not applied, and why
     auto = [e.strip() for e in effects] == ["auto"]
+    command_channel = False
     if auto:
-        d = diagnose(data, cfg, verbose=verbose, robot=cfg.robot)  # the robot settled above (--robot or the log)
+        # the diagnosis as `franka-vs diagnose` makes it on the same data: its selection is the set fitted (the
+        # robot settled above: --robot, or the log's declaration)
+        d = diagnose(data, model, rigid_body=rigid_body, tool=tool, robot=cfg.robot, verbose=verbose)
+        cfg = d.config
         names = d.selected
         ctx = d.context
         joints_of = {s.effect: s.joints for s in d.selection if s.channel != "command"}
+        command_channel = any(s.effect == "delay" and s.channel == "command" for s in d.selection)
         progress(f"auto: selected {names or 'nothing (verdict none)'}", verbose)
         for n in names:  # named by the diagnosis but not writable into a model: said, not handed to the fit
             e = get_effect(n)
@@ -1346,7 +1382,10 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
     noise = data.noise
     fl = _folds(ctx.n, FOLDS)
     command_fit = None
-    if "delay" in names and ctx.cmd_residual is not None:
+    if auto and command_channel and ctx.cmd_residual is not None:  # the channel the diagnosis named
+        command_fit = COMMAND_DELAY.fit(ctx, ctx.cmd_residual, np.arange(ctx.n))
+        names = [n for n in names if n != "delay"]
+    elif not auto and "delay" in names and ctx.cmd_residual is not None:
         progress("delay: choosing the channel (measured torque vs motion, or vs command)", verbose)
         eng = Engine(ctx, y, fl)
         sel = _Selector(ctx, eng, noise, [get_effect("delay")], False)
@@ -1387,7 +1426,18 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
                  f"last {100 * holdout:.0f}%", verbose)
         base_h = rmse(y[test])
         full_h = heldout_rmse(spec)
-        changed = True
+        no_gain: list[str] = []
+        for i, (e, _) in enumerate(spec if auto else []):  # reported beside the fit; the set stays the diagnosis'
+            rest = spec[:i] + spec[i + 1:]
+            h = heldout_rmse(rest) if rest else base_h
+            if float(np.sum(h ** 2)) <= float(np.sum(full_h ** 2)):
+                no_gain.append(e.name)
+                why = (f"held-out check: the last {100 * holdout:.0f}% of the log has a total RMSE of "
+                       f"{float(rmse(h)):.4f} Nm without it, {float(rmse(full_h)):.4f} Nm with it (fitted on the "
+                       "first part): it does not lower the held-out error; kept, as the diagnosis selected it")
+                fit_notes[e.name] = f"{fit_notes[e.name]}; {why}" if e.name in fit_notes else why
+                progress(f"{e.name}: {why}", verbose)
+        changed = not auto
         while changed and spec:
             changed = False
             for i, (e, _) in enumerate(spec):
@@ -1398,58 +1448,8 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
                     dropped.append(e.name)
                     spec, full_h, changed = rest, h, True
                     break
-        added: list[str] = []
-        if auto:
-            # with 'auto', effects the diagnosis left out may still lower the held-out error of the fitted model
-            # (the diagnosis is conservative when unexplained structure remains): try each, keep the best while
-            # it lowers the held-out mean squared error by more than 2%
-            for _ in range(2):
-                best = None
-                for e in REGISTRY.values():
-                    if any(e is m for m, _ in spec) or type(e).apply is Effect.apply or e.name in dropped:
-                        continue
-                    if e.name == "asymmetric_friction" and cfg.friction.phi1.any():
-                        continue
-                    js = None
-                    if e.per_joint:
-                        eng = Engine(ctx, y, fl)
-                        sel = _Selector(ctx, eng, noise, [e], False)
-                        cur0 = eng.fit([])
-                        c = sel.try_add([], cur0, sel._neff(cur0), e)
-                        js = c.joints or [j for j in range(7) if c.joint_scores[j] > 0]
-                        if not js:
-                            continue
-                    try:
-                        h = heldout_rmse(spec + [(e, js)])
-                    except (NotApplicable, ValueError):
-                        continue
-                    if np.any(h > 1.02 * full_h):  # an addition must not make any joint worse
-                        continue
-                    if best is None or np.sum(h ** 2) < best[0]:
-                        best = (float(np.sum(h ** 2)), e, js, h)
-                if best is None or best[0] >= 0.98 * float(np.sum(full_h ** 2)):
-                    break
-                progress(f"held-out check: adding {best[1].name} lowers the held-out RMSE", verbose)
-                spec.append((best[1], best[2]))
-                full_h = best[3]
-                added.append(best[1].name)
+        added: list[str] = []  # the held-out check adds no effect and no joint (named effects and 'auto' alike)
         widened: dict[str, list[int]] = {}
-        if auto:
-            # joints a per-joint effect left out (weak evidence where unexplained structure remains) are added
-            # when they lower that joint's held-out error by more than 1% without raising any other's
-            for i in range(len(spec)):
-                e, js = spec[i]
-                if not e.per_joint or js is None:
-                    continue
-                for j in range(7):
-                    if j in spec[i][1]:
-                        continue
-                    trial = spec[:i] + [(e, sorted(spec[i][1] + [j]))] + spec[i + 1:]
-                    h = heldout_rmse(trial)
-                    if h[j] < 0.99 * full_h[j] and np.all(h <= 1.02 * full_h):
-                        spec, full_h = trial, h
-                        widened.setdefault(e.name, []).append(j)
-                        progress(f"held-out check: {e.name} also on joint {j}", verbose)
         holdout_info = {"split": f"time split: fit on the first {100 * (1 - holdout):.0f}% "
                                  f"({len(train) / data.settings.rate:.1f} s), validate on the last "
                                  f"{100 * holdout:.0f}% ({len(test) / data.settings.rate:.1f} s)",
@@ -1457,7 +1457,7 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
                         "rmse_tau_after": np.round(full_h, 4).tolist(),
                         "rmse_tau_total_before": round(float(rmse(base_h)), 4),
                         "rmse_tau_total_after": round(float(rmse(full_h)), 4), "dropped": dropped,
-                        "added": added, "joints_added": widened}
+                        "added": added, "joints_added": widened, "no_gain": no_gain}
         members = [e for e, _ in spec]
         names = [e.name for e in members]
     progress(f"fitting {names} on all samples", verbose)

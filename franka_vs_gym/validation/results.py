@@ -43,6 +43,8 @@ class ReplayResult:
     stop: dict[str, Any] | None = None
     #: the replays tried before this one that could not run (each a ``stop`` record); this one is the fallback
     fallback_from: list[dict[str, Any]] = field(default_factory=list)
+    #: the plant's step (s): at most 1 ms, a whole number of steps per log sample (None: not recorded)
+    plant_dt: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         def clean_list(a: np.ndarray, nd: int) -> list:
@@ -52,7 +54,8 @@ class ReplayResult:
         return {"mode": self.mode, "rmse_q": clean_list(self.rmse_q, 6), "rmse_tau": clean_list(self.rmse_tau, 4),
                 "rmse_q_total": tot_q if np.isfinite(tot_q) else None,
                 "rmse_tau_total": tot_tau if np.isfinite(tot_tau) else None, "diverged": self.diverged,
-                "stop": self.stop, "fallback_from": self.fallback_from, "status": self.status()}
+                "stop": self.stop, "fallback_from": self.fallback_from, "status": self.status(),
+                "plant_dt_s": None if self.plant_dt is None else round(float(self.plant_dt), 7)}
 
     def status(self) -> str:
         """One line: what was replayed, and which replays could not run and why."""
