@@ -146,10 +146,16 @@ class NoiseModel:
         Gaussian prior of variance 1/ridge on each parameter (0: none)."""
         yk = self.dft(y)
         if columns is None or np.asarray(columns).shape[-1] == 0:
-            return GLSFit(np.zeros(0), np.zeros((0, 0)), self.loglik(yk), yk, len(self.bins))
-        ak = self.dft(columns)
-        if ak.ndim != 3 or ak.shape[1] != 7:
+            return self.fit_dft(None, yk)
+        if np.ndim(columns) != 3 or np.shape(columns)[1] != 7:
             raise ValueError(f"columns must have shape (N, 7, p), got {np.shape(columns)}")
+        return self.fit_dft(self.dft(columns), yk, ridge)
+
+    def fit_dft(self, ak: np.ndarray | None, yk: np.ndarray, ridge: float = 0.0) -> GLSFit:
+        """:meth:`fit` from the transforms (:meth:`dft`) of the columns (K, 7, p) and of ``y`` (K, 7): a search over
+        many column sets transforms each column once."""
+        if ak is None or ak.shape[-1] == 0:
+            return GLSFit(np.zeros(0), np.zeros((0, 0)), self.loglik(yk), yk, len(self.bins))
         c = np.where(self.real, 1.0, 2.0)[:, None, None]
         wa = self.W @ ak  # (K, 7, p)
         info = np.sum(c * np.real(np.conj(ak).transpose(0, 2, 1) @ wa), axis=0)
