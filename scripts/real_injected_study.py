@@ -1,22 +1,13 @@
 #!/usr/bin/env python
-"""Score ``diagnose`` on a real FER recording with a known effect added (franka_vs_gym.validation.injected): the
-Gaz et al. 2019 log (exciting trajectory 1, ../shared/data/gaz2019_traj1) at its own ~1 kHz and as every 10th and
-every 33rd row (100 Hz and 30 Hz, as a ROS recording gives). Each injected copy is scored as the *difference* from
-the untouched copy's answer at the same rate:
-
-- library effects: **right** when the effect is named on the joints it touches (an accepted law: a Coulomb step may
-  be named Coulomb, sigmoid or asymmetric friction; for an effect the untouched copy already names, its fitted
-  change must match: a tilt within 50 % of the injected change of the gravity vector, a payload's mass within
-  50 %) and nothing else new is named; **flagged** when it is not, but the answer says so on a touched joint
-  (``ambiguous`` with an accepted candidate, a new unexplained finding, a reported model change);
-  **confident wrong** otherwise when something wrong or nothing was said.
-- outside effects: **flagged** (the right answer) when a touched joint gets a new unexplained finding, an ambiguity
-  or (a grasp) a model change; **right** for a grasp when the change is reported within 1 s with a payload and the
-  effects of the untouched copy are still named; **confident wrong** when a library effect is newly named on a
-  touched joint with nothing flagged; **missed** when nothing changed.
-- a law newly named on a joint where the answer also says it is ambiguous with another (``ambiguous`` listing it
-  on that joint) is not counted as a confident name.
-- ``others``: cases whose answer changed on joints the effect does not touch (laws named or dropped there).
+"""Score ``diagnose`` on real recordings with a known effect added (franka_vs_gym.validation.injected): the
+Gaz et al. 2019 log (exciting trajectory 1, ../shared/data/gaz2019_traj1) at its own ~1 kHz and as every 10th, 20th
+and 33rd row (100, 50 and 30 Hz, as a ROS recording gives); ``--source fr3``: the tuning FR3 teleoperation run (FR3,
+Franka Hand on; 1 kHz, 100 Hz, 30 Hz); ``--source ros1``: the first half by time of the 30 Hz ROS 1 bag (FER, hand
+on; slow, so only its static kinds). The recordings and their rates are those of the evaluation split
+(scripts/evaluation_split.json); their locked twins are scored only by scripts/evaluation.py. Each injected copy is
+scored as the *difference* from the untouched copy's answer at the same rate, in the evaluation's words
+(franka_vs_gym.validation.scoring: right, ambiguous, confident wrong, flagged, missed); ``others``: cases whose
+answer changed on joints the effect does not touch (laws named or dropped there).
 
 A second source (``--source serve``): recordings made through ``franka-vs serve --lockstep --record`` by a real
 client, the pylibfranka script ``franka-vs excite`` writes (the payload + viscous compound also by its franky
@@ -50,136 +41,66 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from franka_vs_gym.io import atomic_write  # noqa: E402
+from franka_vs_gym.model.config import ModelConfig, Tool  # noqa: E402
+from franka_vs_gym.model.description import robot_description  # noqa: E402
 from franka_vs_gym.validation.diagnose import diagnose  # noqa: E402
 from franka_vs_gym.validation.injected import KINDS, LIBRARY_KINDS, every_kth, inject, truth_effects  # noqa: E402
-from franka_vs_gym.validation.logs import load_log  # noqa: E402
+from franka_vs_gym.validation.logs import MeasurementLog, load_log  # noqa: E402
+from franka_vs_gym.validation.scoring import OUTCOMES, named, score_case  # noqa: E402
 from franka_vs_gym.validation.signals import clean  # noqa: E402
 
-GAZ = ROOT.parent / "shared" / "data" / "gaz2019_traj1"
+SHARED_DATA = ROOT.parent / "shared" / "data"
+GAZ = SHARED_DATA / "gaz2019_traj1"
+SPLIT = Path(__file__).resolve().parent / "evaluation_split.json"
 RATES = {"1 kHz": 1, "100 Hz": 10, "50 Hz": 20, "30 Hz": 33}  # (50 Hz: by name in --rates)
-STEP = {"coulomb_friction", "sigmoid_friction", "asymmetric_friction", "stribeck_friction"}
-ACCEPT = {"payload": {"payload"}, "gravity_tilt": {"gravity_tilt"}, "torque_offset": {"torque_offset"},
-          "viscous_friction": {"viscous_friction"}, "coulomb_friction": STEP, "armature": {"armature"},
-          "delay": {"delay"}}
-SHARED = {"payload", "gravity_tilt", "delay", "link_inertials", "link_mass"}
 SERVE_KINDS = ("payload", "tilt", "offset", "viscous", "coulomb", "armature", "delay", "payload+viscous")
 FRANKY_KINDS = {"payload+viscous"}  # played by the franky script (the others by the pylibfranka script)
 
 
-def canon(name: str) -> str:
-    """The step-friction laws (Coulomb, sigmoid, asymmetric, Stribeck) are one family: a real joint's friction
-    differs from the model's and the log decides which of them fits it best, so a change among them on a joint
-    is not a new name."""
-    return "step_friction" if name in STEP else name
+def read_log(path: Path) -> MeasurementLog:
+    """A recording read through the workbench's own reader (:func:`load_log`). A CSV whose time column is named
+    ``t`` (the FR3 teleoperation runs) is read through the same reader from a temporary copy with that column named
+    ``time``, while the reader does not know the name ``t``."""
+    try:
+        return load_log(path)
+    except ValueError as e:
+        header = path.read_text().split("\n", 1)[0].split(",") if path.suffix == ".csv" else []
+        if "no time field" not in str(e) or "t" not in [c.strip() for c in header]:
+            raise
+    with tempfile.TemporaryDirectory(prefix="real_injected_") as tmp:
+        head, rest = path.read_text().split("\n", 1)
+        copy = Path(tmp) / path.name
+        copy.write_text(",".join("time" if c.strip() == "t" else c for c in head.split(",")) + "\n" + rest)
+        log = load_log(copy)
+    log.source = str(path)
+    return log
 
 
-def named(d, raw: bool = False) -> dict[str, set[int]]:
-    """Effect name (family) -> joints (shared effects: every joint, the name is what counts)."""
-    out: dict[str, set[int]] = {}
-    for s in d.selection:
-        n = s.effect if raw else canon(s.effect)
-        out.setdefault(n, set()).update(set(range(7)) if s.effect in SHARED else set(s.joints))
-    return out
+def read_recording(spec: dict, data: Path = SHARED_DATA) -> tuple[MeasurementLog, ModelConfig, dict]:
+    """One recording of the evaluation split (scripts/evaluation_split.json): the log (its ``half`` by time if
+    given), the model the injected effects change (the recording's robot and tool, the log's gravity) and the
+    keywords ``diagnose`` is called with (the same robot and tool)."""
+    log = read_log(Path(data) / spec["path"])
+    if spec.get("half"):
+        i = int(np.searchsorted(log.time, log.time[0] + 0.5 * log.duration))
+        log = log.slice(0, i) if spec["half"] == "first" else log.slice(i, log.n)
+    robot = robot_description(spec.get("robot", "fer"))
+    tool = spec.get("tool", "none")
+    cfg = ModelConfig(robot=robot, tool=Tool.franka_hand() if tool == "franka_hand" else Tool.none(),
+                      gravity=log.gravity)
+    return log, cfg, {"tool": tool, "robot": robot.name}
 
 
-def params(d, name):
-    return next((s.params for s in d.selection if s.effect == name), None)
-
-
-def flagged_joints(base, d) -> set[int]:
-    """Joints the injected copy's answer flags that the untouched copy's did not: unexplained findings (beyond
-    the untouched ones on that joint), ambiguities, lack-of-fit."""
-    def findings(x):
-        out = {}
-        if x.unexplained is not None:
-            for f in x.unexplained.findings:
-                out[f.joint] = max(out.get(f.joint, 0.0), f.removed_rms)
-        return out
-
-    fb, fd = findings(base), findings(d)
-    noise = d.noise_floor
-    out = {j for j, r in fd.items() if r > fb.get(j, 0.0) + 0.25 * noise[j]}
-    old = {(tuple(a.candidates), j) for a in getattr(base, "ambiguous", []) or [] for j in a.joints}
-    for a in getattr(d, "ambiguous", []) or []:
-        out |= {j for j in a.joints if (tuple(a.candidates), j) not in old}
-    return out
-
-
-def ambiguous_with(d, accepted: set[str], joints: set[int]) -> bool:
-    for a in getattr(d, "ambiguous", []) or []:  # an ambiguity naming an accepted law on a touched joint
-        if set(a.candidates) & accepted and (set(a.joints) & joints or not a.joints):
-            return True
-    return False
-
-
-def score_case(base, d, truth: list[dict]) -> dict:
-    nb, nd = named(base), named(d)
-    touched = set().union(*[set(t["joints"]) for t in truth])
-    lib = [t for t in truth if t["effect"] in ACCEPT]
-    outside = [t for t in truth if t["effect"] not in ACCEPT]
-    ok_names = {canon(n) for t in lib for n in ACCEPT[t["effect"]]}
-    # new (name, joint) pairs
-    new = {(n, j) for n, js in nd.items() for j in js if j not in nb.get(n, set())}
-    gone = {(n, j) for n, js in nb.items() for j in js if j not in nd.get(n, set())}
-    # a law named on a joint together with an ambiguity that lists it there is not a confident name
-    said = {(canon(c), j) for a in getattr(d, "ambiguous", []) or [] for c in a.candidates for j in a.joints}
-    new_confident = {(n, j) for n, j in new if (n, j) not in said}
-    spurious = {(n, j) for n, j in new_confident if n not in ok_names or (n not in SHARED and j not in touched)}
-    if outside:
-        spurious_touch = {(n, j) for n, j in new_confident if n not in ok_names and (n in SHARED or j in touched)}
-    rb, rd = named(base, raw=True), named(d, raw=True)
-    raw_new = {(n, j) for n, js in rd.items() for j in js if j not in rb.get(n, set())}
-    raw_gone = {(n, j) for n, js in rb.items() for j in js if j not in rd.get(n, set())}
-    others = {(n, j) for n, j in raw_new | raw_gone if n not in SHARED and j not in touched}
-    flags = flagged_joints(base, d) & (touched or set(range(7)))
-    changes = getattr(d, "changes", []) or []
-    res = {"named": {n: sorted(js) for n, js in nd.items()}, "new": sorted(map(list, new)),
-           "gone": sorted(map(list, gone)), "others_changed": bool(others), "flagged_joints": sorted(flags),
-           "ambiguous": [[a.candidates, a.joints] for a in getattr(d, "ambiguous", []) or []],
-           "changes": [{"t": c.t, "what": c.what} for c in changes], "explained": bool(d.explained)}
-    if lib and not outside:
-        hit = True
-        for t in lib:
-            acc = ACCEPT[t["effect"]]
-            if t["effect"] in SHARED:
-                if not {canon(a) for a in acc} & set(nd):
-                    hit = False
-                elif t["effect"] == "gravity_tilt" and "gravity_tilt" in nb:
-                    dg = np.subtract(params(d, "gravity_tilt")["delta_gravity_m_per_s2"],
-                                     params(base, "gravity_tilt")["delta_gravity_m_per_s2"])
-                    hit &= bool(np.linalg.norm(dg - t["delta_gravity_m_per_s2"])
-                                < 0.5 * np.linalg.norm(t["delta_gravity_m_per_s2"]))
-                elif t["effect"] == "payload":
-                    m = params(d, "payload").get("mass_kg", 0.0) - (params(base, "payload") or {}).get("mass_kg", 0)
-                    hit &= bool(abs(m - t["mass_kg"]) < 0.5 * t["mass_kg"])
-            else:
-                hit &= all(any(j in nd.get(canon(a), set()) for a in acc) for j in t["joints"])
-        amb = any(ambiguous_with(d, ACCEPT[t["effect"]], set(t["joints"])) for t in lib)
-        if hit and not spurious:
-            res["outcome"] = "right"
-        elif amb or flags:
-            res["outcome"] = "flagged"
-        else:
-            res["outcome"] = "confident wrong"
-        return res
-    # outside the library (possibly with a library effect)
-    if truth[0]["effect"] == "grasp" and changes:
-        t_ok = any(abs(c.t - truth[0]["t_s"]) < 1.0 and "payload" in c.what for c in changes)
-        kept = set(nb) - {"payload", "link_inertials"} <= set(nd) | {"payload"}  # the effects present all along
-        res["outcome"] = "right" if t_ok and kept and not spurious_touch else "flagged"
-        return res
-    if flags:
-        res["outcome"] = "flagged"
-    elif spurious_touch:
-        res["outcome"] = "confident wrong"
-    else:
-        res["outcome"] = "missed"
-    return res
+def split_kinds(split: dict, entry: dict) -> list[str]:
+    k = entry.get("kinds", "all")
+    return list(KINDS) if k == "all" else list(split["static_kinds"]) if k == "static" else list(k)
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--data", default=str(GAZ), help="the Gaz et al. 2019 folder (exciting trajectory 1)")
+    ap.add_argument("--shared-data", default=str(SHARED_DATA),
+                    help="the shared data folder the fr3 and ros1 sources read (paths of evaluation_split.json)")
     ap.add_argument("--cases", type=int, default=1, help="injected copies per kind (seeds 0..cases-1)")
     ap.add_argument("--kinds", default=",".join(KINDS))
     ap.add_argument("--rates", default="1 kHz,100 Hz,30 Hz", help=f"comma-separated, of {', '.join(RATES)}")
@@ -188,8 +109,11 @@ def main() -> int:
                     help="diagnose(evidence=...): band (the default: the motion band with its rules), band_only "
                          "(the motion band, the information criterion alone) or full (every sample counted, the "
                          "default before); omitted: diagnose's default")
-    ap.add_argument("--source", default="gaz", help="gaz (the Gaz et al. 2019 log), serve (recordings through "
-                                                    "franka-vs serve by real clients) or gaz,serve")
+    ap.add_argument("--source", default="gaz",
+                    help="comma-separated: gaz (the Gaz et al. 2019 log), fr3 and ros1 (the tuning recordings of "
+                         "scripts/evaluation_split.json: the FR3 run and the first half of the ROS 1 bag, at their "
+                         "rates there; their locked twins are scored by scripts/evaluation.py only), serve "
+                         "(recordings through franka-vs serve by real clients)")
     ap.add_argument("--serve-duration", type=float, default=15.0, help="length of the served excitation, s")
     ap.add_argument("--serve-noise", type=float, default=0.1, help="white torque noise of the served plant, Nm")
     ap.add_argument("--host", default="127.0.22.1", help="loopback address the study's server uses")
@@ -215,20 +139,30 @@ def main() -> int:
     if not set(rates) <= set(RATES):
         ap.error(f"--rates {args.rates}: choose from {', '.join(RATES)}")
     sources = [s for s in args.source.split(",") if s]
-    if not set(sources) <= {"gaz", "serve"}:
-        ap.error(f"--source {args.source}: gaz, serve or gaz,serve")
+    if not set(sources) <= {"gaz", "fr3", "ros1", "serve"}:
+        ap.error(f"--source {args.source}: comma-separated of gaz, fr3, ros1, serve")
     opts = {"band_evidence": args.band, "evidence": args.evidence}
     t_start = time.time()
     rows = []
     if "gaz" in sources:
         rows += gaz_rows(args, kinds, rates, opts)
+    split = json.loads(SPLIT.read_text())
+    for src in ("fr3", "ros1"):
+        if src in sources:
+            for entry in split["parts"]["tuning"]:
+                if entry["recording"].startswith(src):
+                    spec = split["recordings"][entry["recording"]]
+                    log, cfg, kw = read_recording(spec, Path(args.shared_data))
+                    rows += recording_rows(src, log, cfg, kw, [k for k in kinds if k in split_kinds(split, entry)],
+                                           range(args.cases), entry["rates"], opts)
     if "serve" in sources:
         rows += serve_rows(args, [k for k in kinds if k in SERVE_KINDS], rates, opts)
     print(f"\n{len(rows)} injected copies, {time.time() - t_start:.0f} s")
     for src in sources:
         sub = [x for x in rows if x["source"] == src]
         print(f"\n### {src}")
-        table(sub, list(dict.fromkeys(x["kind"] for x in sub)), rates, args.cases)
+        table(sub, list(dict.fromkeys(x["kind"] for x in sub)), list(dict.fromkeys(x["rate"] for x in sub)),
+              args.cases)
     if args.output:
         atomic_write(args.output, json.dumps(rows, indent=1, default=float))
     return 0
@@ -245,19 +179,30 @@ def report(rows: list[dict], res: dict, kind: str, seed: int, rate: str, truth: 
 
 def gaz_rows(args, kinds: list[str], rates: list[str], opts: dict) -> list[dict]:
     log = load_log(args.data)
+    cfg = ModelConfig(tool=Tool.none(), gravity=log.gravity)
+    return recording_rows("gaz", log, cfg, {"tool": "none"}, kinds, range(args.cases), {r: RATES[r] for r in rates},
+                          opts)
+
+
+def recording_rows(source: str, log: MeasurementLog, cfg: ModelConfig, kw: dict, kinds: list[str], seeds,
+                   rates: dict[str, int], opts: dict) -> list[dict]:
+    """Inject each kind and seed into ``log`` (effects of the model ``cfg``, sized on the log's noise floor), diagnose
+    every ``rates`` copy (name -> every k-th distinct row) with ``kw`` (tool, robot) and ``opts``, and score it
+    against the untouched copy's answer at that rate."""
     noise = clean(log).noise
     base = {}
-    for r in rates:
-        base[r] = diagnose(every_kth(log, RATES[r]), tool="none", **opts)
-        print(f"gaz untouched {r}: {sorted(named(base[r]).items())} explained {base[r].explained}", file=sys.stderr)
+    for r, k in rates.items():
+        base[r] = diagnose(every_kth(log, k), **kw, **opts)
+        print(f"{source} untouched {r}: {sorted(named(base[r]).items())} explained {base[r].explained}",
+              file=sys.stderr)
     rows: list[dict] = []
     for kind in kinds:
-        for seed in range(args.cases):
-            inj, truth = inject(log, kind, seed, noise=noise)
-            for r in rates:
+        for seed in seeds:
+            inj, truth = inject(log, kind, seed, config=cfg, noise=noise)
+            for r, k in rates.items():
                 t0 = time.process_time()
-                d = diagnose(every_kth(inj, RATES[r]), tool="none", **opts)
-                report(rows, score_case(base[r], d, truth), kind, seed, r, truth, time.process_time() - t0, "gaz")
+                d = diagnose(every_kth(inj, k), **kw, **opts)
+                report(rows, score_case(base[r], d, truth), kind, seed, r, truth, time.process_time() - t0, source)
     return rows
 
 
@@ -340,9 +285,9 @@ def serve_rows(args, kinds: list[str], rates: list[str], opts: dict) -> list[dic
 
 
 def table(rows: list[dict], kinds: list[str], rates: list[str], cases: int) -> None:
-    outcomes = ("right", "flagged", "confident wrong", "missed")
+    outcomes = OUTCOMES
     print(f"\n{len(rows)} injected copies ({cases} per kind and rate)\n")
-    print("| kind | " + " | ".join(f"{r}: right / flagged / confident wrong / missed" for r in rates) + " |")
+    print("| kind | " + " | ".join(f"{r}: {' / '.join(outcomes)}" for r in rates) + " |")
     print("|---|" + "---|" * len(rates))
     groups = [(k, [k]) for k in kinds]
     groups.append(("**library, all**", [k for k in kinds if all(p in LIBRARY_KINDS for p in k.split("+"))]))
