@@ -317,7 +317,18 @@ def main() -> None:
                     help="--check: one half of the check only")
     ap.add_argument("--refresh-baselines", action="store_true", help="measure the check's ratio figures and rewrite "
                     "scripts/bench_baselines.json")
+    ap.add_argument("--before-after", metavar="REF", help="the check's ratio figures of this tree and of REF (checked "
+                    "out beside it), each in its own processes, A B A B: a before/after table in one run")
     args = ap.parse_args()
+    if args.before_after:
+        sys.path.insert(0, str(Path(__file__).resolve().parent))
+        import bench_check
+
+        print(f"load average {', '.join(f'{x:.2f}' for x in __import__('os').getloadavg())}")
+        rows = bench_check.ratios_before_after(args.before_after)
+        print(bench_check.format_rows(rows, bench_check.TOLERANCE, label_base=f"before ({args.before_after})"))
+        print(f"load average {', '.join(f'{x:.2f}' for x in __import__('os').getloadavg())}")
+        return
     if args.check or args.refresh_baselines:
         sys.path.insert(0, str(Path(__file__).resolve().parent))
         import bench_check

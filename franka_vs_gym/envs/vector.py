@@ -124,11 +124,12 @@ class FrankaVectorEnv(VectorEnv):
             getattr(e0, "feature_source", "ideal") == "detection"
         if task_logic is None:
             task_logic = self.num_envs >= 4
-        # persistent (one MjData per simulation): contacts and the scene are there to copy after a step, for
-        # environments that read them (cameras, rendering). Otherwise one MjData per thread serves all robots,
-        # which keeps the physics in the cache (N = 64: 1.20 -> 1.14 x the raw mj_step time for torque tracking,
-        # 1.35 -> 1.18 for visual torque); a robot that ends such a period in contact re-runs it alone (_physics).
-        self._persistent = not (task_logic and not self._needs_scene and e0.render_mode is None)
+        # persistent (one MjData per simulation): the scene is there to copy after a step, for environments that
+        # read it (cameras, rendering). Otherwise one MjData per thread serves all robots, which keeps the physics
+        # in the cache (N = 64: 1.20 -> 1.14 x the raw mj_step time for torque tracking, 1.35 -> 1.18 for visual
+        # torque), and a robot that ends a period in contact (whose contacts its environment reads) re-runs that
+        # period alone, as a single env runs it (_physics; the task logic re-runs it alone anyway).
+        self._persistent = self._needs_scene or e0.render_mode is not None
         self.batch = mjbatch.Batch(self._models[0], self.num_envs, nthread=self.nthread,
                                    persistent=self._persistent)
         self.batch.set_models(self._models)
