@@ -499,8 +499,13 @@ def absolute_check(ref: str, log: Callable[[str], None] = print) -> tuple[list[d
             trees["previous"] = prev
         try:
             runs = measure_pair(trees, kinds, log_path, 2, log)
+            cpus = os.cpu_count() or 1
+
+            def max_load() -> float:
+                return max(max(v.get("_load", [0.0])) for v in runs.values())
+
             a, b = _bests(runs["this tree"]), _bests(runs.get("previous", {}))
-            rows = compare(b, a, ABS_TOLERANCE, ABS_HIGHER_IS_BETTER) if usable else \
+            rows = judge_wall(compare(b, a, ABS_TOLERANCE, ABS_HIGHER_IS_BETTER), max_load(), cpus) if usable else \
                 [{"figure": k, "baseline": math.nan, "now": v, "change": math.nan, "worse": False,
                   "note": "not compared"} for k, v in a.items()]
             again = sorted({r["figure"] for r in rows if r["worse"]})
@@ -513,13 +518,11 @@ def absolute_check(ref: str, log: Callable[[str], None] = print) -> tuple[list[d
                     for k, v in more[label].items():
                         runs[label].setdefault(k, []).extend(v)
                 a, b = _bests(runs["this tree"]), _bests(runs["previous"])
-                rows = compare(b, a, ABS_TOLERANCE, ABS_HIGHER_IS_BETTER)
+                rows = judge_wall(compare(b, a, ABS_TOLERANCE, ABS_HIGHER_IS_BETTER), max_load(), cpus)
                 for r in rows:
                     r["rerun"] = r["figure"] in again
-            max_load = max(max(v["_load"]) for v in runs.values())
-            rows = judge_wall(rows, max_load, os.cpu_count() or 1)
             info["runs"] = runs
-            info["max_load"] = max_load
+            info["max_load"] = max_load()
         finally:
             if prev is not None:
                 remove_tree(prev)
