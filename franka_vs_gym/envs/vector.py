@@ -8,8 +8,10 @@ step (the compiled plant, :mod:`franka_vs_gym.sim.plant`), so a control period i
 
 Results are bit for bit those of N single environments (``gymnasium.make``) reset with the same seeds: a batch step
 of a simulation loads its state into MuJoCo, runs the same ``mj_step`` calls on the same model and saves the
-state back. Derived quantities an environment reads after its physics (contacts, or the whole scene for a camera
-image) are copied from the batch's persistent per-simulation data. The robots' measured-state reflexes run inside
+state back. Where an environment reads the whole scene after its physics (a camera image, rendering), the batch keeps
+one MjData per simulation and the scene is copied from it; otherwise one MjData per thread serves all robots (the
+physics stays in the cache), and a robot that ends a period in contact runs that period again alone, so that its
+environment reads its contacts as a single environment does. The robots' measured-state reflexes run inside
 the batch call (the compiled plant checks every physics step and records a violation in the simulation's
 ``userdata``, part of the state copied back), and the reflex checks run after it as ``SimWorld.step`` runs them,
 raising that violation with its time, joint and value. A simulation that diverges is re-run alone by its
