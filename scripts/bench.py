@@ -5,9 +5,19 @@ Absolute times on shared machines are noisy, so every simulator figure is given 
 the same run (raw ``mujoco.mj_step`` on the same model) as a ratio. Each timing is the best of several repeats.
 
     python scripts/bench.py [--quick] [--only core,vision,envs,throughput,validation,fci,large_log] [--json FILE|-]
+    python scripts/bench.py --check [--against REF|none] [--check-only ratios|absolute] [--json FILE]
+    python scripts/bench.py --refresh-baselines
 
 ``--json`` writes every figure (one object per section) to FILE, or to stdout with ``-`` (the tables then go to
 stderr).
+
+``--check`` is the speed check CI runs after the tests (``scripts/bench_check.py``): every registered env's step,
+the native vector env of 64 robots, an image-observation step and FrankaSim's step, each as a CPU-time ratio to
+its raw physics, against the stored baselines (``scripts/bench_baselines.json``, 15 % tolerance); ``franka-vs serve
+--lockstep`` with a pylibfranka client and ``franka-vs diagnose`` against the previous commit (``--against``,
+default ``HEAD^``) checked out beside this tree and timed A B A B in the same run (20 % tolerance). A figure beyond
+its tolerance is measured once more; the check names each figure still worse and exits 1.
+``--refresh-baselines`` measures the ratio figures (twice) and rewrites the baselines.
 """
 
 from __future__ import annotations
@@ -299,7 +309,39 @@ def main() -> None:
     ap.add_argument("--only", default=",".join(SECTIONS), help="comma-separated sections: " + ",".join(SECTIONS))
     ap.add_argument("--json", metavar="FILE", help="also write every figure as JSON to FILE ('-': stdout, tables "
                     "to stderr); an existing FILE is not overwritten")
+    ap.add_argument("--check", action="store_true", help="the speed check: ratios vs the stored baselines, serve and "
+                    "diagnose vs the previous commit timed beside this tree; exit 1 naming each figure that got worse")
+    ap.add_argument("--against", default="HEAD^", metavar="REF", help="--check: the commit the absolute figures are "
+                    "compared with (default HEAD^; 'none': measured only)")
+    ap.add_argument("--check-only", choices=("all", "ratios", "absolute"), default="all",
+                    help="--check: one half of the check only")
+    ap.add_argument("--refresh-baselines", action="store_true", help="measure the check's ratio figures and rewrite "
+                    "scripts/bench_baselines.json")
+    ap.add_argument("--before-after", metavar="REF", help="the check's ratio figures of this tree and of REF (checked "
+                    "out beside it), each in its own processes, A B A B: a before/after table in one run")
     args = ap.parse_args()
+    if args.before_after:
+        sys.path.insert(0, str(Path(__file__).resolve().parent))
+        import bench_check
+
+        print(f"load average {', '.join(f'{x:.2f}' for x in __import__('os').getloadavg())}")
+        rows = bench_check.ratios_before_after(args.before_after)
+        print(bench_check.format_rows(rows, bench_check.TOLERANCE, label_base=f"before ({args.before_after})"))
+        print(f"load average {', '.join(f'{x:.2f}' for x in __import__('os').getloadavg())}")
+        return
+    if args.check or args.refresh_baselines:
+        sys.path.insert(0, str(Path(__file__).resolve().parent))
+        import bench_check
+
+        if args.refresh_baselines:
+            data = bench_check.refresh_baselines()
+            print(json.dumps(data["figures"], indent=2))
+            print(f"baselines written to {bench_check.BASELINES}")
+            return
+        if args.json and args.json != "-" and Path(args.json).exists():
+            raise SystemExit(f"{args.json} exists; choose another file name")
+        raise SystemExit(bench_check.run_check(args.against, None if args.json == "-" else args.json,
+                                               args.check_only))
     names = args.only.split(",")
     for name in names:
         if name not in SECTIONS:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import gymnasium as gym
+import mujoco
 import numpy as np
 import pytest
 from gymnasium.vector import AutoresetMode
@@ -271,5 +272,45 @@ def test_a_robot_diverging_in_the_batch_reports_it_as_a_single_env():
         others_in_batch += int(vec._in_batch[[0, 2, 3]].all())
     assert diverged >= 10
     assert others_in_batch >= 35  # the other robots stepped in the batch (but at their first step and autoreset)
+    vec.close()
+    ref.close()
+
+
+@pytest.mark.parametrize("env_id, task_logic", [("FrankaTorqueTracking-v0", False), ("FrankaTorqueTracking-v0", True),
+                                                ("FrankaIBVSEyeToHand-v0", None)])
+def test_contacts_equal_single_envs_without_persistent_data(env_id, task_logic):
+    """Without a camera image the batch keeps one MjData per thread, not per robot, so a robot that ends a period
+    in contact (the table raised into its hand) runs that period again alone, as a single env: the same contacts,
+    failures and observations as single envs, bit for bit."""
+    kw = dict(action_scale="physical", time_limit=0.5)
+    if env_id != "FrankaTorqueTracking-v0":
+        kw["observation_type"] = "features"
+    n = 4
+    vec = gym.make_vec(env_id, num_envs=n, nthread=1, task_logic=task_logic, **kw)
+    ref = gym.make_vec(env_id, num_envs=n, vectorization_mode="sync", **kw)
+    assert not vec._persistent
+    vec.reset(seed=3)
+    ref.reset(seed=3)
+    # robot 0's table raised until it just touches the arm at the start pose (0.5 mm deep: contacts, no reflex)
+    u = ref.envs[0].unwrapped
+    m, d = u.world.model, mujoco.MjData(u.world.model)
+    mujoco.mj_copyData(d, m, u.world.data)
+    table = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "table")
+    z0 = m.geom_pos[table, 2]
+    for z in np.arange(z0, z0 + 1.0, 0.0005):
+        m.geom_pos[table, 2] = z
+        mujoco.mj_forward(m, d)
+        if d.ncon:
+            break
+    assert d.ncon
+    vec.envs[0].unwrapped.world.model.geom_pos[table, 2] = z
+    rng = np.random.default_rng(1)
+    touching = 0
+    for t in range(40):
+        a = (rng.uniform(-1, 1, vec.action_space.shape) * 0.2).astype(np.float32)
+        r1, r2 = vec.step(a), ref.step(a)
+        _same_step(r1, r2, t)
+        touching += sum(int(e.unwrapped.world.data.ncon > 0) for e in ref.envs)
+    assert touching >= 5, touching
     vec.close()
     ref.close()
