@@ -1,4 +1,4 @@
-"""Every code block of README.md and docs/*.md runs, as a newcomer would run it.
+"""Every code block of README.md and docs/**/*.md runs, as a newcomer would run it.
 
 Blocks are fenced with a language: ``python`` blocks run as a script, ``bash`` blocks line by line (``franka-vs``
 and ``python`` commands run; a line ending in ``&`` starts a server in the background, read up to its ready line and
@@ -38,7 +38,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"
-DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
 LANGS = {"python", "bash", "json", "text"}
 _FENCE = re.compile(r"^```(?P<lang>[\w-]*)[ \t]*\n(?P<code>.*?)^```[ \t]*$", re.S | re.M)
 _DIRECTIVE = re.compile(r"<!--\s*doc-test:\s*(?P<body>.*?)\s*-->\s*$")
