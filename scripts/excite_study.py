@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""The excitation study of docs/workbench.md (section 11): for each question, design a motion with
+"""The excitation study of docs/workbench/evidence.md ("The excitation study"): for each question, design a motion with
 ``franka-vs excite``'s optimiser and print the predicted 95 % interval widths against the generic excitation of the
 same duration (median ratio over each effect's parameters, collinearity of the pairs to separate, time).
 

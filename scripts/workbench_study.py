@@ -4,8 +4,8 @@ dynamics of three-sine trajectories, white noise; tests/independent_logs_b.py, "
 near-static trajectories, coloured noise, quantisation, dropped rows, ROS-like low-rate sampling, effects outside
 the library such as joint elasticity, presliding friction, cable springs, gear ripple): clean logs, single and
 compound (2 and 3) library-type effects, effects outside the library, at randomised magnitudes and seeds, at 1 kHz
-and at lower rates. Prints Markdown tables of rates (the ones in docs/workbench.md) and writes the per-log results
-as JSON. Progress goes to stderr.
+and at lower rates. Prints Markdown tables of rates (the ones in docs/workbench/evidence.md) and writes the per-log
+results as JSON. Progress goes to stderr.
 
     python scripts/workbench_study.py --seeds 6 -o study.json        # both generators, about 6 min on one core
     python scripts/workbench_study.py --generators B --seeds 2

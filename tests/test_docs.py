@@ -1,4 +1,5 @@
-"""Every code block of README.md and docs/*.md runs, as a newcomer would run it.
+"""Every code block of README.md, CHANGELOG.md and docs/**/*.md runs, as a newcomer would run it; every link
+between them resolves; docs/results.md and the README's results table are what scripts/results_table.py writes.
 
 Blocks are fenced with a language: ``python`` blocks run as a script, ``bash`` blocks line by line (``franka-vs``
 and ``python`` commands run; a line ending in ``&`` starts a server in the background, read up to its ready line and
@@ -38,7 +39,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"
-DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+DOCS = [ROOT / "README.md", ROOT / "CHANGELOG.md", *sorted((ROOT / "docs").rglob("*.md"))]
 LANGS = {"python", "bash", "json", "text"}
 _FENCE = re.compile(r"^```(?P<lang>[\w-]*)[ \t]*\n(?P<code>.*?)^```[ \t]*$", re.S | re.M)
 _DIRECTIVE = re.compile(r"<!--\s*doc-test:\s*(?P<body>.*?)\s*-->\s*$")
@@ -344,3 +345,93 @@ def test_every_block_declares_its_language() -> None:
     hidden = [b.id for b in BLOCKS if b.lang == "text"
               and re.match(r"\s*(franka-vs |python |pip |import |from \w+ import)", b.code)]
     assert not hidden, f"commands in text blocks (label them bash or python so they run): {hidden}"
+
+
+# ------------------------------------------------------------------------------------------------ links, results
+_LINK = re.compile(r"(?<!!)\[[^\]]*\]\(([^)\s]+)\)|!\[[^\]]*\]\(([^)\s]+)\)")
+# Pages another branch of this session writes (merged by the lead): a link to one is checked once it exists.
+_PENDING = {"docs/workbench_app.md"}
+
+
+def _anchors(path: Path) -> set[str]:
+    """The anchors GitHub gives a page's headings (lower case, punctuation dropped, spaces to hyphens, repeats
+    numbered), written here independently of scripts/results_table.py's slug."""
+    seen: dict[str, int] = {}
+    out = set()
+    text = re.sub(r"^```.*?^```", "", path.read_text(), flags=re.S | re.M)  # no headings inside code blocks
+    for m in re.finditer(r"^#{1,6}\s+(.*?)\s*#*\s*$", text, re.M):
+        base = "".join(c for c in m.group(1).lower().replace("`", "").replace("*", "")
+                       if c.isalnum() or c in "-_ ").replace(" ", "-")
+        n = seen.get(base, 0)
+        seen[base] = n + 1
+        out.add(base if n == 0 else f"{base}-{n}")
+    return out
+
+
+def test_links_resolve() -> None:
+    """Every relative link (and image) in README.md, CHANGELOG.md and docs/ names a file of the repository, and its
+    #anchor a heading of that page: moving a section without fixing its links fails here."""
+    bad = []
+    for path in DOCS:
+        text = re.sub(r"^```.*?^```", "", path.read_text(), flags=re.S | re.M)
+        for m in _LINK.finditer(text):
+            target = m.group(1) or m.group(2)
+            if re.match(r"[a-z]+:", target):  # http:, https:, mailto:
+                continue
+            file, _, anchor = target.partition("#")
+            dest = (path.parent / file).resolve() if file else path
+            rel = dest.relative_to(ROOT).as_posix() if dest.is_relative_to(ROOT) else str(dest)
+            if not dest.exists():
+                if rel not in _PENDING:
+                    bad.append(f"{path.relative_to(ROOT)}: {target} (no such file)")
+                continue
+            if anchor and dest.suffix == ".md" and anchor not in _anchors(dest):
+                bad.append(f"{path.relative_to(ROOT)}: {target} (no heading with that anchor in {rel})")
+    assert not bad, "broken links:\n" + "\n".join(bad)
+
+
+def test_doc_paths_named_in_code_exist() -> None:
+    """Code, scripts and tests that send the reader to a page (``docs/workbench/method.md``) name a page that exists."""
+    bad = []
+    for path in [*ROOT.joinpath("franka_vs_gym").rglob("*.py"), *ROOT.joinpath("scripts").glob("*.py"),
+                 *ROOT.joinpath("tests").rglob("*.py")]:
+        for m in re.finditer(r"\b((?:docs/)[\w./-]+\.md)\b", path.read_text()):
+            if not (ROOT / m.group(1)).exists() and m.group(1) not in _PENDING:
+                bad.append(f"{path.relative_to(ROOT)}: {m.group(1)}")
+    assert not bad, "pages named in code that do not exist:\n" + "\n".join(bad)
+
+
+def test_results_are_what_the_script_writes() -> None:
+    """docs/results.md and the README's results table are scripts/results_table.py's output of docs/results/*.json
+    (edit the JSON and run the script; never the generated text)."""
+    spec = importlib.util.spec_from_file_location("results_table", ROOT / "scripts" / "results_table.py")
+    rt = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(rt)
+    figures = rt.load()
+    assert (ROOT / "docs" / "results.md").read_text() == rt.results_md(figures), \
+        "docs/results.md differs from what scripts/results_table.py writes: run python scripts/results_table.py"
+    readme = (ROOT / "README.md").read_text()
+    assert readme == rt.readme_with_table(readme, figures), \
+        "README.md's results table differs from what scripts/results_table.py writes: run it"
+    assert len(re.findall(r"docs/results\.md#", readme)) == sum(1 for f in figures if f.get("headline"))
+
+
+def test_results_script_refuses_a_bad_figure_file(tmp_path: Path) -> None:
+    """A figure file with an unknown key or a short table row is refused in one line naming the file; nothing is
+    assembled from it."""
+    import json
+
+    spec = importlib.util.spec_from_file_location("results_table", ROOT / "scripts" / "results_table.py")
+    rt = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(rt)
+    good = {"title": "A figure", "area": "Speed", "order": 1, "command": "python scripts/bench.py", "date": "today",
+            "table": {"columns": ["a", "b"], "rows": [["1", "2"]]}, "headline": {"what": "a", "figure": "1"}}
+    (tmp_path / "a.json").write_text(json.dumps(good))
+    assert "| a | 1 |" in rt.readme_table(rt.load(tmp_path))
+    for bad, says in [({**good, "colour": "red"}, "unknown key(s) colour"),
+                      ({**good, "table": {"columns": ["a", "b"], "rows": [["1"]]}}, "row 0 has 1 cells"),
+                      ({**good, "area": "Elsewhere"}, "area 'Elsewhere'"),
+                      ({k: v for k, v in good.items() if k != "date"}, "missing key(s) date")]:
+        (tmp_path / "a.json").write_text(json.dumps(bad))
+        with pytest.raises(rt.FigureError, match=re.escape(says)):
+            rt.load(tmp_path)

@@ -1,7 +1,7 @@
 """The workbench judged on an independent generator (tests/independent_logs.py: inverse dynamics of its own
 trajectories, its own effect laws, its own noise; randomised magnitudes): the right set of effects for single and
 compound library-type effects, ``explained: false`` for effects outside the library, ``none`` on clean logs.
-The larger study (more seeds, low rates) is scripts/workbench_study.py; its table is in docs/workbench.md."""
+The larger study (more seeds, low rates) is scripts/workbench_study.py; its table is in docs/workbench/evidence.md."""
 
 from __future__ import annotations
 

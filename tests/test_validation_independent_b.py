@@ -1,8 +1,8 @@
 """The workbench judged on the second independent generator (tests/independent_logs_b.py: point-to-point, multi-sine
 and near-static trajectories, coloured and quantised sensor signals, dropped rows, ROS-like 100 and 30 Hz
 sampling, its own effect laws and effects outside the library). A lean subset of scripts/workbench_study.py (its
-table is in docs/workbench.md section 7): each case is scored as in the study, and no case may end with a
-confident wrong name (``explained: true`` with a name that fits none of the hidden effects)."""
+table is in docs/workbench/evidence.md, "Data with a hidden effect"): each case is scored as in the study, and no
+case may end with a confident wrong name (``explained: true`` with a name that fits none of the hidden effects)."""
 
 from __future__ import annotations
 

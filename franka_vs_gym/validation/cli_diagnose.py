@@ -44,14 +44,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "classes are ranked with the library's")
     parser.add_argument("--band-evidence", action="store_true",
                         help="score every effect in the motion band by the information criterion alone (= --evidence "
-                             "band_only; docs/workbench.md, section 5 step 2)")
+                             "band_only; docs/workbench/method.md, step 2)")
     parser.add_argument("--evidence", choices=("band", "band_only", "full"), default=None,
                         help="how effects are scored: band (default: the motion band below the cleaning cutoff; "
                              "shared effects judged with the noise the set with them leaves, the 43-parameter link "
                              "inertials also by the held-out blocks, a gravity tilt by its horizontal part), "
                              "band_only (= --band-evidence: the motion band, the information criterion alone) or "
-                             "full (every sample of the residual counts, the default before); docs/workbench.md "
-                             "section 5 step 2")
+                             "full (every sample of the residual counts, the default before); "
+                             "docs/workbench/method.md, step 2")
 
 
 def main(args: argparse.Namespace) -> int:

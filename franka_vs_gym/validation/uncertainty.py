@@ -695,8 +695,8 @@ def inertial_bias(ctx, effects: list, params: list, gram: np.ndarray) -> np.ndar
     at the upper 97.5 % bound of its chi-square estimate (``ProcessedLog.ddq_noise_dof``; about 1.3 times the
     estimate on 8 s at 30 Hz): the returned bias is the largest the log supports, and the intervals extend to it.
     Measured on generator B at 30 Hz: an armature fitted at 0.5-0.9 times the truth (down to -6 times on a joint
-    that barely accelerates) on exact decimations of logs with 1 % of the torque noise (docs/workbench.md,
-    section 12)."""
+    that barely accelerates) on exact decimations of logs with 1 % of the torque noise
+    (docs/workbench/evidence.md, "How sure")."""
     sig = getattr(ctx.data, "ddq_noise", None)
     out = np.zeros(len(params))
     arm = [k for k, p in enumerate(params) if p.key == "coef" and getattr(effects[p.term], "name", "") == "armature"]
@@ -739,8 +739,8 @@ def interpolation_bias(ctx, effects: list, params: list, contrib: list, resid: n
     the velocity noise the logger folds into the band rides on that torque, and linear interpolation keeps less of
     its power the nearer the shift falls to half a sample period, which pulls the fit there (on the hidden-effect
     generator's 7-12 ms delays at 30 Hz: 2.4-8 % above the noise-free fit with only the velocity noise,
-    docs/workbench.md section 12). As with :func:`inertial_bias`, the fitted value is kept and the interval also
-    holds the corrected one."""
+    docs/workbench/evidence.md, "How sure"). As with :func:`inertial_bias`, the fitted value is kept and the
+    interval also holds the corrected one."""
     from franka_vs_gym.validation.effects.timing import band_limited_delay, linear_shift_exact
 
     out = np.zeros(len(params))

@@ -16,7 +16,7 @@ generator). The registry (:data:`REGISTRY`) is the one list ``diagnose``, ``fit`
 
 Users add effects by writing one subclass of :class:`Effect` in their own file and passing it with
 ``franka-vs diagnose LOG --effects my_effects.py`` (or ``load_plugin("my_effects.py")``, or an entry point in the
-group ``franka_vs_gym.effects``); see docs/workbench.md for a complete example.
+group ``franka_vs_gym.effects``); see docs/workbench/guide.md ("Add your own effect") for a complete example.
 
 Layout: :mod:`.base` (context, fit record, :class:`Effect`), one module per family (:mod:`.friction`,
 :mod:`.inertial`, :mod:`.sensor`, :mod:`.timing`) and :mod:`.registry` (the registry and plug-in loading).

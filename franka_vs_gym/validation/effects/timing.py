@@ -93,8 +93,9 @@ def band_limited_delay(ctx, y: np.ndarray, start: float, iterations: int = 12) -
     correlation): the least-squares shift is pulled towards half a sample period, where the interpolated noise is
     smallest. On the hidden-effect generator's 7-12 ms delays sampled at 30 Hz, with only the velocity noise (4
     logs, 4 draws of it each) the fitted delay moved 2.4-8 % above the noise-free fit's; with the band-limited shift
-    it lies 1.3-2.4 % below it (docs/workbench.md, section 12). A shift by a phase keeps every frequency's power, so
-    the noise no longer prefers a delay. ``uncertainty.interpolation_bias`` puts the difference into the interval."""
+    it lies 1.3-2.4 % below it (docs/workbench/evidence.md, "How sure"). A shift by a phase keeps every frequency's
+    power, so the noise no longer prefers a delay. ``uncertainty.interpolation_bias`` puts the difference into the
+    interval."""
     pred = ctx.ev.predicted
     d = float(start)
     for _ in range(iterations):
