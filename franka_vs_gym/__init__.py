@@ -12,12 +12,6 @@ if "MUJOCO_GL" not in _os.environ and not _os.environ.get("DISPLAY"):
     _os.environ["MUJOCO_GL"] = "egl"
     _os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
-# Mesa's software rasteriser (llvmpipe, the EGL backend of a machine without a GPU) draws in the calling thread
-# instead of handing each frame to worker threads: the same pixels, and a small camera image no longer waits for
-# those threads (64x48 image step: 3.5 -> 2.9 x its physics in CPU time, 12.2 -> 3.2 ms of wall time at load 12 on
-# 2 CPUs; 320x240: equal within noise). LP_NUM_THREADS set by the user is kept; a GPU driver ignores it.
-_os.environ.setdefault("LP_NUM_THREADS", "0")
-
 __version__ = "0.1.0"
 
 from franka_vs_gym.envs import registration as _registration  # noqa: E402,F401  (registers the Gymnasium ids)

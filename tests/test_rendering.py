@@ -95,33 +95,3 @@ def test_shared_renderer_draws_each_robots_own_image():
         for s in sims:
             s.world.close()
         pool.close()
-
-
-def test_rendering_in_the_calling_thread_changes_no_pixel():
-    """franka_vs_gym asks Mesa's software rasteriser to draw in the calling thread (LP_NUM_THREADS=0, unless the user
-    set it): the images of an episode's first steps, small and large, are those drawn by llvmpipe's worker
-    threads, byte for byte (on a GPU driver both runs ignore the variable)."""
-    import os
-    import subprocess
-    import sys
-
-    code = ("import hashlib, numpy as np, gymnasium as gym, franka_vs_gym\n"
-            "h = hashlib.sha1()\n"
-            "for w, hh in ((64, 48), (320, 240)):\n"
-            "    env = gym.make('FrankaIBVS-v0', observation_type='image', image_width=w, image_height=hh)\n"
-            "    env.reset(seed=3)\n"
-            "    a = np.full(env.action_space.shape, 0.3, env.action_space.dtype)\n"
-            "    for _ in range(3):\n"
-            "        h.update(env.step(a)[0]['image'].tobytes())\n"
-            "    env.close()\n"
-            "import os; print(os.environ.get('LP_NUM_THREADS'), h.hexdigest())\n")
-    out = {}
-    for threads in (None, "2"):
-        env = {k: v for k, v in os.environ.items() if k != "LP_NUM_THREADS"}
-        if threads is not None:
-            env["LP_NUM_THREADS"] = threads
-        r = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
-        assert r.returncode == 0, r.stderr[-2000:]
-        out[threads] = r.stdout.split()
-    assert out[None][0] == "0" and out["2"][0] == "2"  # the default, and the user's setting kept
-    assert out[None][1] == out["2"][1]
