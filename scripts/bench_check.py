@@ -342,8 +342,13 @@ def remove_tree(dest: Path) -> None:
     shutil.rmtree(dest, ignore_errors=True)
 
 
+# the caller's environment, before importing franka_vs_gym set its defaults (MUJOCO_GL, LP_NUM_THREADS) in this
+# process: each tree's processes get the defaults of their own code
+_USER_ENV = dict(os.environ)
+
+
 def _env_for(tree: Path) -> dict[str, str]:
-    env = dict(os.environ)
+    env = dict(_USER_ENV)
     env["PYTHONPATH"] = str(tree) + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
     return env
 
