@@ -9,7 +9,10 @@ the study does to it goes through unmodified libfranka clients in their own proc
 1. ``franka-vs excite`` designs an excitation; its generated pylibfranka script plays and records it on the robot;
 2. ``franka-vs fit LOG --add auto`` calibrates a model from that recording (the workbench picks the effects);
 3. :mod:`franka_vs_gym.fci.deploy` plays the torque controllers (computed torque, joint impedance) on
-   FrankaTorqueTracking-v0's episodes with the default, the calibrated and the true plant's model.
+   FrankaTorqueTracking-v0's episodes with the default, the calibrated and the true plant's model, and with the
+   calibrated model plus the motors' effective armature of the robot's description ("calibrated+motors": the
+   motors' inertia acts before the link-side torque sensors, so no tau_J recording shows it, but the robot's
+   published description states it).
 
 Gap recovered = (err_default - err_calibrated) / (err_default - err_truth), reported where err_default >= 2
 err_truth (elsewhere the model is not what limits the controller). ``scripts/sim_to_real.py`` runs it.
@@ -32,7 +35,7 @@ import numpy as np
 from franka_vs_gym.errors import UserError
 
 CONTROLLERS = ("computed_torque", "joint_impedance")
-MODELS = ("default", "calibrated", "truth")
+MODELS = ("default", "calibrated", "calibrated+motors", "truth")
 #: the effects the excitation is designed to identify (what a user calibrating for torque control asks about)
 EXCITE_EFFECTS = "payload,gravity_tilt,coulomb_friction,armature"
 
@@ -64,6 +67,15 @@ def true_model(truth_file: str | Path, robot: str = "fer") -> Any:
     t = load_truth(truth_file, base)
     cfg = t.plant.copy(payload=t.payload)
     return cfg.copy(armature=cfg.armature + np.asarray(base.robot.rotor_inertia, dtype=np.float64))
+
+
+def with_motors(model_file: str | Path, robot: str = "fer") -> Any:
+    """The model of ``model_file`` plus the motors' effective armature of the robot's description
+    (``RobotDescription.rotor_inertia``) on top of the armature it has."""
+    from franka_vs_gym.model.config import resolve_config
+
+    cfg = resolve_config(str(model_file), robot)
+    return cfg.copy(armature=cfg.armature + np.asarray(cfg.robot.rotor_inertia, dtype=np.float64))
 
 
 def gap_recovered(err_default: float, err_calibrated: float, err_truth: float) -> float | None:
@@ -119,19 +131,28 @@ class TruthServer:
                 self.proc.wait()
 
 
-def design_excitation(out: Path, duration: float, evaluations: int = 200, time_budget: float = 120.0) -> Path:
-    """``franka-vs excite`` for :data:`EXCITE_EFFECTS`; returns the generated pylibfranka script."""
+def design_excitation(out: Path, duration: float, evaluations: int = 200, time_budget: float = 120.0,
+                      fraction: float = 0.5) -> Path:
+    """``franka-vs excite`` for :data:`EXCITE_EFFECTS` (``fraction``: of the robot's velocity, acceleration and
+    jerk limits the motion may use); returns the generated pylibfranka script."""
     _run([sys.executable, "-m", "franka_vs_gym.cli", "excite", "--effects", EXCITE_EFFECTS, "--duration",
           str(duration), "--evaluations", str(int(evaluations)), "--time-budget", str(time_budget), "--rest", "0.5",
-          "-o", str(out), "--quiet"], "franka-vs excite", timeout=time_budget + 300)
+          "--fraction", str(fraction), "-o", str(out), "--quiet"], "franka-vs excite", timeout=time_budget + 300)
     return out / "play_excitation_pylibfranka.py"
 
 
 def record(script: Path, host: str, copy_to: Path) -> Path:
     """Play the excitation script (pylibfranka, its own process) on the robot at ``host``; the recording moved to
     ``copy_to`` (+ its .json sidecar)."""
-    rec = json.loads(_run([sys.executable, str(script), host], "the excitation recording",
-                          timeout=900).strip().splitlines()[-1])
+    for attempt in range(2):  # (once more if the robot's state stopped arriving: a starved machine, not the motion)
+        try:
+            rec = json.loads(_run([sys.executable, str(script), host], "the excitation recording",
+                                  timeout=900).strip().splitlines()[-1])
+            break
+        except RuntimeError as e:
+            if attempt or "NetworkException" not in str(e):
+                raise
+            time.sleep(1.0)
     src = Path(rec["log"])
     os.replace(src, copy_to)
     side = Path(str(src) + ".json")
@@ -166,7 +187,8 @@ def run_robot(seed: int, out: Path, host: str, excitation: Path, episode_seeds: 
     truth_file.write_text(json.dumps(truth_effects(seed), indent=1))
     true_file = out / "true_model.json"
     true_model(truth_file, robot).save(true_file, overwrite=True)
-    models = {"default": None, "calibrated": str(out / "calibrated.json"), "truth": str(true_file)}
+    models = {"default": None, "calibrated": str(out / "calibrated.json"),
+              "calibrated+motors": str(out / "calibrated_motors.json"), "truth": str(true_file)}
     result: dict[str, Any] = {"seed": seed, "truth": truth_effects(seed), "runs": {}}
     with TruthServer(host, truth_file, robot):
         t = time.perf_counter()
@@ -179,6 +201,7 @@ def run_robot(seed: int, out: Path, host: str, excitation: Path, episode_seeds: 
                          round(time.perf_counter() - t, 1)}
         say(f"robot {seed}: fitted {', '.join(fit.get('effects') or []) or 'nothing'} "
             f"in {time.perf_counter() - t:.0f} s")
+        with_motors(out / "calibrated.json", robot).save(out / "calibrated_motors.json", overwrite=True)
         for c in controllers:
             for m in MODELS:
                 t = time.perf_counter()
@@ -191,8 +214,10 @@ def run_robot(seed: int, out: Path, host: str, excitation: Path, episode_seeds: 
                 say(f"robot {seed}: {c} with the {m} model: mean rms error {err:.5f} rad over {len(eps)} episodes "
                     f"({time.perf_counter() - t:.0f} s)")
         for c in controllers:
-            e = [result["runs"][f"{c}/{m}"]["rms_error"] for m in MODELS]
-            result["runs"][f"{c}/gap_recovered"] = gap_recovered(*e)
+            e = {m: result["runs"][f"{c}/{m}"]["rms_error"] for m in MODELS}
+            result["runs"][f"{c}/gap_recovered"] = gap_recovered(e["default"], e["calibrated"], e["truth"])
+            result["runs"][f"{c}/gap_recovered_motors"] = gap_recovered(e["default"], e["calibrated+motors"],
+                                                                        e["truth"])
     return result
 
 
@@ -203,4 +228,4 @@ def check_host(host: str) -> None:
 
 
 __all__ = ["CONTROLLERS", "EXCITE_EFFECTS", "MODELS", "TruthServer", "calibrate", "check_host", "deploy",
-           "design_excitation", "gap_recovered", "record", "run_robot", "true_model", "truth_effects"]
+           "design_excitation", "gap_recovered", "record", "run_robot", "true_model", "truth_effects", "with_motors"]
