@@ -62,13 +62,15 @@ def figure(results: list[dict], controllers: tuple[str, ...], path: Path) -> Non
             g, gm = r["runs"][f"{c}/gap_recovered"], r["runs"][f"{c}/gap_recovered_motors"]
             top = 1e3 * max(r["runs"][f"{c}/{m}"]["rms_error"] for m in MODELS)
             txt = " / ".join("n/a" if x is None else f"{100 * x:.0f} %" for x in (g, gm))
-            ax.text(i, top * 1.03, txt, ha="center", fontsize=8)
+            ax.text(i, top * 1.15, txt, ha="center", fontsize=8)
         ax.set_xticks(x, [f"robot {r['seed']}" for r in results])
         ax.set_ylabel("RMS tracking error (mrad)")
         ax.set_title(f"{c.replace('_', ' ')}: gap recovered (calibrated / + motors)", fontsize=10)
         ax.set_yscale("log")
-        ax.legend(fontsize=8)
-    fig.tight_layout()
+        ax.set_ylim(top=ax.get_ylim()[1] * 2.5)
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=len(MODELS), fontsize=9)
+    fig.tight_layout(rect=(0, 0.07, 1, 1))
     fig.savefig(path, dpi=120)
     plt.close(fig)
 
