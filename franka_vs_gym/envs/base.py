@@ -434,12 +434,17 @@ class FrankaEnv(gym.Env):
 
     def _guard_action(self, a: np.ndarray) -> np.ndarray:
         """The checked action ``a`` bounded by the joint-limit guard at the measured joint position (a new array
-        when it changes anything, ``a`` itself otherwise)."""
+        when a joint is near its limits, ``a`` itself otherwise)."""
         q = self.sim.joint_views()[0]
-        if (np.abs(q - self._guard_free_mid) < self._guard_free_half).all():
-            return a  # (every joint far from its limits: the common case, kept cheap)
+        if self._far_from_limits(q):
+            return a
         lo, hi = self.guard_bounds(q)
         return np.minimum(np.maximum(a, lo), hi)
+
+    def _far_from_limits(self, q: np.ndarray) -> bool:
+        """Every joint farther from its limits than the guard's braking distance at the action scale: the guard's
+        bounds then lie beyond the action space (the common case, kept cheap)."""
+        return bool((np.abs(q - self._guard_free_mid) < self._guard_free_half).all())
 
     def _apply_action(self, a: np.ndarray) -> None:
         sim = self.sim
@@ -550,7 +555,8 @@ class FrankaEnv(gym.Env):
         return {}
 
     def step(self, action: Any):
-        if self.joint_limit_guard and self._diverged is None and self._last_obs is not None:
+        if self.joint_limit_guard and self._diverged is None and self._last_obs is not None \
+                and not self._far_from_limits(self.sim.joint_views()[0]):
             action = self._guard_action(self._check_action(action))  # (before the compiled step, which then sees it)
         plan = self._plan
         if plan is not None and plan.fast and self._diverged is None and self._last_obs is not None \
