@@ -109,3 +109,19 @@ def test_calibrated_model_closes_the_gap_end_to_end(tmp_path):
     g = r["runs"]["computed_torque/gap_recovered"]
     assert g is not None and g >= 0.8, (g, err)
     assert not any(r["runs"][f"computed_torque/{m}"]["failures"] for m in s2r.MODELS)
+
+
+def test_runner_errors_are_one_line():
+    import subprocess
+    import sys
+
+    def run(*args):
+        return subprocess.run([sys.executable, "-m", "franka_vs_gym.fci.deploy", *args], capture_output=True,
+                              text=True, timeout=120, env=s2r._env())
+
+    r = run(loopback_host(NET + 3), "--policy", "ibvs_ppo")  # a joint-velocity agent is no torque policy
+    assert r.returncode == 2 and "FrankaIBVS-v0" in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    r = run(loopback_host(NET + 3), "--seeds", "1")  # nobody serves there
+    assert r.returncode == 1 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    r = run(loopback_host(NET + 3), "--seeds", "x")
+    assert r.returncode == 2 and "--seeds" in r.stderr

@@ -221,14 +221,16 @@ def main(argv: list[str] | None = None) -> int:
     if not (math.isfinite(args.duration) and 0 < args.duration <= 60):
         ap.error(f"--duration must be in (0, 60] s, got {args.duration}")
     try:
-        scale = None
+        scale = None  # (the controllers and AgentPolicy give physical actions, Nm)
         if args.policy in CONTROLLERS:
             policy = make_policy(args.policy, args.model, args.robot)
         else:
             from franka_vs_gym.policies import load_agent
 
-            policy = load_agent(args.policy)
-            scale = getattr(policy, "action_scale", None)
+            policy = load_agent(args.policy)  # (an AgentPolicy: physical actions out)
+            if getattr(policy, "env_id", None) != "FrankaTorqueTracking-v0":
+                raise UserError(f"--policy {args.policy}: an agent of {getattr(policy, 'env_id', '?')}; the runner "
+                                "plays FrankaTorqueTracking-v0 torque agents")
         eps = [dict(tracking_episode(s, args.robot), seed=s) for s in seeds]
         res = play_tracking(args.host, policy, eps, model=args.model, robot=args.robot, action_scale=scale,
                             duration=args.duration,
@@ -238,6 +240,11 @@ def main(argv: list[str] | None = None) -> int:
     except (UserError, ValueError, FileNotFoundError) as e:
         print(f"franka_vs_gym.fci.deploy: {e}", file=sys.stderr)
         return 2
+    except Exception as e:  # libfranka's own (no robot at the address, a network failure): one line
+        if type(e).__module__.startswith("pylibfranka"):
+            print(f"franka_vs_gym.fci.deploy: {args.host}: {str(e).splitlines()[0]}", file=sys.stderr)
+            return 1
+        raise
     print(json.dumps({"policy": args.policy, "model": args.model, "robot": args.robot, "episodes": res}))
     return 0
 
