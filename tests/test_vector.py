@@ -117,6 +117,9 @@ def test_batched_vector_env_is_bit_identical_to_single_envs(env_id, kwargs, n_st
     ("FrankaVisualTorque-v0", dict(action_scale="normalized", time_limit=0.3), 300, None),
     ("FrankaIBVS-v0", dict(action_scale="normalized", time_limit=0.6), 200, None),
     ("FrankaTorqueTracking-v0", dict(limit_rate=False, time_limit=0.4, torque_scale=1.0), 300, None),
+    # the joint-limit guard at work: random joint velocities for long enough to reach the limits
+    ("FrankaTorqueTracking-v0", dict(action_type="joint_velocity", action_scale="normalized", robot="fr3",
+                                     max_tracking_error=None, control_period=0.05, time_limit=4.0), 300, None),
 ])
 def test_task_logic_over_all_robots_is_bit_identical_to_single_envs(env_id, kwargs, n_steps, mode):
     """The configurations whose per-step logic runs once for all robots (franka_vs_gym.envs.batched): the same

@@ -203,6 +203,17 @@ class FrankaEnv(gym.Env):
     clip_actions : bool
         False (default): an action outside the action space raises ValueError. True: it is clipped to the space.
         NaN or inf always raise ValueError.
+    joint_limit_guard : bool
+        True (default), joint velocity actions: the robot interface's joint-limit guard bounds, per joint, the
+        commanded velocity *towards* a position limit by ``min(sqrt(2 a d), d / (2 T))``, d the distance from the
+        measured q to the task's joint-limit bound (the limit less 1 mrad and one control period's travel at the
+        action scale, :attr:`guard_margin` more inside), a = half the robot's rated joint acceleration (the rate
+        limiter's), T the control period: the velocity from which the joint can still brake before the bound, and
+        no more than half the remaining distance per period. Motion away from a limit and every joint far from its
+        limits are untouched (the scripted servo laws never meet it). A position-dependent velocity bound of the
+        kind the FR3's own interface applies (libfranka's position-based velocity limits): it keeps exploration
+        (random or learning) from running the arm into its stops. False: commands as given. Torque and Cartesian
+        actions are not guarded.
     render_mode : None | "rgb_array"
         "rgb_array": ``render()`` returns an (render_height, render_width, 3) uint8 image of the scene camera.
     """
@@ -222,7 +233,8 @@ class FrankaEnv(gym.Env):
                  velocity_noise: float = 0.0, action_scale: Any = "normalized", limit_rate: bool = True,
                  clip_actions: bool = False, render_mode: str | None = None, render_width: int = 320,
                  render_height: int = 240, camera: bool = True, tags: list | None = None,
-                 failure_penalty: float = 1.0, cameras: list | None = None) -> None:
+                 failure_penalty: float = 1.0, cameras: list | None = None,
+                 joint_limit_guard: bool = True) -> None:
         super().__init__()
         if action_type not in self.supported_action_types:
             raise ValueError(f"action_type must be one of {self.supported_action_types} for {type(self).__name__}, "
@@ -295,6 +307,19 @@ class FrankaEnv(gym.Env):
         self._act_lo_tol, self._act_hi_tol = self._act_lo - self._act_tol, self._act_hi + self._act_tol
         self._act_shape = self.action_space.shape
         self._act_symmetric = bool(np.array_equal(-self._act_lo_tol, self._act_hi_tol))
+        if not isinstance(joint_limit_guard, (bool, np.bool_)):
+            raise ValueError(f"joint_limit_guard must be True or False, got {joint_limit_guard!r}")
+        self.joint_limit_guard = bool(joint_limit_guard) and action_type == "joint_velocity"
+        if self.joint_limit_guard:
+            # the guard's bounds and constants, in action units (the physical velocity divided by the action scale)
+            self._guard_lo, self._guard_hi = self._q_lo_fail + self.guard_margin, self._q_hi_fail - self.guard_margin
+            unit = np.ones(7) if self.action_scale is None else self.action_scale
+            self._guard_2a = (2.0 * 0.5 * limits["ddq_max"]) / unit**2  # sqrt(2 a d) / unit = sqrt(2 a / unit^2 d)
+            self._guard_rate = 1.0 / (2.0 * self.control_period * unit)
+            # where the guard bounds lie beyond the action space (|a| <= 1 in action units: nothing to bound)
+            free = np.maximum(1.0 / self._guard_2a, 1.0 / self._guard_rate) * float(np.max(self._act_hi))
+            self._guard_free_mid = 0.5 * (self._guard_lo + self._guard_hi)
+            self._guard_free_half = 0.5 * (self._guard_hi - self._guard_lo) - free
         self._arm_geoms: frozenset[int] = self._arm_geom_ids()
         self._steps = 0
         self._t0 = 0.0
@@ -393,6 +418,33 @@ class FrankaEnv(gym.Env):
             raise ValueError(f"{self.action_type} action component {i} = {a[i]:.6g} is outside the action space "
                              f"[{self._act_lo[i]:.6g}, {self._act_hi[i]:.6g}] (pass clip_actions=True to clip)")
         return np.clip(a, self._act_lo, self._act_hi)
+
+    #: rad: how far inside the task's joint-limit bound the joint-limit guard brakes a joint to rest
+    guard_margin: float = 0.01
+
+    def guard_bounds(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The joint-limit guard's bounds (lower, upper) on an action (action units, (..., 7)) at joint position q
+        (rad, (..., 7)): ``-min(sqrt(2 a d_lo), d_lo / 2T)`` and ``min(sqrt(2 a d_hi), d_hi / 2T)`` (see
+        ``joint_limit_guard``), never beyond the action space."""
+        d_hi = np.maximum(self._guard_hi - q, 0.0)
+        d_lo = np.maximum(q - self._guard_lo, 0.0)
+        hi = np.minimum(np.sqrt(self._guard_2a * d_hi), self._guard_rate * d_hi)
+        lo = np.minimum(np.sqrt(self._guard_2a * d_lo), self._guard_rate * d_lo)
+        return -lo, hi
+
+    def _guard_action(self, a: np.ndarray) -> np.ndarray:
+        """The checked action ``a`` bounded by the joint-limit guard at the measured joint position (a new array
+        when a joint is near its limits, ``a`` itself otherwise)."""
+        q = self.sim.joint_views()[0]
+        if self._far_from_limits(q):
+            return a
+        lo, hi = self.guard_bounds(q)
+        return np.minimum(np.maximum(a, lo), hi)
+
+    def _far_from_limits(self, q: np.ndarray) -> bool:
+        """Every joint farther from its limits than the guard's braking distance at the action scale: the guard's
+        bounds then lie beyond the action space (the common case, kept cheap)."""
+        return bool((np.abs(q - self._guard_free_mid) < self._guard_free_half).all())
 
     def _apply_action(self, a: np.ndarray) -> None:
         sim = self.sim
@@ -503,6 +555,9 @@ class FrankaEnv(gym.Env):
         return {}
 
     def step(self, action: Any):
+        if self.joint_limit_guard and self._diverged is None and self._last_obs is not None \
+                and not self._far_from_limits(self.sim.joint_views()[0]):
+            action = self._guard_action(self._check_action(action))  # (before the compiled step, which then sees it)
         plan = self._plan
         if plan is not None and plan.fast and self._diverged is None and self._last_obs is not None \
                 and plan.eligible(self):
@@ -526,6 +581,8 @@ class FrankaEnv(gym.Env):
         if self._last_obs is None:
             raise RuntimeError("call reset() before step()")
         a = self._check_action(action)
+        if self.joint_limit_guard:
+            a = self._guard_action(a)  # (idempotent: an action step() guarded passes unchanged)
         if self.action_scale is not None:
             a = a * self.action_scale  # (the physical command; the task evaluates it)
         self._reflex: ControlException | None = None

@@ -85,6 +85,7 @@ class BatchedTask:
         self.act_lo, self.act_hi = e0._act_lo_tol, e0._act_hi_tol
         self.act_shape = e0._act_shape
         self.act_scale = e0.action_scale  # (None: physical actions)
+        self.guard = e0 if e0.joint_limit_guard else None  # (FrankaEnv.guard_bounds: the same for every robot)
         # rate-limited commands go to the limiter's target in the robot's record, not to the controls
         self.limited = sim.command_rates == "limit"
         self.target = lay.reflex_record + plant.L0 + 4 + np.arange(7)
@@ -169,6 +170,9 @@ class BatchedTask:
         (scaled down uniformly within the servo's limit, with the model's friction as feed-forward) into the
         batch's controls."""
         r = self.rows(ids)
+        if self.guard is not None:  # the joint-limit guard (FrankaEnv._guard_action) at each robot's q
+            lo, hi = self.guard.guard_bounds(self.qpos[r, self.qs])
+            a = np.minimum(np.maximum(a, lo), hi)
         if self.act_scale is not None:
             a = a * self.act_scale
         self.action[r] = a

@@ -1,0 +1,127 @@
+"""Sim to real through libfranka's protocol (franka_vs_gym.fci.sim_to_real, scripts/sim_to_real.py), short: one
+seeded "real robot" (a lock-step ``franka-vs serve --truth`` server with a hidden payload, extra Coulomb friction
+and a tilted mounting), a short designed excitation recorded by ``franka-vs excite``'s pylibfranka script,
+``franka-vs fit --add auto``, and computed torque played through pylibfranka (franka_vs_gym.fci.deploy) with the
+default, the calibrated and the true plant's model. The calibrated model must close most of the gap: an independent
+check of the whole chain (a calibration that missed the payload, a runner that dropped the gravity difference, a
+deployment whose held actions differed from the env's would all leave the gap open)."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+
+import numpy as np
+import pytest
+
+if importlib.util.find_spec("pylibfranka") is None:
+    pytest.skip("pylibfranka is not installed (pip install -e '.[fci]')", allow_module_level=True)
+
+from conftest import loopback_host  # noqa: E402
+
+from franka_vs_gym.fci import sim_to_real as s2r  # noqa: E402
+
+NET = 247  # this file's loopback net (conftest.loopback_host)
+
+
+def test_truth_and_true_model(tmp_path):
+    """The seeded truths differ per seed and lie in their documented ranges; the true model carries them, and the
+    served plant's armature."""
+    from franka_vs_gym.model.config import ModelConfig
+
+    a, b = s2r.truth_effects(0), s2r.truth_effects(1)
+    assert a == s2r.truth_effects(0) and a != b
+    e = {x["effect"]: x for x in a["effects"]}
+    assert 0.7 <= e["payload"]["mass_kg"] <= 1.3 and 1.5 <= e["gravity_tilt"]["tilt_deg"] <= 2.5
+    f = tmp_path / "truth.json"
+    f.write_text(json.dumps(a))
+    cfg = s2r.true_model(f)
+    base = ModelConfig()
+    assert cfg.payload.mass == pytest.approx(e["payload"]["mass_kg"])
+    assert np.allclose(cfg.armature, np.asarray(base.robot.rotor_inertia))
+    tilt = np.degrees(np.arccos(-cfg.gravity[2] / np.linalg.norm(cfg.gravity)))
+    assert tilt == pytest.approx(e["gravity_tilt"]["tilt_deg"], abs=1e-6)
+    assert s2r.gap_recovered(10.0, 2.0, 1.0) == pytest.approx(8 / 9)
+    assert s2r.gap_recovered(1.5, 1.2, 1.0) is None  # the model is not what limits the controller
+
+
+def test_deployed_episode_is_the_env_episode(tmp_path):
+    """The runner (pylibfranka, its own process: observation from RobotState, the action held 10 ms, the robot's
+    rate limiter, the gravity of the policy's model less the robot's) on a server whose plant is the policy's model
+    gives FrankaTorqueTracking-v0's episode: the same tracking error at every control step to float32 precision."""
+    import subprocess
+    import sys
+
+    import gymnasium as gym
+
+    from franka_vs_gym.fci import FCIServer
+    from franka_vs_gym.model.config import ModelConfig
+    from franka_vs_gym.policies import ComputedTorquePolicy
+
+    base = ModelConfig()
+    path = tmp_path / "model.json"  # the served plant: the robot's model and its motors' armature
+    base.copy(armature=np.asarray(base.robot.rotor_inertia)).save(path)
+    default_error = _default_error(loopback_host(NET + 2))  # the envs' default model (no armature) on that robot
+    host = loopback_host(NET + 1)
+    with FCIServer(host, lockstep=True, camera=False, verbose=False):
+        r = subprocess.run([sys.executable, "-m", "franka_vs_gym.fci.deploy", host, "--policy", "computed_torque",
+                            "--model", str(path), "--seeds", "10000"], capture_output=True, text=True, timeout=300,
+                           env=s2r._env())
+    assert r.returncode == 0, r.stderr[-2000:]
+    ep = json.loads(r.stdout.strip().splitlines()[-1])["episodes"][0]
+    env = gym.make("FrankaTorqueTracking-v0", action_scale="physical", model=str(path))
+    policy = ComputedTorquePolicy(str(path))
+    obs, _ = env.reset(seed=10_000)
+    errors = []
+    while True:
+        obs, _, term, trunc, info = env.step(policy.predict(obs)[0])
+        errors.append(info["error"])
+        if term or trunc:
+            break
+    env.close()
+    assert len(errors) == ep["steps"] == 500 and ep["failure"] is None
+    assert np.abs(np.array(ep["errors"]) - np.array(errors)).max() < 2e-6
+    assert ep["rms_error"] == pytest.approx(info["rms_error"], rel=1e-3)
+    # the same controller with the envs' default model tracks at least 5x worse on the robot with motors
+    assert info["rms_error"] < 0.2 * default_error
+
+
+def _default_error(host):
+    import subprocess
+    import sys
+
+    from franka_vs_gym.fci import FCIServer
+
+    with FCIServer(host, lockstep=True, camera=False, verbose=False):
+        r = subprocess.run([sys.executable, "-m", "franka_vs_gym.fci.deploy", host, "--policy", "computed_torque",
+                            "--seeds", "10000"], capture_output=True, text=True, timeout=300, env=s2r._env())
+    assert r.returncode == 0, r.stderr[-2000:]
+    return json.loads(r.stdout.strip().splitlines()[-1])["episodes"][0]["rms_error"]
+
+
+@pytest.mark.slow
+def test_calibrated_model_closes_the_gap_end_to_end(tmp_path):
+    script = s2r.design_excitation(tmp_path / "excitation", duration=10.0, evaluations=100, time_budget=60)
+    r = s2r.run_robot(0, tmp_path / "robot_0", loopback_host(NET), script, [10_000], ("computed_torque",))
+    err = {m: r["runs"][f"computed_torque/{m}"]["rms_error"] for m in s2r.MODELS}
+    assert "payload" in r["fit"]["effects"], r["fit"]
+    assert err["default"] >= 5 * err["truth"], err  # the hidden plant costs the default model
+    g = r["runs"]["computed_torque/gap_recovered"]
+    assert g is not None and g >= 0.8, (g, err)
+    assert not any(r["runs"][f"computed_torque/{m}"]["failures"] for m in s2r.MODELS)
+
+
+def test_runner_errors_are_one_line():
+    import subprocess
+    import sys
+
+    def run(*args):
+        return subprocess.run([sys.executable, "-m", "franka_vs_gym.fci.deploy", *args], capture_output=True,
+                              text=True, timeout=120, env=s2r._env())
+
+    r = run(loopback_host(NET + 3), "--policy", "ibvs_ppo")  # a joint-velocity agent is no torque policy
+    assert r.returncode == 2 and "FrankaIBVS-v0" in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    r = run(loopback_host(NET + 3), "--seeds", "1")  # nobody serves there
+    assert r.returncode == 1 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    r = run(loopback_host(NET + 3), "--seeds", "x")
+    assert r.returncode == 2 and "--seeds" in r.stderr
