@@ -284,7 +284,10 @@ def calibrate(op: Opened, enabled: dict[str, list[int] | None], progress: Progre
     spec = [(t.effect, t.joints) for t in terms]
     held = refit(op, enabled)
     with stages_to(progress):
-        from franka_vs_gym.validation.compare import progress as stage
+        from franka_vs_gym.validation.compare import progress as say
+
+        def stage(msg: str, _: bool) -> None:
+            say(msg, progress is not None)
 
         stage(f"fitting {[t.effect.name for t in terms]} on all samples", True)
         fits = _alternate(ctx, spec, y, np.arange(ctx.n), refine=True)
