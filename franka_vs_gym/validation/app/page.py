@@ -111,22 +111,24 @@ class Page:
         self.arm_div = Div(text="", width=430, height=400, name="arm")
 
         self.rmse_src = ColumnDataSource(dict(x=[], v=[], colour=[], kind=[]))
-        self.f_rmse = figure(height=250, width=560, title="held-out RMSE per joint (Nm)", tools="save",
+        self.f_rmse = figure(height=250, width=560, tools="save",
+                             title="held-out RMSE per joint (Nm): grey baseline, blue enabled, black dash noise floor",
                              x_range=FactorRange(*[(f"joint {j}", k) for j in range(7)
                                                    for k in ("baseline", "enabled")]),
                              name="f_rmse")
-        self.f_rmse.vbar(x="x", top="v", width=0.8, color="colour", source=self.rmse_src, legend_field="kind")
+        self.f_rmse.vbar(x="x", top="v", width=0.8, color="colour", source=self.rmse_src)
         self.noise_src = ColumnDataSource(dict(x=[], v=[]))
-        self.f_rmse.scatter("x", "v", source=self.noise_src, marker="dash", size=22, color="black", line_width=2,
-                            legend_label="noise floor")
+        self.f_rmse.scatter("x", "v", source=self.noise_src, marker="dash", size=22, color="black", line_width=2)
         self.f_rmse.xaxis.major_label_text_font_size = "0pt"  # the joints (group labels) only
         self.f_rmse.xaxis.group_label_orientation = 0.0
-        self.f_rmse.legend.location = "top_right"
-        self.fitp_src = ColumnDataSource(dict(x=[], v=[], colour=[]))
-        self.f_fitp = figure(height=250, width=620, title="fit % per joint and model variant (100 = perfect)",
+        self.fitp_src = ColumnDataSource(dict(x=[], v=[], colour=[], variant=[]))
+        self.f_fitp = figure(height=300, width=660, title="fit % per joint and model variant (100 = perfect; held out)",
                              tools="save", x_range=FactorRange(factors=[("0", "baseline")]), name="f_fitp")
-        self.f_fitp.vbar(x="x", top="v", width=0.8, color="colour", source=self.fitp_src)
-        self.f_fitp.xaxis.major_label_orientation = 1.2
+        self.f_fitp.vbar(x="x", top="v", width=0.8, color="colour", source=self.fitp_src, legend_field="variant")
+        self.f_fitp.xaxis.major_label_text_font_size = "0pt"  # the joints (group labels); variants in the legend
+        self.f_fitp.legend.location = "bottom_left"
+        self.f_fitp.legend.background_fill_alpha = 0.7
+        self.f_fitp.legend.label_text_font_size = "8pt"
         self.rmse_div = Div(text="", width=1200, name="heldout")
         self.params_div = Div(text="", width=1200, name="params")
 
@@ -346,14 +348,15 @@ class Page:
     def _draw_fit_percent(self) -> None:
         variants = self._variants()
         palette = ("#aaaaaa", "#ff7f0e", "#1f77b4", "#2ca02c", "#9467bd")
-        xs, vs, cs = [], [], []
+        xs, vs, cs, ns = [], [], [], []
         for j in range(7):
             for i, (name, fp) in enumerate(variants):
                 xs.append((f"joint {j}", name))
                 vs.append(float(max(fp[j], -50.0)))  # a variant far worse than the mean is drawn at -50
                 cs.append(palette[i % len(palette)])
+                ns.append(name)
         self.f_fitp.x_range.factors = xs
-        self.fitp_src.data = dict(x=xs, v=vs, colour=cs)
+        self.fitp_src.data = dict(x=xs, v=vs, colour=cs, variant=ns)
 
     def _draw_arm(self) -> None:
         op, cur = self.app.opened, self.current
