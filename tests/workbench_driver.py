@@ -75,6 +75,7 @@ def make_browser(width: int = 1400, height: int = 1200):
     opts.set_capability("goog:loggingPrefs", {"browser": "ALL", "performance": "ALL"})
     drv = webdriver.Chrome(service=Service(executable_path=CHROMEDRIVER), options=opts)
     drv._profile = profile
+    drv.set_page_load_timeout(90)
     return drv
 
 

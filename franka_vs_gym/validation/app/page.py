@@ -10,6 +10,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from bokeh.events import DocumentReady
 from bokeh.layouts import column, row
 from bokeh.models import (
     BoxAnnotation,
@@ -62,8 +63,16 @@ class Page:
         self._build()
         doc.add_root(self.root)
         doc.title = "franka-vs workbench"
+        self._shown = self._drawn = False
+        doc.on_event(DocumentReady, self._on_shown)
         doc.add_periodic_callback(self.poll, POLL_MS)
         self.poll()
+
+    def _on_shown(self, event) -> None:
+        """The browser has drawn the document: once it shows the log, the diagnosis may start."""
+        self._shown = True
+        if self._drawn:
+            self.doc.add_timeout_callback(self.app.page_ready.set, 300)
 
     # ------------------------------------------------------------------ layout
     def _build(self) -> None:
@@ -230,6 +239,9 @@ class Page:
         self.arm_div.text = "<i>drawing the arm...</i>"
         self._refit(arm=False)
         self.doc.add_timeout_callback(self._draw_arm, 50)  # after the page is usable
+        self._drawn = True
+        if self._shown:
+            self.doc.add_timeout_callback(self.app.page_ready.set, 300)  # then the diagnosis may take the CPU
 
     def _build_toggles(self) -> None:
         op = self.app.opened

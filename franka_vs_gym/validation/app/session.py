@@ -263,6 +263,37 @@ def run_diagnosis(op: Opened, progress: Progress | None = None) -> Diagnosis:
         return diagnose(op.data, op.cfg, verbose=True)
 
 
+def slim(d: Diagnosis) -> Diagnosis:
+    """The diagnosis without what the page does not read (its context, processed log, residual and each effect's
+    torque: hundreds of MB on a long log), to send it from the process that computed it."""
+    from dataclasses import replace
+
+    ranking = [replace(c, fits=[], terms=[]) for c in d.ranking]
+    return replace(d, ranking=ranking, context=None, data=None, residual=None, contributions={})
+
+
+def diagnose_file(path: str, options: dict[str, Any], send: Callable[[tuple[str, Any]], None]) -> None:
+    """In a process of its own (the server stays responsive): read ``path`` as :func:`open_log` does, diagnose it,
+    and ``send`` each stage as ``("progress", line)``, then ``("done", slim diagnosis)`` or ``("error", exc)``."""
+    from franka_vs_gym.validation.compare import as_processed, baseline_config
+    from franka_vs_gym.validation.diagnose import diagnose
+    from franka_vs_gym.validation.logs import load_log
+
+    def say(msg: str) -> None:
+        send(("progress", f"diagnosing: {msg}"))
+
+    try:
+        say("reading the log")
+        data = as_processed(load_log(path, topic=options.get("topic")), options.get("settings"))
+        cfg = baseline_config(data.log, options.get("model"), options.get("rigid_body", False),
+                              tool=options.get("tool"), robot=options.get("robot"), data=data)
+        with stages_to(say):
+            d = diagnose(data, cfg, verbose=True)
+        send(("done", slim(d)))
+    except Exception as e:  # sent to the page (a user's error as one line, a bug with its type)
+        send(("error", e))
+
+
 def calibrate(op: Opened, enabled: dict[str, list[int] | None], progress: Progress | None = None) -> FitResult:
     """``fit``'s last step on the enabled set and joints: the joint fit on all samples with the effects' non-linear
     refinements, each fit constrained as the model can take it and written into the model; the error before and
@@ -447,6 +478,6 @@ def log_files(folder: str) -> list[str]:
     return out
 
 
-__all__ = ["BOUNDS", "Opened", "Overlay", "Refit", "Validation", "bound_warnings", "calibrate", "fit_percent",
-           "log_files", "open_log", "overlay", "preset", "refit", "run_diagnosis", "save_model", "save_report",
-           "stages_to", "validate"]
+__all__ = ["BOUNDS", "Opened", "Overlay", "Refit", "Validation", "bound_warnings", "calibrate", "diagnose_file",
+           "fit_percent", "log_files", "open_log", "overlay", "preset", "refit", "run_diagnosis", "save_model",
+           "save_report", "slim", "stages_to", "validate"]

@@ -44,6 +44,7 @@ class App:
     overlays: list[S.Overlay] = field(default_factory=list)
     last_fit: Any = None  # the FitResult of the last saved model
     arm: Any = None  # the pages' one ArmView (made by the first page)
+    page_ready: threading.Event = field(default_factory=threading.Event)  # a page shows the opened log
     log_version: int = 0  # increases with each newly opened log (pages rebuild the toggles)
     _pool: ThreadPoolExecutor = field(default_factory=lambda: ThreadPoolExecutor(1, thread_name_prefix="workbench"))
     _lock: threading.Lock = field(default_factory=threading.Lock)
@@ -88,6 +89,7 @@ class App:
                               rigid_body=o.rigid_body, progress=self.progress)
 
         def done(op: S.Opened) -> None:
+            self.page_ready.clear()
             self._set(opened=op, diagnosis=None, overlays=[], log_version=self.log_version + 1,
                       status=f"opened {op.path} in {op.seconds:.1f} s; diagnosing in the background (toggles work "
                              "already)")
@@ -96,15 +98,60 @@ class App:
         self.submit(f"opening {path}", work, done)
 
     def diagnose(self) -> None:
+        """``diagnose`` on the opened log in a process of its own (started once the first page shows the log, or
+        after ``DIAGNOSE_AFTER`` s without a page), its stages shown as the status."""
         op = self.opened
         if op is None:
             return
+
+        def work():
+            self.page_ready.wait(DIAGNOSE_AFTER)
+            return _in_process(op.path, self.options, self.progress)
 
         def done(d) -> None:
             if self.opened is op:
                 self._set(diagnosis=d, status=f"diagnosis done: selected {', '.join(d.selected) or 'nothing'}")
 
-        self.submit("diagnosing", lambda: S.run_diagnosis(op, self.progress), done)
+        self.submit("diagnosing", work, done)
+
+
+DIAGNOSE_AFTER = 5.0  # s: the diagnosis waits this long for a page to show the opened log first
+
+
+def _child(path: str, options: dict, queue) -> None:
+    S.diagnose_file(path, options, queue.put)
+
+
+def _in_process(path: str, o: Options, progress: Callable[[str], None]):
+    """:func:`session.diagnose_file` in a spawned process (no shared GIL with the server), relaying its stages."""
+    import multiprocessing as mp
+    import queue as q
+
+    ctx = mp.get_context("spawn")
+    qu = ctx.Queue()
+    opts = {"model": o.model, "tool": o.tool, "robot": o.robot, "topic": o.topic, "rigid_body": o.rigid_body,
+            "settings": o.settings}
+    proc = ctx.Process(target=_child, args=(path, opts, qu), daemon=True)
+    proc.start()
+    try:
+        while True:
+            try:
+                kind, val = qu.get(timeout=1.0)
+            except q.Empty:
+                if not proc.is_alive():
+                    raise RuntimeError("the diagnosis process ended without a result (exit code "
+                                       f"{proc.exitcode})") from None
+                continue
+            if kind == "progress":
+                progress(val)
+            elif kind == "error":
+                raise val
+            else:
+                return val
+    finally:
+        proc.join(timeout=5)
+        if proc.is_alive():
+            proc.terminate()
 
 
 __all__ = ["App", "Options"]
