@@ -138,7 +138,7 @@ class Page:
         self.f_fitp.legend.location = "bottom_left"
         self.f_fitp.legend.background_fill_alpha = 0.7
         self.f_fitp.legend.label_text_font_size = "8pt"
-        self.rmse_div = Div(text="", width=1200, name="heldout")
+        self.rmse_div = Div(text="", width=1200, height=130, name="heldout")
         self.params_div = Div(text="", width=1200, name="params")
 
         self.toggle_box = column(Div(text=""), name="toggles")
@@ -312,8 +312,8 @@ class Page:
         self._draw_residual()
         self._draw_rmse()
         self._draw_fit_percent()
-        if arm:
-            self._draw_arm()
+        if arm:  # on the next tick: the figures' changes go to the browser first
+            self.doc.add_next_tick_callback(self._draw_arm)
         self.last_toggle_s = time.perf_counter() - t0
 
     def _draw_residual(self) -> None:

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import errno
 import os
-import sys
 from collections.abc import Callable
 
 from franka_vs_gym.errors import UserError
@@ -50,7 +49,7 @@ def run(app: App, host: str, port: int, open_browser: bool, say: Callable[[str],
     """Serve until interrupted (Ctrl-C or SIGTERM), opening the page in the default browser unless told not to."""
     server = make_server(app, host, port)
     url = url_of(host, port)
-    (say or (lambda s: print(s, file=sys.stderr, flush=True)))(
+    (say or (lambda s: print(s, flush=True)))(  # one line on stdout when the server is ready
         f"franka-vs workbench: {url} (Ctrl-C stops it)" + (
             "" if host in LOCAL else f"; WARNING: listening on {host}, so other machines can read and write files "
                                      "on this one through the page"))
