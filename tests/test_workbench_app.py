@@ -131,3 +131,36 @@ def test_open_log_errors_are_the_clis(tmp_path):
     bad.write_text("a,b\n1,2\n")
     with pytest.raises(ValueError):
         S.open_log(str(bad))
+
+
+def test_saved_report_is_fits_report(opened, tmp_path):
+    res = S.calibrate(opened, {"payload": None})
+    p = S.save_report(opened, res, str(tmp_path / "rep"))
+    html = (p / "report.html").read_text()
+    assert "payload" in html and (p / "report.md").exists()
+    with pytest.raises(FileExistsError, match="choose a new name"):
+        S.save_report(opened, res, str(p))
+
+
+def test_page_without_gl_says_why_and_the_rest_works(opened):
+    """Where no OpenGL context can be made, the arm view says why; the figures and the refit still work."""
+    from bokeh.document import Document
+
+    from franka_vs_gym.validation.app.arm import ArmView
+    from franka_vs_gym.validation.app.page import Page
+    from franka_vs_gym.validation.app.state import App
+
+    app = App()
+    app.arm = ArmView()
+    app.arm.error = "the arm view needs offscreen OpenGL (MUJOCO_GL=none) and this machine has none: test"
+    app.opened, app.log_version, app.version = opened, 1, 1
+    page = Page(app, Document())
+    page._draw_arm()
+    assert "no arm view" in page.arm_div.text and "MUJOCO_GL" in page.arm_div.text
+    page.toggles["payload"].active = [0]
+    assert page.current.enabled == {"payload": None}
+    assert len(page.src.data["cur"]) > 1000
+    import re
+
+    m = re.search(r"data-total='([0-9.]+)' data-baseline='([0-9.]+)'", page.rmse_div.text)
+    assert float(m.group(1)) < 0.5 * float(m.group(2))

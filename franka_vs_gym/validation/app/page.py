@@ -131,13 +131,12 @@ class Page:
         self.f_rmse.xaxis.major_label_text_font_size = "0pt"  # the joints (group labels) only
         self.f_rmse.xaxis.group_label_orientation = 0.0
         self.fitp_src = ColumnDataSource(dict(x=[], v=[], colour=[], variant=[]))
-        self.f_fitp = figure(height=300, width=660, title="fit % per joint and model variant (100 = perfect; held out)",
+        self.f_fitp = figure(height=300, width=780, title="fit % per joint and model variant (100 = perfect; held out)",
                              tools="save", x_range=FactorRange(factors=[("0", "baseline")]), name="f_fitp")
         self.f_fitp.vbar(x="x", top="v", width=0.8, color="colour", source=self.fitp_src, legend_field="variant")
         self.f_fitp.xaxis.major_label_text_font_size = "0pt"  # the joints (group labels); variants in the legend
-        self.f_fitp.legend.location = "bottom_left"
-        self.f_fitp.legend.background_fill_alpha = 0.7
         self.f_fitp.legend.label_text_font_size = "8pt"
+        self.f_fitp.add_layout(self.f_fitp.legend[0], "right")
         self.rmse_div = Div(text="", width=1200, height=130, name="heldout")
         self.params_div = Div(text="", width=1200, name="params")
 
