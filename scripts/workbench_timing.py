@@ -50,9 +50,16 @@ def main() -> int:
     load0 = os.getloadavg()[0]
     t0 = time.time()
     proc = W.start_workbench(log, port, cwd=str(tmp))
+    listening = []
+    import threading
+
+    threading.Thread(target=lambda: (proc.stdout.readline(), listening.append(time.time() - t0)), daemon=True).start()
     try:
         W.open_page(drv, port, timeout=300)
         usable = time.time() - t0
+        import re
+
+        m = re.search(r"opened-s'>([0-9.]+)<", W.get(drv, "title", "text") or "")
         during = []
         diag_done = lambda: "verdict" in (W.get(drv, "diagnosis", "text") or "")  # noqa: E731
         state = [0]
@@ -72,7 +79,10 @@ def main() -> int:
             after.append(W.time_toggle(drv, n, ([0] if n == "toggle_payload" else list(range(7))) if on[n] else []))
         h = W.heldout(drv)
         urls = W.requests(drv)
-        out = {"log": log, "seconds_to_usable_page": round(usable, 2), "seconds_to_diagnosis": round(diagnosed, 2),
+        out = {"log": log, "seconds_to_usable_page": round(usable, 2),
+               "seconds_to_server_listening": round(listening[0], 2) if listening else None,
+               "seconds_opening_the_log_in_the_server": float(m.group(1)) if m else None,
+               "seconds_to_diagnosis": round(diagnosed, 2),
                "toggle_s_during_diagnosis": [round(x, 3) for x in during],
                "toggle_s": [round(x, 3) for x in after],
                "toggle_s_median": round(statistics.median(after), 3) if after else None,

@@ -147,6 +147,7 @@ def open_page(drv, port: int, timeout: float = 120.0) -> float:
 
     wait(loaded, timeout, "the server to answer", every=0.05)
     wait(lambda: heldout(drv) is not None and (get(drv, "f_time", "renderers.length") or 0) > 0
+         and get(drv, "toggle_payload", "disabled") is False
          and drv.execute_script(MODEL.replace("arguments[0]", "'toggles'") + " return m ? m.children.length : 0;")
          > 3, timeout, "the residual, the toggles and the held-out error")
     return time.time() - t0

@@ -140,7 +140,8 @@ class Page:
         self.rmse_div = Div(text="", width=1200, height=130, name="heldout")
         self.params_div = Div(text="", width=1200, name="params")
 
-        self.toggle_box = column(Div(text=""), name="toggles")
+        self.toggle_box = column(name="toggles")
+        self._build_toggles()
         self.preset_btn = Button(label="diagnose's selection", width=170, name="preset")
         self.preset_btn.on_click(self._apply_preset)
         self.none_btn = Button(label="none", width=80, name="none")
@@ -220,7 +221,8 @@ class Page:
         self.title.text = (f"<h2 style='margin:4px 0'>franka-vs workbench: {html.escape(Path(op.path).name)}</h2>"
                            f"{op.ctx.n} samples at {op.ctx.data.settings.rate:g} Hz, {op.time[-1]:.1f} s; model: "
                            f"{html.escape(self.app.options.model or 'the FER with the log declared tool')}; fit on "
-                           f"the first {op.split_time:.1f} s, held out after (orange)")
+                           f"the first {op.split_time:.1f} s, held out after (orange); opened in "
+                           f"<span class='opened-s'>{op.seconds:.2f}</span> s")
         stem = Path(op.path).with_suffix("")
         self.model_out.value = _free(f"{stem}-calibrated.json")
         self.report_out.value = _free(f"{stem}-report")
@@ -233,7 +235,8 @@ class Page:
         self.cursor.value = float(t[k])
         self.span.location = float(t[k])
         self.joint.active = int(np.argmax(np.abs(op.y[k]) / op.noise))
-        self._build_toggles()
+        self._set_enabled({}, refit=False)
+        self._enable_toggles()
         self.baseline = S.refit(op, {})
         self.arm_div.text = "<i>drawing the arm...</i>"
         self._refit(arm=False)
@@ -243,22 +246,32 @@ class Page:
             self.doc.add_timeout_callback(self.app.page_ready.set, 300)  # then the diagnosis may take the CPU
 
     def _build_toggles(self) -> None:
-        op = self.app.opened
+        """One row per effect of the library, made with the page (before any log is open, so that the browser lays
+        them out while the server reads the log); a log that cannot support an effect disables its row."""
+        from franka_vs_gym.validation.effects import REGISTRY
+
         rows = []
         self.toggles = {}
-        for name, term in op.terms.items():
-            e = term.effect
+        for name in REGISTRY.names():
+            e = REGISTRY.get(name)
             labels = [f"{j}" for j in range(7)] if e.per_joint else ["on"]
-            g = CheckboxButtonGroup(labels=labels, active=[], name=f"toggle_{name}", width=250 if e.per_joint else 60)
+            g = CheckboxButtonGroup(labels=labels, active=[], name=f"toggle_{name}", width=250 if e.per_joint else 60,
+                                    disabled=True)
             g.on_change("active", lambda a, o, n: self._toggled())
             self.toggles[name] = g
             tip = html.escape(e.signature or e.description or "")[:140]
             rows.append(row(Div(text=f"<b>{name}</b>", width=190, styles={"padding-top": "6px"}), g,
                             Div(text=f"<span style='color:#666;font-size:85%'>{tip}</span>", width=700)))
-        if op.skipped:
-            rows.append(Div(text="not offered on this log: " + "; ".join(
-                f"{html.escape(k)} ({html.escape(v[:120])})" for k, v in op.skipped.items())))
+        self.skipped_div = Div(text="", width=1200)
+        rows.append(self.skipped_div)
         self.toggle_box.children = rows
+
+    def _enable_toggles(self) -> None:
+        op = self.app.opened
+        for name, g in self.toggles.items():
+            g.disabled = name not in op.terms
+        self.skipped_div.text = ("not offered on this log: " + "; ".join(
+            f"{html.escape(k)} ({html.escape(v[:120])})" for k, v in op.skipped.items())) if op.skipped else ""
 
     def _enabled(self) -> dict[str, list[int] | None]:
         out: dict[str, list[int] | None] = {}
@@ -268,7 +281,7 @@ class Page:
             out[name] = sorted(g.active) if len(g.labels) == 7 else None
         return out
 
-    def _set_enabled(self, enabled: dict[str, list[int] | None], touched: bool = False) -> None:
+    def _set_enabled(self, enabled: dict[str, list[int] | None], touched: bool = False, refit: bool = True) -> None:
         self._quiet = True
         try:
             for name, g in self.toggles.items():
@@ -281,7 +294,8 @@ class Page:
         finally:
             self._quiet = False
         self.touched = self.touched or touched
-        self._refit()
+        if refit:
+            self._refit()
 
     def _toggled(self) -> None:
         if getattr(self, "_quiet", False):
