@@ -7,7 +7,8 @@ residual plots with data, the toggles and the held-out error on the page), and f
 The browser is started first (its own start-up is not counted); the clock starts when the command is launched.
 Toggles are timed in the page (``performance.now()`` from setting the toggle's state, as a click does, to the frame
 after the update), both while the diagnosis still runs in the background and after it. The machine's load average
-is printed beside the numbers (the project's machine is shared).
+is printed beside the numbers (the project's machine is shared), with the CPU seconds the server and the browser
+spent until the page was usable: what the wall time would approach on an idle machine.
 """
 
 from __future__ import annotations
@@ -24,6 +25,29 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 
 import workbench_driver as W  # noqa: E402
+
+
+def cpu_seconds(pid: int) -> float:
+    """User + system CPU seconds of process ``pid`` so far (Linux /proc)."""
+    try:
+        f = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return 0.0
+    return (int(f[11]) + int(f[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def browser_cpu_seconds(profile: str) -> float:
+    """CPU seconds of every chromium process started with ``profile`` (its user-data-dir)."""
+    total = 0.0
+    for d in Path("/proc").iterdir():
+        if not d.name.isdigit():
+            continue
+        try:
+            if profile.encode() in (d / "cmdline").read_bytes():
+                total += cpu_seconds(int(d.name))
+        except OSError:
+            continue
+    return total
 
 
 def main() -> int:
@@ -48,6 +72,7 @@ def main() -> int:
     drv = W.make_browser()
     drv.get("about:blank")
     load0 = os.getloadavg()[0]
+    b0 = browser_cpu_seconds(drv._profile)
     t0 = time.time()
     proc = W.start_workbench(log, port, cwd=str(tmp))
     listening = []
@@ -57,6 +82,7 @@ def main() -> int:
     try:
         W.open_page(drv, port, timeout=300)
         usable = time.time() - t0
+        cpu_server, cpu_browser = cpu_seconds(proc.pid), browser_cpu_seconds(drv._profile) - b0
         import re
 
         m = re.search(r"opened-s'>([0-9.]+)<", W.get(drv, "title", "text") or "")
@@ -71,15 +97,19 @@ def main() -> int:
         W.click(drv, "none")
         W.wait(lambda: (h := W.heldout(drv)) and abs(h[0] - h[1]) < 1e-12, 60, "the effects switched off")
         after = []
+        c0s, c0b = cpu_seconds(proc.pid), browser_cpu_seconds(drv._profile)
         names = ("toggle_payload", "toggle_sigmoid_friction", "toggle_payload", "toggle_sigmoid_friction")
         on = {n: False for n in names}
         for i in range(a.toggles):
             n = names[i % len(names)]
             on[n] = not on[n]
             after.append(W.time_toggle(drv, n, ([0] if n == "toggle_payload" else list(range(7))) if on[n] else []))
+        n_t = max(len(after), 1)
+        cpu_toggle = [(cpu_seconds(proc.pid) - c0s) / n_t, (browser_cpu_seconds(drv._profile) - c0b) / n_t]
         h = W.heldout(drv)
         urls = W.requests(drv)
         out = {"log": log, "seconds_to_usable_page": round(usable, 2),
+               "cpu_s_to_usable_page_server_browser": [round(cpu_server, 2), round(cpu_browser, 2)],
                "seconds_to_server_listening": round(listening[0], 2) if listening else None,
                "seconds_opening_the_log_in_the_server": float(m.group(1)) if m else None,
                "seconds_to_diagnosis": round(diagnosed, 2),
@@ -87,6 +117,7 @@ def main() -> int:
                "toggle_s": [round(x, 3) for x in after],
                "toggle_s_median": round(statistics.median(after), 3) if after else None,
                "toggle_s_max": round(max(after), 3) if after else None,
+               "cpu_s_per_toggle_server_browser": [round(x, 3) for x in cpu_toggle],
                "heldout_total_Nm_baseline_last": [round(x, 4) for x in h],
                "outside_requests": W.outside(urls, port), "loadavg_1min_before_after": [load0, os.getloadavg()[0]],
                "cpus": len(os.sched_getaffinity(0))}

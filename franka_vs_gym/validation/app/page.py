@@ -37,7 +37,7 @@ from franka_vs_gym.validation.app.panels import candidates_html, fit_html, param
 from franka_vs_gym.validation.app.state import App
 
 POLL_MS = 250
-MAX_POINTS = 4000  # samples drawn per curve (the log decimated by a whole stride for the browser)
+MAX_POINTS = 3000  # samples drawn per curve (the log decimated by a whole stride for the browser)
 OVERLAY_COLOURS = ("#2ca02c", "#9467bd", "#8c564b", "#e377c2", "#17becf")
 TOOLS = "pan,box_zoom,wheel_zoom,reset,save"
 
@@ -85,8 +85,10 @@ class Page:
         self.files = Select(title="files in the log's folder", options=self._folder_files(start or "."), width=420,
                             name="files")
         self.files.on_change("value", lambda a, o, n: self._pick(n))
-        self.status = Div(text="", width=1200, name="status")
-        self.error = Div(text="", width=1200, name="error", styles={"color": "#b00020", "font-weight": "bold"})
+        # fixed sizes: a change of their text does not lay the whole page out again
+        self.status = Div(text="", width=1200, height=22, name="status")
+        self.error = Div(text="", width=1200, height=22, name="error",
+                         styles={"color": "#b00020", "font-weight": "bold"})
         self.joint = RadioButtonGroup(labels=[f"joint {j}" for j in range(7)], active=0, name="joint")
         self.joint.on_change("active", lambda a, o, n: self._draw_residual())
         self.cursor = Slider(title="cursor time (s)", start=0.0, end=1.0, value=0.0, step=0.01, width=560,
@@ -138,7 +140,7 @@ class Page:
         self.f_fitp.legend.label_text_font_size = "8pt"
         self.f_fitp.add_layout(self.f_fitp.legend[0], "right")
         self.rmse_div = Div(text="", width=1200, height=130, name="heldout")
-        self.params_div = Div(text="", width=1200, name="params")
+        self.params_div = Div(text="", width=1250, height=110, name="params", styles={"overflow-y": "auto"})
 
         self.toggle_box = column(name="toggles")
         self._build_toggles()
@@ -336,8 +338,12 @@ class Page:
         j = int(self.joint.active or 0)
         s = _stride(op.ctx.n)
         d = op.ctx.data
-        self.src.data = dict(t=op.time[::s], base=op.y[::s, j], cur=cur.residual[::s, j], dq=d.dq[::s, j],
-                             q=d.q[::s, j])
+        if getattr(self, "_shown_joint", None) == (op, j) and len(self.src.data["cur"]) == len(op.time[::s]):
+            self.src.data["cur"] = cur.residual[::s, j]  # a toggle: only the new residual goes to the browser
+        else:
+            self.src.data = dict(t=op.time[::s], base=op.y[::s, j], cur=cur.residual[::s, j], dq=d.dq[::s, j],
+                                 q=d.q[::s, j])
+            self._shown_joint = (op, j)
         nf = float(op.noise[j])
         for b in self.bands:
             b.bottom, b.top = -nf, nf
@@ -380,7 +386,8 @@ class Page:
                 vs.append(float(max(fp[j], -50.0)))  # a variant far worse than the mean is drawn at -50
                 cs.append(palette[i % len(palette)])
                 ns.append(name)
-        self.f_fitp.x_range.factors = xs
+        if list(self.f_fitp.x_range.factors) != xs:
+            self.f_fitp.x_range.factors = xs
         self.fitp_src.data = dict(x=xs, v=vs, colour=cs, variant=ns)
 
     def _draw_arm(self) -> None:
