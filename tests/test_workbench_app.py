@@ -164,3 +164,14 @@ def test_page_without_gl_says_why_and_the_rest_works(opened):
 
     m = re.search(r"data-total='([0-9.]+)' data-baseline='([0-9.]+)'", page.rmse_div.text)
     assert float(m.group(1)) < 0.5 * float(m.group(2))
+
+
+def test_page_without_a_log_waits_for_one():
+    from bokeh.document import Document
+
+    from franka_vs_gym.validation.app.page import Page
+    from franka_vs_gym.validation.app.state import App
+
+    page = Page(App(), Document())
+    assert "no log opened yet" in page.status.text
+    assert all(g.disabled for g in page.toggles.values()) and page.current is None
