@@ -85,7 +85,7 @@ def run(app: App, host: str, port: int, open_browser: bool, say: Callable[[str],
         server.io_loop.start()
     finally:
         server.stop()
-        app._pool.shutdown(wait=False, cancel_futures=True)
+        app.stop()
 
 
 __all__ = ["LOCAL", "make_server", "run", "url_of"]

@@ -45,6 +45,7 @@ class App:
     last_fit: Any = None  # the FitResult of the last saved model
     arm: Any = None  # the pages' one ArmView (made by the first page)
     page_ready: threading.Event = field(default_factory=threading.Event)  # a page shows the opened log
+    stopping: threading.Event = field(default_factory=threading.Event)  # the server is stopping: jobs end
     log_version: int = 0  # increases with each newly opened log (pages rebuild the toggles)
     _pool: ThreadPoolExecutor = field(default_factory=lambda: ThreadPoolExecutor(1, thread_name_prefix="workbench"))
     _lock: threading.Lock = field(default_factory=threading.Lock)
@@ -80,6 +81,12 @@ class App:
 
         self._pool.submit(run)
 
+    def stop(self) -> None:
+        """End the jobs: the queued ones are cancelled, a running diagnosis process is stopped."""
+        self.stopping.set()
+        self.page_ready.set()
+        self._pool.shutdown(wait=False, cancel_futures=True)
+
     # --- the jobs
     def open(self, path: str) -> None:
         o = self.options
@@ -106,7 +113,7 @@ class App:
 
         def work():
             self.page_ready.wait(DIAGNOSE_AFTER)
-            return _in_process(op.path, self.options, self.progress)
+            return _in_process(op.path, self.options, self.progress, self.stopping)
 
         def done(d) -> None:
             if self.opened is op:
@@ -122,7 +129,7 @@ def _child(path: str, options: dict, queue) -> None:
     S.diagnose_file(path, options, queue.put)
 
 
-def _in_process(path: str, o: Options, progress: Callable[[str], None]):
+def _in_process(path: str, o: Options, progress: Callable[[str], None], stopping: threading.Event):
     """:func:`session.diagnose_file` in a spawned process (no shared GIL with the server), relaying its stages."""
     import multiprocessing as mp
     import queue as q
@@ -138,6 +145,8 @@ def _in_process(path: str, o: Options, progress: Callable[[str], None]):
             try:
                 kind, val = qu.get(timeout=1.0)
             except q.Empty:
+                if stopping.is_set():
+                    raise RuntimeError("the server stopped before the diagnosis finished") from None
                 if not proc.is_alive():
                     raise RuntimeError("the diagnosis process ended without a result (exit code "
                                        f"{proc.exitcode})") from None
