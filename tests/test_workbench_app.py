@@ -175,3 +175,10 @@ def test_page_without_a_log_waits_for_one():
     page = Page(App(), Document())
     assert "no log opened yet" in page.status.text
     assert all(g.disabled for g in page.toggles.values()) and page.current is None
+
+
+def test_intervals_of_the_enabled_set_cover_the_hidden_payload(opened, payload_log):
+    ci = S.intervals(opened, {"payload": None})
+    lo, hi = ci["payload"]["mass_kg"]
+    assert lo < hi and abs(0.5 * (lo + hi) - payload_log[1]["params"]["mass_kg"]) < 0.05
+    assert S.intervals(opened, {}) == {}

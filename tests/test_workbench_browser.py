@@ -53,6 +53,9 @@ def test_workbench_loop_in_the_browser(logs):
         assert with_payload < 1.25 * float(np.sqrt(np.mean(np.square(answer["torque_noise_Nm"]))))
         assert dt < 30
         assert "payload" in W.get(drv, "params", "text")
+        # the enabled set's 95 % intervals follow the toggle
+        W.wait(lambda: "with 95 % intervals" in (W.get(drv, "params", "text") or ""), 120, "the intervals")
+        assert "mass_kg" in W.get(drv, "params", "text") and "(95% [" in W.get(drv, "params", "text")
         arm = W.get(drv, "arm", "text")
         W.wait(lambda: "<img" in (W.get(drv, "arm", "text") or "") or "no arm view" in W.get(drv, "arm", "text"),
                60, "the arm view")

@@ -366,6 +366,29 @@ class Page:
                                    v=[float(op.noise[j]) for j in range(7) for _ in range(2)])
         self.rmse_div.text = rmse_html(op, base, cur)
         self.params_div.text = params_html(cur)
+        self._intervals_later(op, cur)
+
+    def _intervals_later(self, op, cur: S.Refit) -> None:
+        """The enabled set's intervals on the app's interval thread; shown if the set is still the one enabled."""
+        self._ci_token = token = getattr(self, "_ci_token", 0) + 1
+        if not cur.params:
+            return
+
+        def job() -> None:
+            if token != self._ci_token:
+                return  # another toggle came since
+            try:
+                ci = S.intervals(op, cur.enabled)
+            except Exception as e:  # shown beside the values; the fit itself stands
+                ci = {"_error": one_line(e)}
+            if token == self._ci_token:
+                self.doc.add_next_tick_callback(lambda: self._show_intervals(token, cur, ci))
+
+        self.app.interval_pool.submit(job)
+
+    def _show_intervals(self, token: int, cur: S.Refit, ci: dict) -> None:
+        if token == self._ci_token and cur is self.current:
+            self.params_div.text = params_html(cur, ci)
 
     def _variants(self) -> list[tuple[str, np.ndarray]]:
         out = [("baseline", self.baseline.fit_percent)]

@@ -43,15 +43,19 @@ def _value(v) -> str:
     return "[" + " ".join("-" if x is None else f"{float(x):.4g}" for x in flat) + "]"
 
 
-def params_html(cur: S.Refit) -> str:
-    """The enabled set's fitted values (fit part) and, in red beside them, the parameters at a bound."""
+def params_html(cur: S.Refit, ci: dict | None = None) -> str:
+    """The enabled set's fitted values (fit part) with their 95 % intervals once computed (``ci``: effect -> the
+    intervals, or ``{"_error": line}``) and, in red beside them, the parameters at a bound."""
     if not cur.params:
         return "<i>no effect enabled: the residual is the baseline model's</i>"
-    out = ["<b>fitted values of the enabled set</b> (on the fit part; the intervals come with the diagnosis "
-           "below and with a saved fit):<ul style='margin:2px'>"]
+    note = ("95 % intervals computing..." if ci is None else
+            f"intervals not computed: {html.escape(ci['_error'])}" if "_error" in ci else "with 95 % intervals")
+    out = [f"<b>fitted values of the enabled set</b> (on the fit part; {note}):<ul style='margin:2px'>"]
     for name, p in cur.params.items():
-        vals = "; ".join(f"{html.escape(k)} {_value(v)}" for k, v in p.items() if k != "joints")
-        warn = [w for w in cur.at_bound if w.startswith(name + " ")]
+        c = (ci or {}).get(name) or {}
+        vals = "; ".join(f"{html.escape(k)} {_value(v)}" + (f" (95% {_value(c[k])})" if c.get(k) is not None else "")
+                         for k, v in p.items() if k != "joints")
+        warn = S.bound_warnings(name, p, c) if c else [w for w in cur.at_bound if w.startswith(name + " ")]
         out.append(f"<li><b>{html.escape(name)}</b> (joints {p.get('joints')}): {vals}"
                    + "".join(f"<br><span style='{WARN}'>&#9888; {html.escape(w)}</span>" for w in warn) + "</li>")
     return "".join(out) + "</ul>"

@@ -184,6 +184,21 @@ def refit(op: Opened, enabled: dict[str, list[int] | None]) -> Refit:
                  params, warn, time.perf_counter() - t0)
 
 
+def intervals(op: Opened, enabled: dict[str, list[int] | None]) -> dict[str, dict[str, Any]]:
+    """95 % intervals of the enabled set's values as :func:`refit` fits them (the intervals ``diagnose`` and
+    ``fit`` attach, :func:`~franka_vs_gym.validation.uncertainty.confidence`), by effect; slower than the refit,
+    so the page asks for them after it has drawn a toggle."""
+    from franka_vs_gym.validation.uncertainty import confidence
+
+    terms = _terms(op, enabled)
+    if not terms:
+        return {}
+    sf = op.engine.fit(terms, cv=False)
+    conf = confidence(op.ctx, [t.effect for t in terms], sf.fits, op.y)
+    return {t.effect.name: {**ci, "joints": list(map(int, f.joints))}
+            for t, f, ci in zip(terms, sf.fits, conf.params_ci95, strict=True)}
+
+
 def bound_warnings(effect: str, params: dict[str, Any], ci95: dict[str, Any] | None = None) -> list[str]:
     """One line per fitted shape parameter of ``effect`` that sits at an end of its range (:data:`BOUNDS`), with
     its 95 % interval when ``ci95`` has it: the fit would have gone further, so the value is a limit, not an
@@ -479,5 +494,5 @@ def log_files(folder: str) -> list[str]:
 
 
 __all__ = ["BOUNDS", "Opened", "Overlay", "Refit", "Validation", "bound_warnings", "calibrate", "diagnose_file",
-           "fit_percent", "log_files", "open_log", "overlay", "preset", "refit", "run_diagnosis", "save_model",
-           "save_report", "slim", "stages_to", "validate"]
+           "fit_percent", "intervals", "log_files", "open_log", "overlay", "preset", "refit", "run_diagnosis",
+           "save_model", "save_report", "slim", "stages_to", "validate"]

@@ -49,6 +49,8 @@ class App:
     log_version: int = 0  # increases with each newly opened log (pages rebuild the toggles)
     _pool: ThreadPoolExecutor = field(default_factory=lambda: ThreadPoolExecutor(1, thread_name_prefix="workbench"))
     _lock: threading.Lock = field(default_factory=threading.Lock)
+    #: the pages' interval computations (a thread of their own: they never wait for a diagnosis or a save)
+    interval_pool: ThreadPoolExecutor = field(default_factory=lambda: ThreadPoolExecutor(1, thread_name_prefix="ci"))
 
     def _set(self, **kw) -> None:
         with self._lock:
@@ -86,6 +88,7 @@ class App:
         self.stopping.set()
         self.page_ready.set()
         self._pool.shutdown(wait=False, cancel_futures=True)
+        self.interval_pool.shutdown(wait=False, cancel_futures=True)
 
     # --- the jobs
     def open(self, path: str) -> None:
