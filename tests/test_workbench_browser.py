@@ -72,6 +72,8 @@ def test_workbench_loop_in_the_browser(logs):
         W.wait(lambda: out.exists() and "saved the calibrated model" in (W.get(drv, "status", "text") or ""), 120,
                "the saved model")
         saved = out.read_bytes()
+        W.wait(lambda: W.get(drv, "model_out", "value") != str(out), 30, "a new name proposed")
+        W.set_(drv, "model_out", "value", str(out))  # the saved file's name typed again
         W.click(drv, "save model")
         W.wait(lambda: "choose a new name" in (W.get(drv, "error", "text") or ""), 60, "the refusal")
         assert out.read_bytes() == saved

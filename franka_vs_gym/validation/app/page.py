@@ -33,7 +33,7 @@ from bokeh.plotting import figure
 from franka_vs_gym.errors import is_user_error, one_line
 from franka_vs_gym.validation.app import session as S
 from franka_vs_gym.validation.app.arm import RED_AT, ArmView, NoGL
-from franka_vs_gym.validation.app.panels import candidates_html, fit_html, params_html, rmse_html
+from franka_vs_gym.validation.app.panels import candidates_html, fit_html, free_name, params_html, rmse_html, short
 from franka_vs_gym.validation.app.state import App
 
 POLL_MS = 250
@@ -226,8 +226,8 @@ class Page:
                            f"the first {op.split_time:.1f} s, held out after (orange); opened in "
                            f"<span class='opened-s'>{op.seconds:.2f}</span> s")
         stem = Path(op.path).with_suffix("")
-        self.model_out.value = _free(f"{stem}-calibrated.json")
-        self.report_out.value = _free(f"{stem}-report")
+        self.model_out.value = free_name(f"{stem}-calibrated.json")
+        self.report_out.value = free_name(f"{stem}-report")
         self.heldout_box.left = op.split_time
         t = op.time
         self.cursor.end = float(t[-1])
@@ -451,7 +451,7 @@ class Page:
             rows["sig"].append("yes" if c.significant else "no")
             rows["plaus"].append("yes" if c.plausible else "no: " + "; ".join(c.problems)[:80])
             rows["after"].append(" ".join(f"{x:.3f}" for x in c.rmse_tau_after))
-            rows["params"].append(_short(c.params))
+            rows["params"].append(short(c.params))
         self.cand_src.data = rows
         self.diag_div.text = candidates_html(d)
         try:
@@ -564,6 +564,9 @@ class Page:
         self.saved_div.text = "<br>".join(lines) + (fit_html(fit) if fit is not None else "")
         if app.saved_models and not self.val_model.value:
             self.val_model.value = app.saved_models[-1]
+        for box in (self.model_out, self.report_out):  # the next save proposes a new name
+            if box.value and box.value in app.saved_models + app.saved_reports:
+                box.value = free_name(box.value)
         if self.current is not None and app.validations:
             self._draw_fit_percent()
 
@@ -587,34 +590,6 @@ class Page:
     def _open(self, path: str) -> None:
         self.files.options = self._folder_files(path)
         self.app.open(path)
-
-
-def _free(path: str) -> str:
-    """``path``, or the first ``path-2``, ``path-3``... that does not exist (a new name: nothing is overwritten)."""
-    p = Path(path)
-    if not p.exists():
-        return str(p)
-    for i in range(2, 1000):
-        q = p.with_name(f"{p.stem}-{i}{p.suffix}")
-        if not q.exists():
-            return str(q)
-    return str(p)
-
-
-def _short(params: dict, n: int = 160) -> str:
-    parts = []
-    for k, v in params.items():
-        if k == "joints":
-            continue
-        a = np.asarray(v, dtype=object)
-        if a.ndim == 0:
-            parts.append(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}")
-        else:
-            flat = [x for x in a.ravel().tolist() if x is not None]
-            parts.append(f"{k} [" + " ".join(f"{float(x):.3g}" for x in flat[:7]) + (" ..." if len(flat) > 7 else "")
-                         + "]")
-    s = "; ".join(parts)
-    return s if len(s) <= n else s[: n - 3] + "..."
 
 
 def make_document(app: App):

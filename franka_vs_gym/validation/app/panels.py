@@ -5,6 +5,7 @@ parameters at their bounds, the diagnosis as ``franka-vs diagnose`` prints it (t
 from __future__ import annotations
 
 import html
+from pathlib import Path
 
 import numpy as np
 
@@ -95,4 +96,33 @@ def fit_html(res) -> str:
             "with the effects' refinements, as franka-vs fit):<br>" + "<br>".join(lines) + "</div>")
 
 
-__all__ = ["candidates_html", "fit_html", "params_html", "rmse_html"]
+def free_name(path: str) -> str:
+    """``path``, or the first ``path-2``, ``path-3``... that does not exist (a new name: nothing is overwritten)."""
+    p = Path(path)
+    if not p.exists():
+        return str(p)
+    for i in range(2, 1000):
+        q = p.with_name(f"{p.stem}-{i}{p.suffix}")
+        if not q.exists():
+            return str(q)
+    return str(p)
+
+
+def short(params: dict, n: int = 160) -> str:
+    """Fitted values on one line of at most ``n`` characters (the ranking table's column)."""
+    parts = []
+    for k, v in params.items():
+        if k == "joints":
+            continue
+        a = np.asarray(v, dtype=object)
+        if a.ndim == 0:
+            parts.append(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}")
+        else:
+            flat = [x for x in a.ravel().tolist() if x is not None]
+            parts.append(f"{k} [" + " ".join(f"{float(x):.3g}" for x in flat[:7]) + (" ..." if len(flat) > 7 else "")
+                         + "]")
+    s = "; ".join(parts)
+    return s if len(s) <= n else s[: n - 3] + "..."
+
+
+__all__ = ["candidates_html", "fit_html", "free_name", "params_html", "rmse_html", "short"]
