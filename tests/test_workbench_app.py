@@ -182,3 +182,30 @@ def test_intervals_of_the_enabled_set_cover_the_hidden_payload(opened, payload_l
     lo, hi = ci["payload"]["mass_kg"]
     assert lo < hi and abs(0.5 * (lo + hi) - payload_log[1]["params"]["mass_kg"]) < 0.05
     assert S.intervals(opened, {}) == {}
+
+
+def test_arm_links_take_the_colour_of_their_joints_residual():
+    """The arm view colours link j+1 by joint j's residual: a large residual on joint 3 makes red pixels that a
+    residual within the noise does not; the PNG sent to the page is the image, losslessly."""
+    import base64
+
+    import cv2
+
+    from franka_vs_gym.validation.app.arm import ArmView, NoGL
+
+    a = ArmView()
+    q = np.array([0.0, -0.3, 0.0, -2.0, 0.0, 1.8, 0.8])
+    try:
+        calm = a.image(q, np.zeros(7))
+    except NoGL as e:
+        pytest.skip(f"no offscreen OpenGL here: {e}")
+    hot = a.image(q, np.array([0, 0, 0, 10.0, 0, 0, 0]))
+
+    def red(img):
+        r, g, b = (img[..., i].astype(int) for i in range(3))
+        return int(np.sum((r > 180) & (g < 90) & (b < 90)))
+
+    assert red(hot) > 200 and red(calm) < 20, (red(hot), red(calm))
+    url = a.png_data_url(q, np.array([0, 0, 0, 10.0, 0, 0, 0]))
+    png = np.frombuffer(base64.b64decode(url.split(",", 1)[1]), np.uint8)
+    np.testing.assert_array_equal(cv2.imdecode(png, cv2.IMREAD_COLOR)[:, :, ::-1], hot)

@@ -9,7 +9,6 @@ OSMesa), :meth:`ArmView.image` raises :class:`NoGL` with the reason, and the pag
 from __future__ import annotations
 
 import base64
-import io
 import os
 
 import numpy as np
@@ -94,11 +93,12 @@ class ArmView:
 
     def png_data_url(self, q: np.ndarray, levels: np.ndarray) -> str:
         """The image as a ``data:image/png;base64,...`` URL (nothing fetched from anywhere)."""
-        from PIL import Image
+        import cv2
 
-        buf = io.BytesIO()
-        Image.fromarray(self.image(q, levels)).save(buf, format="PNG")
-        return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
+        ok, png = cv2.imencode(".png", np.ascontiguousarray(self.image(q, levels)[:, :, ::-1]))  # OpenCV: BGR
+        if not ok:
+            raise RuntimeError("PNG encoding of the arm view failed")
+        return "data:image/png;base64," + base64.b64encode(png.tobytes()).decode("ascii")
 
     def close(self) -> None:
         if self._renderer is not None:
