@@ -196,9 +196,16 @@ class Page:
 
     # ------------------------------------------------------------------ polling the shared state
     def poll(self) -> None:
-        app = self.app
-        if app.version == self.seen_version:
+        if self.app.version == self.seen_version:
             return
+        self.doc.hold("combine")  # every change of this poll reaches the browser as one message
+        try:
+            self._poll()
+        finally:
+            self.doc.unhold()
+
+    def _poll(self) -> None:
+        app = self.app
         self.seen_version = app.version
         busy = " <span style='color:#888'>(working...)</span>" if app.busy else ""
         self.status.text = html.escape(app.status) + busy
@@ -314,9 +321,16 @@ class Page:
 
     # ------------------------------------------------------------------ the refit and its figures
     def _refit(self, arm: bool = True) -> None:
-        op = self.app.opened
-        if op is None:
+        if self.app.opened is None:
             return
+        self.doc.hold("combine")  # the new residual, errors and values as one message
+        try:
+            self._refit_now(arm)
+        finally:
+            self.doc.unhold()
+
+    def _refit_now(self, arm: bool) -> None:
+        op = self.app.opened
         t0 = time.perf_counter()
         try:
             self.current = S.refit(op, self._enabled())
@@ -531,6 +545,10 @@ class Page:
     def _draw_overlays(self) -> None:
         ovs = self.app.overlays
         j = int(self.joint.active or 0)
+        key = (j, tuple((id(ov), ov.offset) for ov in ovs))
+        if key == getattr(self, "_overlays_drawn", None):
+            return  # unchanged: nothing is sent (a poll must not make the browser redraw the time plot)
+        self._overlays_drawn = key
         xs, ys, cs, ls = [], [], [], []
         for i, ov in enumerate(ovs):
             s = _stride(len(ov.time))
@@ -567,7 +585,8 @@ class Page:
         for box in (self.model_out, self.report_out):  # the next save proposes a new name
             if box.value and box.value in app.saved_models + app.saved_reports:
                 box.value = free_name(box.value)
-        if self.current is not None and app.validations:
+        if self.current is not None and len(app.validations) != getattr(self, "_validations_drawn", 0):
+            self._validations_drawn = len(app.validations)
             self._draw_fit_percent()
 
     # ------------------------------------------------------------------ the log chooser
