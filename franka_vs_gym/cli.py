@@ -30,6 +30,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "compare": ("franka_vs_gym.validation.cli_compare", "compare a model with a measurement log"),
     "diagnose": ("franka_vs_gym.validation.cli_diagnose", "find which physical effect a model lacks on a log"),
     "fit": ("franka_vs_gym.validation.cli_fit", "fit effects on a log and save a calibrated model file"),
+    "workbench": ("franka_vs_gym.validation.cli_workbench", "the workbench in the browser: see where the model fails, "
+                  "toggle effects, watch the held-out error, save the calibrated model (a local server)"),
     "excite": ("franka_vs_gym.validation.cli_excite", "design the motion to record next (excitation for the effects "
                "in question) with pylibfranka and franky scripts that play and record it"),
     "evaluate": ("franka_vs_gym.envs.cli_evaluate", "evaluate a scripted policy or an SB3 model on an environment"),
