@@ -349,8 +349,6 @@ def test_every_block_declares_its_language() -> None:
 
 # ------------------------------------------------------------------------------------------------ links, results
 _LINK = re.compile(r"(?<!!)\[[^\]]*\]\(([^)\s]+)\)|!\[[^\]]*\]\(([^)\s]+)\)")
-# Pages another branch of this session writes (merged by the lead): a link to one is checked once it exists.
-_PENDING = {"docs/workbench_app.md"}
 
 
 def _anchors(path: Path) -> set[str]:
@@ -382,8 +380,7 @@ def test_links_resolve() -> None:
             dest = (path.parent / file).resolve() if file else path
             rel = dest.relative_to(ROOT).as_posix() if dest.is_relative_to(ROOT) else str(dest)
             if not dest.exists():
-                if rel not in _PENDING:
-                    bad.append(f"{path.relative_to(ROOT)}: {target} (no such file)")
+                bad.append(f"{path.relative_to(ROOT)}: {target} (no such file)")
                 continue
             if anchor and dest.suffix == ".md" and anchor not in _anchors(dest):
                 bad.append(f"{path.relative_to(ROOT)}: {target} (no heading with that anchor in {rel})")
@@ -396,7 +393,7 @@ def test_doc_paths_named_in_code_exist() -> None:
     for path in [*ROOT.joinpath("franka_vs_gym").rglob("*.py"), *ROOT.joinpath("scripts").glob("*.py"),
                  *ROOT.joinpath("tests").rglob("*.py")]:
         for m in re.finditer(r"\b((?:docs/)[\w./-]+\.md)\b", path.read_text()):
-            if not (ROOT / m.group(1)).exists() and m.group(1) not in _PENDING:
+            if not (ROOT / m.group(1)).exists():
                 bad.append(f"{path.relative_to(ROOT)}: {m.group(1)}")
     assert not bad, "pages named in code that do not exist:\n" + "\n".join(bad)
 
