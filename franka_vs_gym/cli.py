@@ -104,16 +104,21 @@ def _raise_interrupted(signum: int, frame: object) -> None:
 
 @contextlib.contextmanager
 def _sigterm_as_interrupt():
-    """SIGTERM stops the command like Ctrl-C (only in the main thread, where handlers can be installed)."""
+    """SIGTERM stops the command like Ctrl-C, and Ctrl-C (SIGINT) always does (only in the main thread, where
+    handlers can be installed). A process inherits an ignored SIGINT from its parent: a shell script's background
+    job (``franka-vs serve &``) or a test runner's worker; Python then installs no handler and ``kill -INT`` would
+    be lost, so the command installs Python's own handler for its duration."""
     try:
         old = signal.signal(signal.SIGTERM, _raise_interrupted)
     except ValueError:  # not the main thread
         yield
         return
+    old_int = signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         yield
     finally:
         signal.signal(signal.SIGTERM, old)
+        signal.signal(signal.SIGINT, old_int)
 
 
 if __name__ == "__main__":

@@ -253,9 +253,10 @@ class FCIServer:
                   f"(robot TCP+UDP {self.port}, gripper {self.gripper_port}, {mode})", flush=True)
 
     def serve_forever(self) -> None:
-        """Start and block until interrupted (Ctrl-C) or stopped."""
-        self.start()
+        """Start and block until interrupted (Ctrl-C) or stopped (a Ctrl-C that arrives while starting, e.g. just
+        after the ready line is printed, stops it the same way)."""
         try:
+            self.start()
             while self._thread is not None and self._thread.is_alive():
                 self._thread.join(0.2)
         except KeyboardInterrupt:
