@@ -101,7 +101,7 @@ def _default_error(host):
 
 @pytest.mark.slow
 def test_calibrated_model_closes_the_gap_end_to_end(tmp_path):
-    script = s2r.design_excitation(tmp_path / "excitation", duration=10.0, evaluations=100, time_budget=60)
+    script = s2r.design_excitation(tmp_path / "excitation", duration=10.0, evaluations=100, time_budget=900)
     r = s2r.run_robot(0, tmp_path / "robot_0", loopback_host(NET), script, [10_000], ("computed_torque",))
     err = {m: r["runs"][f"computed_torque/{m}"]["rms_error"] for m in s2r.MODELS}
     assert "payload" in r["fit"]["effects"], r["fit"]

@@ -1463,7 +1463,10 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
     progress(f"fitting {names} on all samples", verbose)
     fits = _alternate(ctx, spec, y, np.arange(ctx.n), refine=True) if spec else []
     implausible: dict[str, list[str]] = {}
-    for _attempt in range(2):
+    earlier_notes = dict(fit_notes)  # the diagnosis' and the held-out check's; each attempt's own are kept apart
+    attempt_notes: dict[str, str] = {}
+    dropped_notes: dict[str, str] = {}  # why each effect the model could not take was dropped
+    for _attempt in range(len(members) + 1):
         implausible = {}
         for e, f in zip(members, fits, strict=True):
             probs = e.problems(ctx, f)  # also prepares what apply needs (e.g. consistent link inertials)
@@ -1472,21 +1475,49 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
                 progress(f"warning: {e.name} fits with implausible values: {'; '.join(implausible[e.name])}",
                          verbose)
         new, applied, notes = _apply_fits(cfg, ctx, members, fits)
-        fit_notes.update(notes)
+        attempt_notes = notes
         for n, why in notes.items():
             progress(f"{n}: {why}", verbose)
         if all(f is not None for f in applied):
             break
-        # an effect the model cannot take is dropped and the others are fitted again without it
+        # an effect the model cannot take is dropped and the others are fitted again without it. Where several
+        # cannot be taken, one may fail only through another that took its share (link inertials fitted with a
+        # tilt absorbed part of it and left |g| = 8.8 m/s^2): they are dropped one at a time, each time the one
+        # whose removal leaves the largest set the model takes, then the smallest squared residual
+        failed = [i for i, f in enumerate(applied) if f is None]
         keep = [i for i, f in enumerate(applied) if f is not None]
+        refit = None
+        if len(failed) > 1:
+            best = None
+            for i in failed:
+                k_i = [k for k in range(len(spec)) if k != i]
+                f_i = _alternate(ctx, [spec[k] for k in k_i], y, np.arange(ctx.n), refine=True)
+                for m, f in zip([members[k] for k in k_i], f_i, strict=True):
+                    m.problems(ctx, f)  # prepares what apply needs, as above
+                _, a_i, _ = _apply_fits(cfg, ctx, [members[k] for k in k_i], f_i)
+                r = y - sum((members[k].contribution(ctx, f) for k, f in zip(k_i, a_i, strict=True)
+                             if f is not None), np.zeros_like(y))
+                rank = (sum(f is not None for f in a_i), -float(np.sum(r ** 2)))
+                if best is None or rank > best[0]:
+                    best = (rank, k_i, f_i)
+            assert best is not None
+            keep, refit = best[1], best[2]
+        dropped_notes.update({names[i]: notes.get(names[i], "not applied") for i in range(len(names))
+                              if i not in keep})
         spec = [spec[i] for i in keep]
         members, names = [members[i] for i in keep], [names[i] for i in keep]
-        fits = _alternate(ctx, spec, y, np.arange(ctx.n), refine=True) if spec else []
+        fits = refit if refit is not None else (_alternate(ctx, spec, y, np.arange(ctx.n), refine=True)
+                                                if spec else [])
     else:
         new, applied, notes = _apply_fits(cfg, ctx, members, fits)
+        attempt_notes = notes
         keep = [i for i, f in enumerate(applied) if f is not None]
         members, names = [members[i] for i in keep], [names[i] for i in keep]
     fits = [f for f in applied if f is not None]
+    for n, why in [*dropped_notes.items(), *attempt_notes.items()]:  # the final attempt's, and why each was dropped
+        earlier_notes[n] = f"{earlier_notes[n]}; {why}" if n in earlier_notes else why
+    fit_notes.clear()
+    fit_notes.update(earlier_notes)
     if command_fit is not None:
         new = COMMAND_DELAY.apply(new, command_fit)
         members, fits, names = members + [COMMAND_DELAY], fits + [command_fit], names + ["delay"]
