@@ -16,30 +16,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from workbench_driver import CHROMEDRIVER, CHROMIUM, FLAGS  # one definition of the browser both tests drive
+from workbench_driver import why_skip as _why_skip
 
 from franka_vs_gym.cli import main as cli
 from franka_vs_gym.validation.hidden import make_hidden_effect_log
 from franka_vs_gym.validation.logs import save_log
-
-CHROMIUM = next((p for p in ("/usr/bin/chromium", "/usr/bin/chromium-browser") if os.path.exists(p)), None)
-CHROMEDRIVER = shutil.which("chromedriver") or ("/usr/bin/chromedriver" if os.path.exists("/usr/bin/chromedriver")
-                                                else None)
-FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-         "--disable-background-networking", "--disable-component-update", "--disable-sync",
-         "--disable-dev-shm-usage")
-
-
-def _why_skip() -> str | None:
-    try:
-        import selenium  # noqa: F401
-    except ImportError:
-        return "selenium is not installed (pip install selenium)"
-    if CHROMIUM is None:
-        return "no chromium browser at /usr/bin/chromium (Debian: apt-get install chromium)"
-    if CHROMEDRIVER is None:
-        return "no chromedriver (Debian: apt-get install chromium-driver)"
-    return None
-
 
 pytestmark = pytest.mark.skipif(_why_skip() is not None, reason=_why_skip() or "")
 
