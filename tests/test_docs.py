@@ -18,7 +18,8 @@ does not see but a reader of the source does:
 ``fixtures`` are made first (see ``FIXTURES``: a short simulated log with a hidden payload, a calibrated-model file,
 bags, a client script); ``replace=A:B`` (several: ``A:B|C:D``) runs the block with the text A replaced by B (a
 long training run shortened; the substitution is visible in the source next to the block); ``needs=rosbags``
-skips where that module is missing;
+skips where that module is missing; ``data=PATH`` (several: ``A,B``) names files under ``../shared/data`` that a
+script reads through its own configuration, so the block skips where they are absent;
 ``excerpt=FILE`` marks an excerpt of a file of the repository: every code line of the block (comments aside,
 ``...`` standing for omitted lines) must be a line of that file, and the file itself runs.
 """
@@ -292,6 +293,8 @@ def _missing_shared_data(block: Block) -> list[str]:
     """The ``../shared/data/...`` paths a block reads (its code, or the file it is an excerpt of) that are absent
     here, e.g. in a plain clone without the shared folder beside it."""
     text = _code(block)
+    # data a script finds through its own configuration (e.g. scripts/evaluation_split.json), named by the block
+    text += "\n" + "\n".join(f"../shared/data/{p.strip()}" for p in block.opts.get("data", "").split(",") if p.strip())
     files = [block.opts["excerpt"]] if "excerpt" in block.opts else []
     files += re.findall(r"(?:examples|scripts)/[\w/]+\.py", text)  # a script the block runs may read the data
     for f in files:
