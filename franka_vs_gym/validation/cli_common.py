@@ -15,6 +15,22 @@ def add_common(parser: argparse.ArgumentParser) -> None:
                                     "logToCSV file, a Gaz et al. 2019 text folder, or a dump of pylibfranka/franky "
                                     "robot states (JSON, JSON lines, CSV, NPZ/NPY, franky pickle; detected from the "
                                     "content)")
+    add_log_options(parser)
+    parser.add_argument("--report", metavar="DIR", default=None,
+                        help="write the report into DIR: report.html (one interactive file, opens offline), "
+                             "report.md and PNG figures")
+    parser.add_argument("--mcap", metavar="FILE", default=None,
+                        help="write the run as an MCAP log (measurement, model, residual, each effect's torque, "
+                             "findings) for Foxglove or PlotJuggler")
+    parser.add_argument("--force", action="store_true", help="overwrite existing output files")
+    parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    parser.add_argument("--verbose", "-v", action="store_true",
+                        help="every stage on its own line, and the details (assumptions, ranking, notes)")
+
+
+def add_log_options(parser: argparse.ArgumentParser) -> None:
+    """How a log is read and which model it is compared with: the options every command that reads a log shares
+    (compare, diagnose, fit, workbench)."""
     parser.add_argument("--model", metavar="FILE", default=None,
                         help="calibrated model file (JSON) to compare; default: the FER with the log's declared tool")
     parser.add_argument("--rigid-body", action="store_true",
@@ -36,16 +52,6 @@ def add_common(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-gap", type=float, default=None, metavar="SECONDS",
                         help=f"longest gap bridged by interpolation, s (default {GAP_FACTOR:g} median sample periods "
                              "of the log, at least 0.05)")
-    parser.add_argument("--report", metavar="DIR", default=None,
-                        help="write the report into DIR: report.html (one interactive file, opens offline), "
-                             "report.md and PNG figures")
-    parser.add_argument("--mcap", metavar="FILE", default=None,
-                        help="write the run as an MCAP log (measurement, model, residual, each effect's torque, "
-                             "findings) for Foxglove or PlotJuggler")
-    parser.add_argument("--force", action="store_true", help="overwrite existing output files")
-    parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
-    parser.add_argument("--verbose", "-v", action="store_true",
-                        help="every stage on its own line, and the details (assumptions, ranking, notes)")
 
 
 def settings_from(args: argparse.Namespace) -> CleanSettings:

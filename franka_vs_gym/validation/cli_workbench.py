@@ -7,7 +7,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from franka_vs_gym.validation.signals import GAP_FACTOR, CleanSettings
+from franka_vs_gym.validation.cli_common import add_log_options
+from franka_vs_gym.validation.signals import CleanSettings
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -21,18 +22,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-browser", action="store_true",
                         help="do not open a browser (e.g. over SSH: ssh -L 5006:127.0.0.1:5006 HOST, then open "
                              "http://127.0.0.1:5006/ locally)")
-    parser.add_argument("--model", metavar="FILE", default=None,
-                        help="calibrated model file (JSON) to start from; default: the FER with the log's declared "
-                             "tool")
-    parser.add_argument("--rigid-body", action="store_true", help="start from the model without any joint friction")
-    parser.add_argument("--robot", default=None, help="the robot the log comes from (fer, fr3, ...; default fer)")
-    parser.add_argument("--tool", choices=("franka_hand", "none", "unknown"), default=None,
-                        help="the tool on the flange (default: what the log declares, else the Franka Hand)")
-    parser.add_argument("--topic", default=None, help="ROS bag: the topic to read")
-    parser.add_argument("--cutoff", type=float, default=None, help="low-pass cutoff for q and dq, Hz (default 10)")
-    parser.add_argument("--rate", type=float, default=None, help="resampling rate, Hz (default: the log's own)")
-    parser.add_argument("--max-gap", type=float, default=None, metavar="SECONDS",
-                        help=f"longest gap bridged by interpolation, s (default {GAP_FACTOR:g} sample periods)")
+    add_log_options(parser)  # --model, --rigid-body, --robot, --tool, --topic, --cutoff, --rate, --max-gap
 
 
 def main(args: argparse.Namespace) -> int:
