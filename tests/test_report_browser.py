@@ -9,14 +9,12 @@ chromium-driver; selenium from PyPI).
 from __future__ import annotations
 
 import os
-import shutil
-import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
-from workbench_driver import CHROMEDRIVER, CHROMIUM, FLAGS  # one definition of the browser both tests drive
+from workbench_driver import make_browser, quit_browser  # one definition of the browser both tests drive
 from workbench_driver import why_skip as _why_skip
 
 from franka_vs_gym.cli import main as cli
@@ -28,23 +26,11 @@ pytestmark = pytest.mark.skipif(_why_skip() is not None, reason=_why_skip() or "
 
 @pytest.fixture(scope="module")
 def browser():
-    from selenium import webdriver
-    from selenium.webdriver.chrome.service import Service
-
-    profile = tempfile.mkdtemp(prefix="franka-vs-chromium-")
-    opts = webdriver.ChromeOptions()
-    opts.binary_location = CHROMIUM
-    for f in FLAGS:
-        opts.add_argument(f)
-    opts.add_argument(f"--user-data-dir={profile}")
-    opts.add_argument("--window-size=1280,1000")
-    opts.set_capability("goog:loggingPrefs", {"browser": "ALL"})
-    drv = webdriver.Chrome(service=Service(executable_path=CHROMEDRIVER), options=opts)
+    drv = make_browser(1280, 1000, performance_log=False, page_load_timeout=None)
     try:
         yield drv
     finally:
-        drv.quit()
-        shutil.rmtree(profile, ignore_errors=True)
+        quit_browser(drv)
 
 
 @pytest.fixture(scope="module")

@@ -61,7 +61,10 @@ def stop(proc: subprocess.Popen) -> str:
     return out or ""
 
 
-def make_browser(width: int = 1400, height: int = 1200):
+def make_browser(width: int = 1400, height: int = 1200, *, performance_log: bool = True,
+                 page_load_timeout: float | None = 90):
+    """Headless chromium through chromedriver, with its own profile (removed by :func:`quit_browser`); the
+    performance log lists every request the page made."""
     from selenium import webdriver
     from selenium.webdriver.chrome.service import Service
 
@@ -72,10 +75,11 @@ def make_browser(width: int = 1400, height: int = 1200):
         opts.add_argument(f)
     opts.add_argument(f"--user-data-dir={profile}")
     opts.add_argument(f"--window-size={width},{height}")
-    opts.set_capability("goog:loggingPrefs", {"browser": "ALL", "performance": "ALL"})
+    opts.set_capability("goog:loggingPrefs", {"browser": "ALL", **({"performance": "ALL"} if performance_log else {})})
     drv = webdriver.Chrome(service=Service(executable_path=CHROMEDRIVER), options=opts)
     drv._profile = profile
-    drv.set_page_load_timeout(90)
+    if page_load_timeout is not None:
+        drv.set_page_load_timeout(page_load_timeout)
     return drv
 
 

@@ -444,15 +444,21 @@ def validate(path: str, model_file: str, *, tool: str | None = None, robot: Any 
         raise UserError("no log given to validate on: type the path of a second log")
     if not str(model_file).strip():
         raise UserError("no model to validate: save a calibrated model first or type the path of a model file")
-    p = Path(os.path.expanduser(str(path).strip()))
-    if not p.exists():
-        raise FileNotFoundError(2, "No such file or directory", str(p))
+    p = _existing(path)
     with stages_to(progress):
         res = compare(str(p), model_file, tool=tool, robot=robot, settings=settings, do_replay=False,
                       verbose=progress is not None)
     t = res.data.time - res.data.time[0]
     return Validation(str(p), str(model_file), res.rmse_tau, fit_percent(res.data.tau, res.residual),
                       res.noise_floor, t, res.residual)
+
+
+def _existing(path: str) -> Path:
+    """A path typed in the page (``~`` expanded), or the reader's own error where nothing is there."""
+    p = Path(os.path.expanduser(str(path).strip()))
+    if not p.exists():
+        raise FileNotFoundError(2, "No such file or directory", str(p))
+    return p
 
 
 @dataclass
@@ -472,9 +478,7 @@ def overlay(path: str, cfg: Any, *, settings=None, progress: Progress | None = N
 
     if not str(path).strip():
         raise UserError("no log given to overlay: type the path of a log")
-    p = Path(os.path.expanduser(str(path).strip()))
-    if not p.exists():
-        raise FileNotFoundError(2, "No such file or directory", str(p))
+    p = _existing(path)
     with stages_to(progress):
         res = compare(str(p), cfg, settings=settings, do_replay=False, verbose=progress is not None)
     return Overlay(str(p), res.data.time - res.data.time[0], res.residual)
