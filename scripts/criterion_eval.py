@@ -20,6 +20,7 @@ import evaluation  # noqa: E402
 import franka_vs_gym.validation.diagnose  # noqa: E402, F401
 
 dg = sys.modules["franka_vs_gym.validation.diagnose"]
+import franka_vs_gym.validation.criterion as criterion  # noqa: E402
 from franka_vs_gym.validation.criterion import EvidenceSelector  # noqa: E402
 
 _OLD = dg._Selector
@@ -32,6 +33,11 @@ def _selector(ctx, eng, noise, effects, verbose, many_test=False):
 
 
 def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if "--log-ratio" in argv:  # a study of the one threshold: ln B in nats (default criterion.LOG_RATIO)
+        i = argv.index("--log-ratio")
+        criterion.LOG_RATIO = float(argv[i + 1])
+        del argv[i:i + 2]
     dg._Selector = _selector
     return evaluation.main(argv)
 

@@ -49,8 +49,13 @@ LOG_RATIO = math.log(20.0)
 G_MAGNITUDE_RANGE = 0.03
 #: the largest centre-of-mass distance of a flange body from the flange the payload law accepts (m)
 PAYLOAD_REACH = 0.3
-#: the half-width, relative to a link's size, of the first moments of the link inertials' prior (m)
+#: link inertials: each link's mass within 30 % of the model's (Gaz et al. 2019 re-identify the FER's links within
+#: about that), its first moments and inertia within 30 % of the mass times LINK_REACH and LINK_REACH^2
+LINK_SHARE = 0.3
+#: a link's length scale (m): the FER's links are 0.1-0.4 m long
 LINK_REACH = 0.3
+#: divide the log-likelihood by the temperature the blocks show (_temperature)
+TEMPERED = True
 SEPARATE = ("motions that excite the two differently (this log's data do not tell them apart at the evidence "
             "ratio of the criterion)")
 
@@ -97,8 +102,9 @@ def prior_cov(e: Effect, ctx: Context, p: int, joint: int | None) -> np.ndarray 
 
 def _link_sd(e, ctx: Context, p: int) -> np.ndarray | None:
     """The link inertials' base parameters (standard columns of links 1-7: mass, first moments, inertia): each link's
-    mass within a factor 2, its first moments within the link's mass times ``LINK_REACH``, its inertia within the
-    mass times ``LINK_REACH``^2."""
+    mass within ``LINK_SHARE`` of the model's, its first moments within that share of the mass times
+    ``LINK_REACH``, its inertia within it times ``LINK_REACH``^2. A flange body (``payload``, up to the rated 3.5 kg
+    and 0.3 m) is then the likelier explanation of a change at the flange than the links': the prior prefers it."""
     try:
         cols = e.basis(ctx.config)["cols"]
     except Exception:
@@ -111,7 +117,7 @@ def _link_sd(e, ctx: Context, p: int) -> np.ndarray | None:
     m[6] += max(float(body.mass), 0.0)
     link, kind = np.asarray(cols) // 10, np.asarray(cols) % 10
     scale = np.where(kind == 0, 1.0, np.where(kind < 4, LINK_REACH, LINK_REACH ** 2))
-    return _half(m[link] * scale)
+    return _half(LINK_SHARE * m[link] * scale)
 
 
 @dataclass
@@ -149,6 +155,64 @@ def rescaled(nm: NoiseModel, factor: np.ndarray) -> NoiseModel:
     return replace(nm, P=P, W=nm.W / f[:, None, None], logdet=nm.logdet + 7 * np.log(f))
 
 
+def _whitened(nm: NoiseModel, cols: np.ndarray, y: np.ndarray, fs: float) -> tuple[np.ndarray, np.ndarray]:
+    """The band of ``cols`` (n, 7, P) and ``y`` (n, 7), any length n, whitened by ``nm``'s spectrum at the nearest
+    of its frequencies and stacked real: (R, P), (R,)."""
+    n = len(y)
+    f = np.fft.rfftfreq(n, 1.0 / fs)
+    k = np.nonzero((f >= nm.freqs[0]) & (f <= nm.freqs[-1]))[0]
+    near = np.clip(np.searchsorted(nm.freqs, f[k]), 0, len(nm.freqs) - 1)
+    W = nm.W[near]
+    L = np.linalg.cholesky(W)
+    LH = np.conj(np.transpose(L, (0, 2, 1)))
+    ak = (np.fft.rfft(cols, axis=0) / math.sqrt(n))[k]
+    yk = (np.fft.rfft(y, axis=0) / math.sqrt(n))[k]
+    wa = LH @ ak
+    wy = np.einsum("kab,kb->ka", LH, yk)
+    real = (k == 0) | ((n % 2 == 0) & (k == n // 2))
+    c = np.sqrt(np.where(real, 1.0, 2.0))[:, None]
+    p = cols.shape[2]
+    X = np.concatenate([(c[:, :, None] * wa.real).reshape(-1, p), (c[:, :, None] * wa.imag).reshape(-1, p)])
+    Y = np.concatenate([(c * wy.real).ravel(), (c * wy.imag).ravel()])
+    return X, Y
+
+
+def _temperature(cols: np.ndarray, y: np.ndarray, eng: Engine, nm: NoiseModel, units: list, fs: float) -> float:
+    """How much more the units' estimates differ between the engine's contiguous blocks than the noise model says:
+    every unit fitted jointly on each block (the reference set's Whittle estimate and variances there), Cochran's Q
+    of each coefficient over the F blocks divided by its F - 1 degrees of freedom, the median over all coefficients
+    (at least 1). A model error of the robot that follows the pose is not stationary noise: the units would take
+    different shares of it in different parts of the motion, which the spread between blocks shows."""
+    blocks = [np.asarray(b) for b in eng.folds if len(b) >= 16]
+    if len(blocks) < 3:
+        return 1.0
+    est, var = [], []
+    for b in blocks:
+        X, Y = _whitened(nm, cols[b], y[b], fs)
+        G = X.T @ X
+        d = np.sqrt(np.maximum(np.diag(G), 1e-300))
+        Gi = np.linalg.pinv(G / np.outer(d, d), hermitian=True, rcond=1e-8) / np.outer(d, d)
+        est.append(Gi @ (X.T @ Y))
+        var.append(np.diag(Gi))
+    est, var = np.array(est), np.maximum(np.array(var), 1e-300)
+    ok = np.all(np.isfinite(est), axis=0) & np.all(var < 1e290, axis=0)
+    w = 1.0 / var[:, ok]
+    mean = np.sum(w * est[:, ok], axis=0) / np.sum(w, axis=0)
+    q = np.sum(w * (est[:, ok] - mean) ** 2, axis=0) / (len(blocks) - 1)
+    return float(max(np.median(q), 1.0)) if q.size else 1.0
+
+
+def _flange_split(effects: list[Effect], forced: list[Term]) -> list[Effect]:
+    """With a flange body among the candidates (or forced), the link inertials are those of links 1-6: link 7's own
+    parameters and a body held at the flange are one body to the joint torques, and it is named ``payload``."""
+    from franka_vs_gym.validation.effects.inertial import ArmLinkInertials, LinkInertials
+
+    if not any(e.name == "payload" for e in effects) and not any(t.effect.name == "payload" for t in forced):
+        return effects
+    return [ArmLinkInertials(e) if isinstance(e, LinkInertials) and not isinstance(e, ArmLinkInertials) else e
+            for e in effects]
+
+
 class Library:
     """Every unit's whitened columns in the motion band of one log, their Gram matrix and the target's, under the
     noise model of the generous reference fit: any set's evidence is a small solve."""
@@ -168,6 +232,7 @@ class Library:
                 pos += D.shape[2]
             designs.append((t.effect, t.shape, D, js))
         forced_names = {t.effect.name for t in forced}
+        effects = _flange_split(effects, forced)
         for e in effects:
             if e.name in forced_names:
                 continue
@@ -227,6 +292,10 @@ class Library:
         c = np.sqrt(np.where(nm.real, 1.0, 2.0))[:, None]
         X = np.concatenate([(c[:, :, None] * wa.real).reshape(-1, pos), (c[:, :, None] * wa.imag).reshape(-1, pos)])
         Y = np.concatenate([(c * wy.real).ravel(), (c * wy.imag).ravel()])
+        # the likelihood's temperature: how much more the units' estimates differ between the log's blocks than
+        # the noise model says (1: as it says); the log-likelihood is divided by it
+        self.kappa = _temperature(cols, y, eng, nm, units, fs) if TEMPERED else 1.0
+        X, Y = X / math.sqrt(self.kappa), Y / math.sqrt(self.kappa)
         self.X, self.Y = X, Y  # the whitened band (kept: the tests recompute the evidence from them)
         self.G = X.T @ X
         self.b = X.T @ Y
@@ -237,6 +306,18 @@ class Library:
             p = u.cols.stop - u.cols.start
             self.prior.append(None if u.forced else prior_cov(u.effect, ctx, p, u.joint))
         self._cache: dict[frozenset, float] = {}
+
+    @property
+    def log_prior_odds(self) -> float:
+        """ln(pi / (1 - pi)) of one unit, pi = 1 / M of the M candidate units: a priori one effect among them is
+        expected (each further unit tried is an alternative: this is the correction for trying them)."""
+        m = sum(not u.forced for u in self.units)
+        return -math.log(max(m - 1, 1))
+
+    def log_posterior(self, members: frozenset[int]) -> float:
+        """ln Z of the set plus its prior on sets (independent inclusion, pi = 1 / M): the criterion's score."""
+        k = sum(not self.units[i].forced for i in members)
+        return self.log_evidence(members) + k * self.log_prior_odds
 
     def log_evidence(self, members: frozenset[int]) -> float:
         """ln Z of the set of units ``members`` (forced units always in), up to a constant common to all sets."""
@@ -306,24 +387,24 @@ class EvidenceSelector:
     def _search(self, lib: Library) -> frozenset[int]:
         cand = [i for i, u in enumerate(lib.units) if not u.forced]
         cur: frozenset[int] = frozenset()
-        z = lib.log_evidence(cur)
+        z = lib.log_posterior(cur)
         seen = {cur}
         for _ in range(self.max_steps):
-            gains = [(lib.log_evidence(cur | {i}) - z, i) for i in cand if i not in cur]
+            gains = [(lib.log_posterior(cur | {i}) - z, i) for i in cand if i not in cur]
             if not gains:
                 break
             g, best = max(gains)
             if g <= LOG_RATIO:
                 break
             cur = cur | {best}
-            z = lib.log_evidence(cur)
+            z = lib.log_posterior(cur)
             while len(cur) > 1:  # backward: the weakest unit whose removal costs less than ln B leaves
-                losses = [(z - lib.log_evidence(cur - {i}), i) for i in cur]
+                losses = [(z - lib.log_posterior(cur - {i}), i) for i in cur]
                 loss, worst = min(losses)
                 if loss >= LOG_RATIO or (cur - {worst}) in seen:
                     break
                 cur = cur - {worst}
-                z = lib.log_evidence(cur)
+                z = lib.log_posterior(cur)
             if cur in seen:
                 break
             seen.add(cur)
@@ -360,7 +441,7 @@ class EvidenceSelector:
 
     def _ranking(self, lib: Library, forced: list[Term]) -> list[Candidate]:
         """Each effect alone beside the forced terms: its evidence (on the joints where it gains more than ln B)."""
-        z0 = lib.log_evidence(frozenset())
+        z0 = lib.log_posterior(frozenset())
         base_fit = self.eng.fit(forced)
         out = []
         for e in {lib.units[i].effect.name: lib.units[i].effect for i in range(len(lib.units))
@@ -369,13 +450,13 @@ class EvidenceSelector:
             js = np.zeros(7)
             if e.per_joint:
                 for i in idx:
-                    js[lib.units[i].joint] = lib.log_evidence(frozenset({i})) - z0
+                    js[lib.units[i].joint] = lib.log_posterior(frozenset({i})) - z0
                 keep = [i for i in idx if js[lib.units[i].joint] > LOG_RATIO]
                 joints = sorted(lib.units[i].joint for i in keep)
-                score = (lib.log_evidence(frozenset(keep)) - z0) if keep else float(min(js.max(), 0.0))
+                score = (lib.log_posterior(frozenset(keep)) - z0) if keep else float(min(js.max(), 0.0))
                 term = Term(e, lib.units[idx[0]].shape, joints or list(range(7)))
             else:
-                score = lib.log_evidence(frozenset(idx)) - z0
+                score = lib.log_posterior(frozenset(idx)) - z0
                 joints = []
                 term = Term(e, lib.units[idx[0]].shape)
             sf = self.eng.fit(forced + [term])
@@ -411,13 +492,13 @@ class EvidenceSelector:
         (the fall of ln Z without it)."""
         lib = self.lib
         units = self._unit_sets(chosen)
-        z = lib.log_evidence(self.members)
+        z = lib.log_posterior(self.members)
         out = []
         for k, t in enumerate(chosen):
             rest = chosen[:k] + chosen[k + 1:]
             sf = self.eng.fit(rest)
             contrib = np.sqrt(np.maximum(sf.mse_cv - cur.mse_cv, 0.0))
-            loss = z - lib.log_evidence(self.members - units[k]) if units[k] else float("inf")
+            loss = z - lib.log_posterior(self.members - units[k]) if units[k] else float("inf")
             fit = cur.fits[k]
             params = t.effect.public(fit)
             tilt = t.effect.tilt_deg(self.ctx, fit)
@@ -433,12 +514,12 @@ class EvidenceSelector:
         from franka_vs_gym.validation.diagnose import CONFUSABLE
 
         lib = self.lib
-        z = lib.log_evidence(self.members)
+        z = lib.log_posterior(self.members)
         found: dict[tuple[str, str], list[tuple[int | None, float, float]]] = {}
         for i in sorted(self.members):
             u = lib.units[i]
             rest = self.members - {i}
-            z_rest = lib.log_evidence(rest)
+            z_rest = lib.log_posterior(rest)
             alts = []
             for v, w in enumerate(lib.units):
                 if w.forced or v in self.members or w.name == u.name:
@@ -450,7 +531,7 @@ class EvidenceSelector:
                 if any(lib.units[m].name == w.name and (w.joint is None or lib.units[m].joint == w.joint)
                        for m in rest):
                     continue
-                za = lib.log_evidence(rest | {v})
+                za = lib.log_posterior(rest | {v})
                 if za > z - LOG_RATIO and za - z_rest > LOG_RATIO:
                     alts.append((za, w))
             for za, w in sorted(alts, key=lambda a: -a[0])[:2]:
