@@ -36,7 +36,8 @@ import numpy as np
 
 from franka_vs_gym.validation.effects import Context, Effect
 from franka_vs_gym.validation.effects.base import MAX_DELAY, MAX_PAYLOAD, MAX_TILT, _tau_max
-from franka_vs_gym.validation.estimation import HALF_WIDTH, NoiseModel, noise_model
+from franka_vs_gym.validation.effects.inertial import LinkMass
+from franka_vs_gym.validation.estimation import HALF_WIDTH, NoiseModel
 from franka_vs_gym.validation.results import Ambiguity, Candidate, Selected
 from franka_vs_gym.validation.selection import Engine, SetFit, Term
 
@@ -54,8 +55,6 @@ PAYLOAD_REACH = 0.3
 LINK_SHARE = 0.3
 #: a link's length scale (m): the FER's links are 0.1-0.4 m long
 LINK_REACH = 0.3
-#: divide the log-likelihood by the temperature the blocks show (_temperature)
-TEMPERED = True
 SEPARATE = ("motions that excite the two differently (this log's data do not tell them apart at the evidence "
             "ratio of the criterion)")
 
@@ -135,71 +134,29 @@ class Unit:
         return self.effect.name
 
 
-def _smooth_1d(x: np.ndarray, m: int) -> np.ndarray:
-    """Moving average over 2 m + 1 bins (edges reflected), as the spectrum is smoothed."""
-    if m == 0 or len(x) < 2:
-        return x.copy()
-    ext = np.concatenate([x[1:m + 1][::-1], x, x[-m - 1:-1][::-1]])
-    c = np.cumsum(np.concatenate([[0.0], ext]))
-    w = 2 * m + 1
-    out = (c[w:] - c[:-w]) / w
-    return out[:len(x)] if len(out) >= len(x) else np.pad(out, (0, len(x) - len(out)), mode="edge")
+def _band_ols(ak: np.ndarray, yk: np.ndarray, cw: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Least squares of the transforms ``yk`` (K, 7) on ``ak`` (K, 7, P) over the band's bins (weights ``cw``: 2
+    inside the spectrum, 1 at its real bins): the coefficients, the inverse of the column-scaled information and the
+    scales."""
+    info = np.einsum("k,kap,kaq->pq", cw, np.conj(ak), ak).real
+    sc = np.sqrt(np.maximum(np.diag(info), 0.0))
+    sc[sc == 0] = 1.0
+    info = info / np.outer(sc, sc)
+    info_inv = np.linalg.pinv(0.5 * (info + info.T), hermitian=True, rcond=1e-10)
+    b = np.einsum("k,kap,ka->p", cw, np.conj(ak), yk).real / sc
+    return info_inv @ b / sc, info_inv, sc
 
 
-def rescaled(nm: NoiseModel, factor: np.ndarray) -> NoiseModel:
-    """``nm`` with its spectrum multiplied by ``factor`` (K,) per bin."""
-    from dataclasses import replace
-
-    f = np.asarray(factor, dtype=float)
-    P = nm.P * f[:, None, None]
-    return replace(nm, P=P, W=nm.W / f[:, None, None], logdet=nm.logdet + 7 * np.log(f))
-
-
-def _whitened(nm: NoiseModel, cols: np.ndarray, y: np.ndarray, fs: float) -> tuple[np.ndarray, np.ndarray]:
-    """The band of ``cols`` (n, 7, P) and ``y`` (n, 7), any length n, whitened by ``nm``'s spectrum at the nearest
-    of its frequencies and stacked real: (R, P), (R,)."""
-    n = len(y)
-    f = np.fft.rfftfreq(n, 1.0 / fs)
-    k = np.nonzero((f >= nm.freqs[0]) & (f <= nm.freqs[-1]))[0]
-    near = np.clip(np.searchsorted(nm.freqs, f[k]), 0, len(nm.freqs) - 1)
-    W = nm.W[near]
-    L = np.linalg.cholesky(W)
-    LH = np.conj(np.transpose(L, (0, 2, 1)))
-    ak = (np.fft.rfft(cols, axis=0) / math.sqrt(n))[k]
-    yk = (np.fft.rfft(y, axis=0) / math.sqrt(n))[k]
-    wa = LH @ ak
-    wy = np.einsum("kab,kb->ka", LH, yk)
-    real = (k == 0) | ((n % 2 == 0) & (k == n // 2))
-    c = np.sqrt(np.where(real, 1.0, 2.0))[:, None]
-    p = cols.shape[2]
-    X = np.concatenate([(c[:, :, None] * wa.real).reshape(-1, p), (c[:, :, None] * wa.imag).reshape(-1, p)])
-    Y = np.concatenate([(c * wy.real).ravel(), (c * wy.imag).ravel()])
-    return X, Y
-
-
-def _temperature(cols: np.ndarray, y: np.ndarray, eng: Engine, nm: NoiseModel, units: list, fs: float) -> float:
-    """How much more the units' estimates differ between the engine's contiguous blocks than the noise model says:
-    every unit fitted jointly on each block (the reference set's Whittle estimate and variances there), Cochran's Q
-    of each coefficient over the F blocks divided by its F - 1 degrees of freedom, the median over all coefficients
-    (at least 1). A model error of the robot that follows the pose is not stationary noise: the units would take
-    different shares of it in different parts of the motion, which the spread between blocks shows."""
-    blocks = [np.asarray(b) for b in eng.folds if len(b) >= 16]
-    if len(blocks) < 3:
-        return 1.0
-    est, var = [], []
-    for b in blocks:
-        X, Y = _whitened(nm, cols[b], y[b], fs)
-        G = X.T @ X
-        d = np.sqrt(np.maximum(np.diag(G), 1e-300))
-        Gi = np.linalg.pinv(G / np.outer(d, d), hermitian=True, rcond=1e-8) / np.outer(d, d)
-        est.append(Gi @ (X.T @ Y))
-        var.append(np.diag(Gi))
-    est, var = np.array(est), np.maximum(np.array(var), 1e-300)
-    ok = np.all(np.isfinite(est), axis=0) & np.all(var < 1e290, axis=0)
-    w = 1.0 / var[:, ok]
-    mean = np.sum(w * est[:, ok], axis=0) / np.sum(w, axis=0)
-    q = np.sum(w * (est[:, ok] - mean) ** 2, axis=0) / (len(blocks) - 1)
-    return float(max(np.median(q), 1.0)) if q.size else 1.0
+def _daniell(x: np.ndarray, m: int, kb: int) -> np.ndarray:
+    """Average of ``x`` (kmax, a, b) over 2 m + 1 bins at bins 0 .. kb - 1; below 0 Hz the spectrum of a real series
+    continues as the conjugate of its mirror image; at the top, bins beyond the last one kept are left out."""
+    lo = np.conj(x[1:m + 1][::-1])
+    ext = np.concatenate([lo, x], axis=0)
+    c = np.cumsum(np.concatenate([np.zeros((1,) + ext.shape[1:], ext.dtype), ext]), axis=0)
+    k = np.arange(kb) + len(lo)  # positions of bins 0 .. kb - 1 in ext
+    a = np.maximum(k - m, 0)
+    b = np.minimum(k + m + 1, len(ext))
+    return (c[b] - c[a]) / (b - a)[:, None, None]
 
 
 def _flange_split(effects: list[Effect], forced: list[Term]) -> list[Effect]:
@@ -209,8 +166,26 @@ def _flange_split(effects: list[Effect], forced: list[Term]) -> list[Effect]:
 
     if not any(e.name == "payload" for e in effects) and not any(t.effect.name == "payload" for t in forced):
         return effects
-    return [ArmLinkInertials(e) if isinstance(e, LinkInertials) and not isinstance(e, ArmLinkInertials) else e
-            for e in effects]
+    out = []
+    for e in effects:
+        if isinstance(e, LinkInertials) and not isinstance(e, ArmLinkInertials):
+            e = ArmLinkInertials(e)
+        elif type(e) is LinkMass:
+            e = _ArmLinkMass()
+        out.append(e)
+    return out
+
+
+class _ArmLinkMass(LinkMass):
+    """``link_mass`` of links 1-6 (link 7's scale is the flange body's: ``payload``)."""
+
+    def shape_key(self, shape):
+        return ("arm_links_1_6",)
+
+    def design(self, ctx, shape):
+        D = np.array(super().design(ctx, shape), copy=True)
+        D[:, :, 6] = 0.0
+        return D
 
 
 class Library:
@@ -221,19 +196,22 @@ class Library:
         self.ctx, self.eng = ctx, eng
         y = eng.y
         n = len(y)
-        units: list[Unit] = []
-        designs = []
-        pos = 0
+        st = ctx.data.settings
+        fs = float(st.rate)
+        hi = float(st.cutoff) if st.cutoff and st.cutoff < fs / 2 else fs / 2
+        hw = min(HALF_WIDTH, max(1, n // 8 - 1))
+        f = np.fft.rfftfreq(n, 1.0 / fs)
+        kb = int(np.sum(f <= hi))  # the band's bins: 0 .. kb - 1
+        kmax = min(len(f), kb + hw)  # and the smoother's reach beyond it
+        self._n, self._kmax = n, kmax
+        # designs: (effect, shape, joints or [None], D (N, 7, p), its transform (kmax, 7, p), forced)
+        self._designs: list[list] = []
         for t in forced:
             D = eng.design(t)
-            js = (t.joints or []) if t.effect.per_joint else [None]
-            for j in js:
-                units.append(Unit(t.effect, t.shape, j, slice(pos, pos + D.shape[2]), True))
-                pos += D.shape[2]
-            designs.append((t.effect, t.shape, D, js))
+            self._designs.append([t.effect, t.shape, (t.joints or []) if t.effect.per_joint else [None], D,
+                                  self._dft(D), True])
         forced_names = {t.effect.name for t in forced}
-        effects = _flange_split(effects, forced)
-        for e in effects:
+        for e in _flange_split(effects, forced):
             if e.name in forced_names:
                 continue
             try:
@@ -241,71 +219,114 @@ class Library:
                 D = eng.design(Term(e, shape, list(range(7)) if e.per_joint else None))
             except Exception:  # an effect that cannot describe this log is no candidate here
                 continue
-            js = list(range(7)) if e.per_joint else [None]
-            for j in js:
-                units.append(Unit(e, shape, j, slice(pos, pos + D.shape[2])))
-                pos += D.shape[2]
-            designs.append((e, shape, D, js))
-        self.units = units
-        # time-domain columns (N, 7, P) of every unit: the reference fit and the transforms
-        cols = np.zeros((n, 7, pos))
+            self._designs.append([e, shape, list(range(7)) if e.per_joint else [None], D, self._dft(D), False])
+        yk = self._dft(y)
+        real = (np.arange(kmax) == 0) | ((n % 2 == 0) & (np.arange(kmax) == n // 2))
+        cw = np.where(real, 1.0, 2.0)
+        # the generous reference fit: every unit at once, least squares in the band (column-scaled)
+        ak = self._columns()
+        theta, info_inv, sc = _band_ols(ak[:kb], yk[:kb], cw[:kb])
+        # shapes re-chosen on what the reference fit leaves to each effect (its partial residual): a law's shape
+        # is not bent to take what another effect of the library explains (an offset, a payload's gravity)
+        changed = False
+        for d in self._designs:
+            e, shape = d[0], d[1]
+            if d[5] or not shape:
+                continue
+            own = self._contribution(d, theta)
+            rest = y - self._contribution(None, theta) + own
+            try:
+                new = e.shape(ctx, rest)
+                D = eng.design(Term(e, new, list(range(7)) if e.per_joint else None))
+            except Exception:
+                continue
+            if e.shape_key(new) != e.shape_key(shape):
+                d[1], d[3], d[4] = new, D, self._dft(D)
+                changed = True
+        if changed:
+            ak = self._columns()
+            theta, info_inv, sc = _band_ols(ak[:kb], yk[:kb], cw[:kb])
+        pos = ak.shape[2]
+        units: list[Unit] = []
         k = 0
-        for _, _, D, js in designs:
-            p = D.shape[2]
+        for e, shape, js, D, _, forced_d in self._designs:
             for j in js:
-                if j is None:
-                    cols[:, :, k:k + p] = D
-                else:
-                    cols[:, j, k:k + p] = D[:, j, :]
-                k += p
-        st = ctx.data.settings
-        fs = float(st.rate)
-        band = (0.0, float(st.cutoff)) if st.cutoff and st.cutoff < fs / 2 else None
-        # the generous reference fit: every unit at once, least squares over every sample (column-scaled)
-        a2 = cols.reshape(n * 7, pos)
-        info = a2.T @ a2
-        sc = np.sqrt(np.maximum(np.diag(info), 0.0))
-        sc[sc == 0] = 1.0
-        info = info / np.outer(sc, sc)
-        info_inv = np.linalg.pinv(0.5 * (info + info.T), hermitian=True, rcond=1e-10)
-        theta = info_inv @ ((a2.T @ y.reshape(n * 7)) / sc) / sc
-        resid = y - (a2 @ theta).reshape(n, 7)
-        hw = min(HALF_WIDTH, max(1, n // 8 - 1))
-        nm = noise_model(resid, fs, band, hw)
-        ak = nm.dft(cols)  # (K, 7, P)
-        # the reference fit removes the noise along its own columns: bin k keeps the share 1 - h_k of it (h_k its
-        # leverage per joint, from the time-domain least squares written in the frequency domain: sum_k A_k^H A_k
-        # over both halves of the spectrum). The spectrum is divided by that share, smoothed as the periodogram is
-        akn = ak / sc
-        # (sum over the whole spectrum of A_k^H A_k is the time-domain Gram matrix, Parseval: info above)
-        lev = np.real(np.einsum("kap,pq,kaq->k", np.conj(akn), info_inv, akn)) * np.where(nm.real, 1.0, 2.0) / 7
-        keep = np.clip(1.0 - _smooth_1d(lev, hw), 0.2, 1.0)
-        nm = rescaled(nm, 1.0 / keep)
+                units.append(Unit(e, shape, j, slice(k, k + D.shape[2]), forced_d))
+                k += D.shape[2]
+        self.units = units
+        # the noise model: the reference residual's cross-periodogram, Daniell-smoothed over 2 hw + 1 bins, divided
+        # by the share 1 - h_k of the noise the fit leaves in bin k (h_k its leverage per joint, smoothed alike)
+        r = yk - ak @ theta
+        per = r[:, :, None] * np.conj(r[:, None, :])
+        akn = ak[:kb] / sc
+        lev = np.zeros(kmax)
+        lev[:kb] = np.real(np.einsum("kap,pq,kaq->k", np.conj(akn), info_inv, akn)) * cw[:kb] / 7
+        P = _daniell(per, hw, kb)
+        keep = np.clip(1.0 - _daniell(lev[:, None, None], hw, kb)[:, 0, 0].real, 0.2, 1.0)
+        P = P / keep[:, None, None]
+        P[real[:kb]] = P[real[:kb]].real
+        P = 0.5 * (P + np.conj(np.transpose(P, (0, 2, 1))))
+        scale = np.real(np.trace(P, axis1=1, axis2=2)) / 7
+        P = P + (1e-12 * scale)[:, None, None] * np.eye(7)
+        sign, logdet = np.linalg.slogdet(P)
+        if np.any(np.real(sign) <= 0):
+            raise ValueError("the residual's spectral matrix is singular in the band (a joint with no noise at all?)")
+        nm = NoiseModel(fs, n, np.arange(kb), f[:kb], P, np.linalg.inv(P), np.real(logdet), real[:kb], hw)
         self.noise = nm
-        yk = nm.dft(y)  # (K, 7)
         # whitening: W = L L^H (Cholesky of the inverse spectrum); z = L^H r has identity covariance per bin
         L = np.linalg.cholesky(nm.W)
         LH = np.conj(np.transpose(L, (0, 2, 1)))
-        wa = LH @ ak
-        wy = np.einsum("kab,kb->ka", LH, yk)
+        wa = LH @ ak[:kb]
+        wy = np.einsum("kab,kb->ka", LH, yk[:kb])
         # l = -sum_k c_k/2 |z_k|^2 with c_k = 2 inside the spectrum, 1 at its real bins (estimation.NoiseModel)
-        c = np.sqrt(np.where(nm.real, 1.0, 2.0))[:, None]
+        c = np.sqrt(cw[:kb])[:, None]
         X = np.concatenate([(c[:, :, None] * wa.real).reshape(-1, pos), (c[:, :, None] * wa.imag).reshape(-1, pos)])
         Y = np.concatenate([(c * wy.real).ravel(), (c * wy.imag).ravel()])
-        # the likelihood's temperature: how much more the units' estimates differ between the log's blocks than
-        # the noise model says (1: as it says); the log-likelihood is divided by it
-        self.kappa = _temperature(cols, y, eng, nm, units, fs) if TEMPERED else 1.0
-        X, Y = X / math.sqrt(self.kappa), Y / math.sqrt(self.kappa)
         self.X, self.Y = X, Y  # the whitened band (kept: the tests recompute the evidence from them)
         self.G = X.T @ X
         self.b = X.T @ Y
         self.yy = float(Y @ Y)
+        for d in self._designs:
+            d[3] = d[4] = None  # (memory: the designs stay cached in the engine)
         # prior covariance, block by unit (None: flat)
         self.prior: list[np.ndarray | None] = []
         for u in units:
             p = u.cols.stop - u.cols.start
             self.prior.append(None if u.forced else prior_cov(u.effect, ctx, p, u.joint))
         self._cache: dict[frozenset, float] = {}
+
+    def _dft(self, x: np.ndarray) -> np.ndarray:
+        """Transform of ``x`` (N, ...) at bins 0 .. kmax - 1, scaled by 1/sqrt(N)."""
+        return np.fft.rfft(np.asarray(x, dtype=float), axis=0)[:self._kmax] / math.sqrt(self._n)
+
+    def _columns(self) -> np.ndarray:
+        """(kmax, 7, P) transforms of every unit's columns (a per-joint unit: its law on its joint only)."""
+        parts = []
+        for _, _, js, _, dk, _ in self._designs:
+            for j in js:
+                if j is None:
+                    parts.append(dk)
+                else:
+                    z = np.zeros_like(dk)
+                    z[:, j, :] = dk[:, j, :]
+                    parts.append(z)
+        return np.concatenate(parts, axis=2)
+
+    def _contribution(self, which, theta: np.ndarray) -> np.ndarray:
+        """Time-domain contribution (N, 7) of one design's units (``which``) or of all (None) at ``theta``."""
+        out = np.zeros((self._n, 7))
+        k = 0
+        for d in self._designs:
+            D, js = d[3], d[2]
+            p = D.shape[2]
+            for j in js:
+                if which is None or d is which:
+                    if j is None:
+                        out += D @ theta[k:k + p]
+                    else:
+                        out[:, j] += D[:, j, :] @ theta[k:k + p]
+                k += p
+        return out
 
     @property
     def log_prior_odds(self) -> float:
@@ -509,37 +530,40 @@ class EvidenceSelector:
         return out
 
     def ambiguities(self, chosen: list[Term], cur: SetFit) -> list[Ambiguity]:
-        """Sets within ``ln B`` of the selected one that put another effect in a selected unit's place: the two are
-        reported ambiguous on the unit's joints (at most two alternatives per unit, the closest)."""
+        """Sets whose evidence is within ``ln B`` of the selected one's and that put another effect, or a pair of
+        laws on the same joint, in a selected unit's place (each explaining more than ``ln B`` beside the rest): they
+        are reported ambiguous with it on the unit's joints (the closest single and the closest pair; at most three
+        names in each)."""
         from franka_vs_gym.validation.diagnose import CONFUSABLE
 
         lib = self.lib
-        z = lib.log_posterior(self.members)
-        found: dict[tuple[str, str], list[tuple[int | None, float, float]]] = {}
+        z = lib.log_evidence(self.members)
+        found: dict[tuple[str, ...], list[tuple[int | None, float, float]]] = {}
         for i in sorted(self.members):
             u = lib.units[i]
             rest = self.members - {i}
-            z_rest = lib.log_posterior(rest)
-            alts = []
-            for v, w in enumerate(lib.units):
-                if w.forced or v in self.members or w.name == u.name:
+            z_rest = lib.log_evidence(rest)
+            present = {(lib.units[m].name, lib.units[m].joint) for m in rest}
+            alts = [v for v, w in enumerate(lib.units)
+                    if not w.forced and v not in self.members and w.name != u.name
+                    and (w.name, w.joint) not in present
+                    and (w.joint is None if u.joint is None else w.joint in (None, u.joint))]
+            singles = [(lib.log_evidence(rest | {v}), (v,)) for v in alts]
+            pairs = []
+            if u.joint is not None:
+                own = [v for v in alts if lib.units[v].joint == u.joint]
+                pairs = [(lib.log_evidence(rest | {v, w}), (v, w)) for a, v in enumerate(own) for w in own[a + 1:]]
+            for group in (singles, pairs):
+                ok = [(za, vs) for za, vs in group if za > z - LOG_RATIO and za - z_rest > LOG_RATIO]
+                if not ok:
                     continue
-                if u.joint is not None and w.joint is not None and w.joint != u.joint:
-                    continue
-                if u.joint is None and w.joint is not None:
-                    continue
-                if any(lib.units[m].name == w.name and (w.joint is None or lib.units[m].joint == w.joint)
-                       for m in rest):
-                    continue
-                za = lib.log_posterior(rest | {v})
-                if za > z - LOG_RATIO and za - z_rest > LOG_RATIO:
-                    alts.append((za, w))
-            for za, w in sorted(alts, key=lambda a: -a[0])[:2]:
-                found.setdefault((u.name, w.name), []).append((u.joint, z - z_rest, za - z_rest))
+                za, vs = max(ok)
+                names = (u.name,) + tuple(lib.units[v].name for v in vs)
+                found.setdefault(names, []).append((u.joint, z - z_rest, za - z_rest))
         out = []
-        for (a, b), rows in found.items():
+        for names, rows in found.items():
             joints = sorted({r[0] for r in rows if r[0] is not None}) or list(range(7))
-            why = next((s for n, s in CONFUSABLE.get(a, []) if n == b), SEPARATE)
-            out.append(Ambiguity([a, b], joints, {a: round(sum(r[1] for r in rows), 2),
-                                                  b: round(sum(r[2] for r in rows), 2)}, why))
+            why = next((s for n, s in CONFUSABLE.get(names[0], []) if n in names[1:]), SEPARATE)
+            ev = {names[0]: round(sum(r[1] for r in rows), 2), "+".join(names[1:]): round(sum(r[2] for r in rows), 2)}
+            out.append(Ambiguity(list(names), joints, ev, why))
         return out
