@@ -385,6 +385,8 @@ class VisualBatch(BatchedTask):
         self.geo = e0._plan.geo.copy() if e0._plan.geo_or_none is not None else None
         self.truth, self.frame = np.zeros((n, REC)), np.zeros((n, REC))  # the truth now, the held frame
         self.truth_k = np.full(n, -1, dtype=np.int64)
+        self._desired_rows = (np.broadcast_to(self.features_desired, (n, 8)),
+                              np.broadcast_to(self.tag_pose_desired, (n, 6)))
         if self.kind == "FrankaIBVSEnv" or self.kind == "FrankaVisualTorqueEnv":
             self.success_threshold, self.error_scale = e0.success_threshold, e0.error_scale
             self.torque_cost = getattr(e0, "torque_cost", 0.0) if self.torque else 0.0
@@ -427,19 +429,32 @@ class VisualBatch(BatchedTask):
         env._packed_frame_no = -1
 
     def step_end(self, ids: np.ndarray, out: np.ndarray, capture: np.ndarray):
-        self.steps[ids] += 1
-        self.k[ids] += self.n_substeps
         m = len(ids)
+        allrows = m == self.n
+        r = self.rows(ids)  # (a slice when all robots step: views instead of fancy-index copies)
+        self.steps[r] += 1
+        self.k[r] += self.n_substeps
         q, dq = self.joint_state(ids)
         # the truth now (VisualServoEnv._truth_now for all rows)
-        allrows = m == self.n
         rec = self.truth if allrows else np.empty((m, REC))
         truth_records(self.geo, np.ascontiguousarray(q), self.fMo if allrows else self.fMo[ids], rec)
         if not allrows:
             self.truth[ids] = rec
-        self.truth_k[ids] = self.k[ids]
+        self.truth_k[r] = self.k[r]
         vis = rec[:, R_VISIBLE] != 0.0
-        cap = ids[capture]
+        if allrows and not self.feature_noise and _all(capture):
+            # every robot takes a frame (the default periods) without pixel noise: the frame is the truth, zeros
+            # where not seen (VisualServoEnv._capture)
+            fr = self.frame
+            np.copyto(fr, rec)
+            if not _all(vis):
+                unseen = ~vis
+                fr[unseen, R_FEATURES] = 0.0
+                fr[unseen, R_DEPTH] = self.depth_desired
+                fr[unseen, R_POSE] = 0.0
+            cap = ids[:0]
+        else:
+            cap = ids[capture]
         if len(cap):  # VisualServoEnv._capture: the frame is the truth, zeros where not seen
             sel = capture
             fr = rec[sel].copy()
@@ -456,7 +471,7 @@ class VisualBatch(BatchedTask):
             fr[unseen, R_DEPTH] = self.depth_desired
             fr[unseen, R_POSE] = 0.0
             self.frame[cap] = fr
-        src = rec if self.state_obs else self.frame[ids]
+        src = rec if self.state_obs else self.frame[r]
         if self.state_obs:
             seen = vis[:, None]
             raw = {"features": np.where(seen, rec[:, R_FEATURES], 0.0),
@@ -466,27 +481,33 @@ class VisualBatch(BatchedTask):
             raw = {"features": src[:, R_FEATURES], "feature_depth": src[:, R_DEPTH], "tag_pose": src[:, R_POSE]}
         raw["visible"] = src[:, R_VISIBLE]
         raw["q"], raw["dq"] = self.observed_joint_state(ids, q, dq)
-        raw["features_desired"] = np.broadcast_to(self.features_desired, (m, 8))
-        raw["tag_pose_desired"] = np.broadcast_to(self.tag_pose_desired, (m, 6))
+        if allrows:
+            raw["features_desired"], raw["tag_pose_desired"] = self._desired_rows
+        else:
+            raw["features_desired"] = np.broadcast_to(self.features_desired, (m, 8))
+            raw["tag_pose_desired"] = np.broadcast_to(self.tag_pose_desired, (m, 6))
         self.pack(ids, raw, out)
         # the task's evaluation
-        failure = np.full(m, None, dtype=object)
-        if self.terminate_on_tag_lost:
+        if self.terminate_on_tag_lost and not _all(vis):
+            failure = np.full(m, None, dtype=object)
             failure[~vis] = TAG_LOST
+            ok = vis  # (failure == None)
+        else:
+            failure, ok = None, True  # (no row failed: finish writes the info column of Nones)
         extra: dict[str, np.ndarray] = {}
         if self.kind == "FrankaPBVSEnv":
             et, er = pbvs_errors(self.cdMo, rec[:, R_CMO].reshape(m, 4, 4))
-            success = (failure == None) & (et < self.translation_threshold) & (er < self.rotation_threshold)  # noqa: E711
+            success = ok & (et < self.translation_threshold) & (er < self.rotation_threshold)
             reward = pose_reward(et, er, self.translation_scale, self.rotation_scale)
             extra = {"error": et, "rotation_error": er}
         else:
             err = rec[:, R_ERROR].copy()
-            success = (failure == None) & (err < self.success_threshold)  # noqa: E711
+            success = ok & (err < self.success_threshold)
             reward = feature_reward(err, self.error_scale)
             extra = {"error": err}
         reward = success_bonus(reward, success, self.success_bonus)
         if self.kind == "FrankaVisualTorqueEnv" and self.torque_cost:
-            reward = reward - torque_penalty(self.action[ids], self.tau_max, self.torque_cost)
+            reward = reward - torque_penalty(self.action[r], self.tau_max, self.torque_cost)
         reward, term, trunc, info = self.finish(ids, reward, success, failure)
         info.update(extra)
         return reward, term, trunc, info
