@@ -117,6 +117,10 @@ def test_batched_vector_env_is_bit_identical_to_single_envs(env_id, kwargs, n_st
     ("FrankaVisualTorque-v0", dict(action_scale="normalized", time_limit=0.3), 300, None),
     ("FrankaIBVS-v0", dict(action_scale="normalized", time_limit=0.6), 200, None),
     ("FrankaTorqueTracking-v0", dict(limit_rate=False, time_limit=0.4, torque_scale=1.0), 300, None),
+    # the eye-to-hand tasks (the camera's placement drawn per episode, a static observation key), pixel noise
+    ("FrankaIBVSEyeToHand-v0", dict(link_mass_range=(0.9, 1.1), time_limit=0.6), 200, None),
+    ("FrankaPBVSEyeToHand-v0", dict(friction_scale_range=(0.5, 1.5), time_limit=0.6), 200, AutoresetMode.SAME_STEP),
+    ("FrankaIBVSEyeToHand-v0", dict(feature_noise=0.5, joint_noise=1e-3, time_limit=0.6), 200, None),
     # the joint-limit guard at work: random joint velocities for long enough to reach the limits
     ("FrankaTorqueTracking-v0", dict(action_type="joint_velocity", action_scale="normalized", robot="fr3",
                                      max_tracking_error=None, control_period=0.05, time_limit=4.0), 300, None),

@@ -360,16 +360,23 @@ class TorqueTrackingBatch(BatchedTask):
 
 
 class VisualBatch(BatchedTask):
-    """FrankaIBVS-v0, FrankaPBVS-v0 and FrankaVisualTorque-v0 over N robots, with the ideal projection of the tag
-    corners and feature or state observations. The camera's ground truth of all robots (forward kinematics, cMo, the
-    projection, visibility, the pose vector, the feature error) is one call of the compiled kernel the single
-    environments use (:func:`~franka_vs_gym.envs.kernels.truth_records`), into (N, REC) truth records; the held
-    frames are records too (``VisualServoEnv._truth_rec`` / ``_frame_rec``)."""
+    """FrankaIBVS-v0, FrankaPBVS-v0, FrankaVisualTorque-v0 and the eye-to-hand tasks over N robots, with the ideal
+    projection of the tag corners and feature or state observations (the eye-to-hand truth kernel takes each robot's
+    camera placement cMf in place of fMo; its placement in the observation is a per-robot static key). The camera's
+    ground truth of all robots (forward kinematics, cMo, the projection, visibility, the pose vector, the feature
+    error) is one call of the compiled kernel the single environments use
+    (:func:`~franka_vs_gym.envs.kernels.truth_records`), into (N, REC) truth records; the held frames are records
+    too (``VisualServoEnv._truth_rec`` / ``_frame_rec``)."""
 
     def __init__(self, envs: list[Any], batch: Any) -> None:
         super().__init__(envs, batch)
         n, e0 = self.n, envs[0]
         self.kind = type(e0).__name__
+        task = _task_class(e0)  # (the eye-to-hand tasks are those of FrankaIBVS-v0 / FrankaPBVS-v0 turned round)
+        self.pbvs = task == "FrankaPBVSEnv"
+        # observation keys a task writes once per episode (the eye-to-hand camera's placement), per robot
+        sl = e0._pack._slices
+        self.static = {k: np.zeros((n, sl[k].stop - sl[k].start)) for k in getattr(e0, "_static_keys", ())}
         self.terminate_on_success = e0.terminate_on_success
         self.state_obs = e0.observation_type == "state"
         self.tag_size, self.intrinsics = e0.tag_size, e0.intrinsics
@@ -387,7 +394,7 @@ class VisualBatch(BatchedTask):
         self.truth_k = np.full(n, -1, dtype=np.int64)
         self._desired_rows = (np.broadcast_to(self.features_desired, (n, 8)),
                               np.broadcast_to(self.tag_pose_desired, (n, 6)))
-        if self.kind == "FrankaIBVSEnv" or self.kind == "FrankaVisualTorqueEnv":
+        if not self.pbvs:
             self.success_threshold, self.error_scale = e0.success_threshold, e0.error_scale
             self.torque_cost = getattr(e0, "torque_cost", 0.0) if self.torque else 0.0
         else:
@@ -419,6 +426,8 @@ class VisualBatch(BatchedTask):
         self.k[i] = env._k
         self.fMo[i] = env._fMo.ravel()
         self.truth[i], self.frame[i], self.truth_k[i] = env._truth_rec, env._frame_rec, env._truth_k
+        for k, rows in self.static.items():  # (as the packer holds them: clipped, which clipping again keeps)
+            rows[i] = env._pack._work[env._pack._slices[k]]
 
     def store(self, i: int) -> None:
         super().store(i)
@@ -481,6 +490,8 @@ class VisualBatch(BatchedTask):
             raw = {"features": src[:, R_FEATURES], "feature_depth": src[:, R_DEPTH], "tag_pose": src[:, R_POSE]}
         raw["visible"] = src[:, R_VISIBLE]
         raw["q"], raw["dq"] = self.observed_joint_state(ids, q, dq)
+        for k, rows in self.static.items():
+            raw[k] = rows if allrows else rows[ids]
         if allrows:
             raw["features_desired"], raw["tag_pose_desired"] = self._desired_rows
         else:
@@ -495,7 +506,7 @@ class VisualBatch(BatchedTask):
         else:
             failure, ok = None, True  # (no row failed: finish writes the info column of Nones)
         extra: dict[str, np.ndarray] = {}
-        if self.kind == "FrankaPBVSEnv":
+        if self.pbvs:
             et, er = pbvs_errors(self.cdMo, rec[:, R_CMO].reshape(m, 4, 4))
             success = ok & (et < self.translation_threshold) & (er < self.rotation_threshold)
             reward = pose_reward(et, er, self.translation_scale, self.rotation_scale)
@@ -515,7 +526,18 @@ class VisualBatch(BatchedTask):
 
 #: The batched task of each environment class (by class name: subclasses step robot by robot).
 TASKS = {"FrankaTorqueTrackingEnv": TorqueTrackingBatch, "FrankaIBVSEnv": VisualBatch,
-         "FrankaPBVSEnv": VisualBatch, "FrankaVisualTorqueEnv": VisualBatch}
+         "FrankaPBVSEnv": VisualBatch, "FrankaVisualTorqueEnv": VisualBatch,
+         "FrankaIBVSEyeToHandEnv": VisualBatch, "FrankaPBVSEyeToHandEnv": VisualBatch}
+
+
+def _task_class(env: Any) -> str:
+    """The name of the registered task class whose evaluation ``env`` runs: its own, or for the eye-to-hand
+    classes the eye-in-hand task they derive from."""
+    names = [c.__name__ for c in type(env).__mro__]
+    for name in ("FrankaPBVSEnv", "FrankaIBVSEnv", "FrankaVisualTorqueEnv"):
+        if name in names:
+            return name
+    return names[0]
 
 
 def batched_task(envs: list[Any], batch: Any) -> BatchedTask | None:
