@@ -166,6 +166,14 @@ def test_the_batch_holds_one_model_and_each_robots_differing_fields():
     assert {"body_pos", "body_mass", "body_inertia", "jnt_user"} <= held, held
     assert "geom_size" not in held and "mesh_vert" not in held
     _batch_runs_each_robots_model(vec)
+    # the differing fields found from the models' memory as a whole are those a field-by-field comparison finds
+    bm, base = vec._batch_models, vec.batch.model
+    assert all(b is not None for b in bm._bufs)
+    for i, e in enumerate(vec._envs):
+        m = e.world.model
+        by_field = {n for n in bm._fields if getattr(m, n).tobytes() != getattr(base, n).tobytes()}
+        assert bm._differing(i) == by_field, i
+        assert {"body_pos", "body_mass"} <= by_field
     for _ in range(15):  # through autoresets (new draws)
         vec.step(a)
     vec.envs[2].unwrapped.sim.set_dynamics(friction_scale=0.25)  # an edit through envs, read before the next step

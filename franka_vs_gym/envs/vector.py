@@ -30,6 +30,7 @@ and info are in ``info["final_obs"]`` and ``info["final_info"]``). ``reset(seed=
 
 from __future__ import annotations
 
+import copy as _copy
 import os
 from collections import defaultdict
 from typing import Any
@@ -65,11 +66,16 @@ class BatchModels:
 
     Each robot's environment owns its model and edits it (a reset draws the tag's placement, randomised masses,
     payload or friction). Before the next batch step, :meth:`sync` compares each edited robot's model with the
-    batch's model field by field (every field ``mujoco.batch`` can hold per simulation, ``MjOption`` included), gives
-    the fields that differ per-robot values and writes the robot's values into its row (the rows of fields already
-    per robot always). A robot thus runs on values equal, bit for bit, to its own model's, while the physics of all
-    robots reads one model (64 copies of the model's 1.2 MB do not stay in a core's cache: measured 1.20 -> 1.12 x
-    one robot's raw physics for 64 visual-torque robots).
+    batch's model, gives the fields that differ per-robot values and writes the robot's values into its row (the
+    rows of fields already per robot always). A robot thus runs on values equal, bit for bit, to its own model's,
+    while the physics of all robots reads one model (64 copies of the model's 1.2 MB do not stay in a core's cache:
+    measured 1.20 -> 1.12 x one robot's raw physics for 64 visual-torque robots).
+
+    The comparison is of the models' array memory as a whole: MuJoCo allocates every array of a model in one buffer,
+    at the same offsets in models of the same sizes, so one vectorised comparison of the two buffers (about 0.9 MB
+    here) finds the differing bytes, and the fields holding them follow from the offsets (a field-by-field
+    comparison from Python cost about 1.5 ms per reset robot, more than the reset itself). ``MjOption``'s fields,
+    which live outside the buffer, are compared one by one.
 
     Models that differ in a field the batch cannot hold per simulation (meshes, textures, height fields: never
     edited by an environment) make the batch run each robot on its own model (``Batch.set_models``), as before.
@@ -77,7 +83,8 @@ class BatchModels:
     Parameters
     ----------
     batch : the batch (its model: a copy of robot 0's model when it was made).
-    models : each robot's model (its environment's), read again at every :meth:`sync`.
+    models : each robot's model (its environment's, the same objects for the env's life), read at every
+        :meth:`sync`.
     """
 
     def __init__(self, batch: Any, models: list[Any]) -> None:
@@ -85,26 +92,75 @@ class BatchModels:
 
         self.batch, self.models = batch, models
         base = batch.model
-        self._getters: list[tuple[str, Any]] = []
-        for name in sorted(mjbatch.MODEL_FIELDS):
-            if name.startswith("opt."):
-                self._getters.append((name, lambda m, f=name[4:]: getattr(m.opt, f)))
-            else:
-                self._getters.append((name, lambda m, f=name: getattr(m, f)))
-        self._base = [(name, get, np.asarray(get(base)).copy()) for name, get in self._getters]
-        self._fixed = [(n, np.asarray(getattr(base, n)).copy()) for n in dir(base) if not n.startswith("_")
-                       and n not in mjbatch.MODEL_FIELDS and isinstance(getattr(base, n), np.ndarray)]
-        #: the robots run on their own models (``Batch.set_models``) instead of the batch's
-        self.per_robot = any(self._fixed_differs(m) for m in models[1:])
+        fields = sorted(n for n in dir(base) if not n.startswith("_") and isinstance(getattr(base, n), np.ndarray))
+        self._fields = fields
+        self._expandable = {n for n in fields if n in mjbatch.MODEL_FIELDS}
+        self._opt = [(n, n[4:], np.asarray(getattr(base.opt, n[4:])).copy())
+                     for n in sorted(mjbatch.MODEL_FIELDS) if n.startswith("opt.")]
+        # each model's arrays as one block of 8-byte words (None: a model whose layout is not the batch model's,
+        # compared field by field instead)
+        layout = self._layout(base, fields)
+        self._bufs: list[np.ndarray | None] = [None] * len(models)
+        if layout is not None:
+            lo, span, table = layout
+            order = np.argsort(table[:, 0], kind="stable")
+            used = table[order, 0] >= 0
+            order = order[used]
+            self._starts, self._ends = table[order, 0], table[order, 0] + table[order, 1]
+            self._names = [fields[k] for k in order]
+            self._ref = self._words(lo, span).copy()
+            for i, m in enumerate(models):
+                ml = self._layout(m, fields)
+                if ml is not None and ml[1] == span and np.array_equal(ml[2], table):
+                    self._bufs[i] = self._words(ml[0], span)
         self._rows: dict[str, np.ndarray] = {}  # the expanded fields' per-robot values, by field
+        #: the robots run on their own models (``Batch.set_models``) instead of the batch's
+        self.per_robot = False
         self.pending: set[int] = set(range(len(models)))  # robots whose models may have been edited since a sync
-        if self.per_robot:
-            batch.set_models(models)
         self.sync()
+
+    @staticmethod
+    def _layout(m: Any, fields: list[str]) -> tuple[int, int, np.ndarray] | None:
+        """(address of the first array, bytes to the end of the last rounded up to 8, (offset or -1 when empty,
+        bytes) of each field of ``fields``) of model m's arrays; None unless they lie in one block no larger than
+        the model's buffer, each starting on an 8-byte boundary."""
+        ptr = np.array([[getattr(m, n).ctypes.data, getattr(m, n).nbytes] for n in fields], dtype=np.int64)
+        used = ptr[:, 1] > 0
+        lo = int(ptr[used, 0].min())
+        span = int((ptr[used, 0] + ptr[used, 1]).max()) - lo
+        span += (-span) % 8
+        if (ptr[used, 0] % 8).any() or span > int(m.nbuffer):
+            return None
+        table = ptr.copy()
+        table[:, 0] = np.where(used, ptr[:, 0] - lo, -1)
+        return lo, span, table
+
+    @staticmethod
+    def _words(address: int, span: int) -> np.ndarray:
+        """A uint64 view of ``span`` bytes of memory at ``address`` (a model's arrays: the model must outlive it)."""
+        import ctypes
+
+        return np.ctypeslib.as_array((ctypes.c_uint64 * (span // 8)).from_address(address))
 
     def edited(self, ids: Any = None) -> None:
         """Robots ``ids`` (None: all) may have edited models: the next :meth:`sync` reads them."""
         self.pending.update(range(len(self.models)) if ids is None else (int(i) for i in ids))
+
+    def _differing(self, i: int) -> set[str]:
+        """The fields of robot i's model that differ, bit for bit, from the batch's model."""
+        m, buf = self.models[i], self._bufs[i]
+        out = {name for name, f, ref in self._opt if np.asarray(getattr(m.opt, f)).tobytes() != ref.tobytes()}
+        if buf is None:
+            base = self.batch.model
+            return out | {n for n in self._fields if getattr(m, n).tobytes() != getattr(base, n).tobytes()}
+        if np.array_equal(buf, self._ref):
+            return out
+        # the byte offsets of the differing words, each inside one field (every field starts on a word) or in the
+        # padding after one (not a field's value: left out)
+        words = np.flatnonzero(buf != self._ref) * 8
+        k = np.searchsorted(self._starts, words, side="right") - 1
+        inside = (k >= 0) & (words < self._ends[np.maximum(k, 0)])
+        return out | {self._names[j] for j in np.unique(k[inside])}
 
     def sync(self) -> None:
         """The edited robots' models into the batch."""
@@ -113,31 +169,22 @@ class BatchModels:
             self.batch.set_models(self.models)  # (the batch reads the caller models; set again after edits)
             return
         rows = self._rows
-        for i in ids:
+        diffs = {i: self._differing(i) for i in ids}
+        fixed = sorted({n for d in diffs.values() for n in d if not n.startswith("opt.") and n not in self._expandable})
+        if fixed:
+            if rows:
+                raise RuntimeError(f"a robot's model was edited in a field mujoco.batch cannot hold per simulation "
+                                   f"({fixed[0]}) after others were held per robot")
+            self.per_robot = True
+            self.batch.set_models(self.models)
+            return
+        for i, diff in diffs.items():
             m = self.models[i]
-            if self._fixed_differs(m):
-                if rows:
-                    raise RuntimeError(f"robot {i}'s model was edited in a field mujoco.batch cannot hold per "
-                                       f"simulation ({self._fixed_differs(m)}) after others were held per robot")
-                self.per_robot = True
-                self.batch.set_models(self.models)
-                return
-            for name, get, ref in self._base:
-                v = get(m)
+            for name in diff.union(rows):
                 arr = rows.get(name)
                 if arr is None:
-                    if np.array_equal(v, ref):
-                        continue
                     arr = rows[name] = self.batch.expand(name)
-                arr[i] = v
-
-    def _fixed_differs(self, m: Any) -> str:
-        """The first field of model m that the batch cannot hold per simulation and that differs from its model's,
-        or ''."""
-        for name, ref in self._fixed:
-            if not np.array_equal(getattr(m, name), ref):
-                return name
-        return ""
+                arr[i] = getattr(m.opt, name[4:]) if name.startswith("opt.") else getattr(m, name)
 
     @property
     def expanded(self) -> list[str]:
@@ -222,7 +269,8 @@ class FrankaVectorEnv(VectorEnv):
         # torque), and a robot that ends a period in contact (whose contacts its environment reads) re-runs that
         # period alone, as a single env runs it (_physics; the task logic re-runs it alone anyway).
         self._persistent = self._needs_scene or e0.render_mode is not None
-        self.batch = mjbatch.Batch(self._models[0], self.num_envs, nthread=self.nthread,
+        # (the batch's own model: a private copy of robot 0's, which robot 0's resets then do not edit)
+        self.batch = mjbatch.Batch(_copy.copy(self._models[0]), self.num_envs, nthread=self.nthread,
                                    persistent=self._persistent)
         self._batch_models = BatchModels(self.batch, self._models)
         self._state = self.batch.state
