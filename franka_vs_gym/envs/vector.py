@@ -48,6 +48,9 @@ from franka_vs_gym.sim.rendering import SharedRenderers
 
 _STATE = mujoco.mjtState.mjSTATE_INTEGRATION
 _sum, _all, _any = np.add.reduce, np.logical_and.reduce, np.logical_or.reduce  # (called directly: every step)
+# the scene's asset arrays (what a renderer uploads, and the collision structures built from meshes): an
+# environment's reset does not edit them (BatchModels compares them only when the models may have been edited)
+_ASSET_PREFIXES = ("mesh_", "tex_", "hfield_", "skin_", "flex_", "bvh_", "oct_")
 _BAD = [int(mujoco.mjtWarning.mjWARN_BADQPOS), int(mujoco.mjtWarning.mjWARN_BADQVEL),
         int(mujoco.mjtWarning.mjWARN_BADQACC)]
 # the same warnings as a slice (a view instead of a fancy-index copy) where MuJoCo numbers them consecutively
@@ -95,8 +98,9 @@ class BatchModels:
         fields = sorted(n for n in dir(base) if not n.startswith("_") and isinstance(getattr(base, n), np.ndarray))
         self._fields = fields
         self._expandable = {n for n in fields if n in mjbatch.MODEL_FIELDS}
-        self._opt = [(n, n[4:], np.asarray(getattr(base.opt, n[4:])).copy())
+        self._opt = [(n, n[4:], np.asarray(getattr(base.opt, n[4:])).tobytes())
                      for n in sorted(mjbatch.MODEL_FIELDS) if n.startswith("opt.")]
+        self._opts = [m.opt for m in models]  # (each model's MjOption, read in place)
         # each model's arrays as one block of 8-byte words (None: a model whose layout is not the batch model's,
         # compared field by field instead)
         layout = self._layout(base, fields)
@@ -109,6 +113,14 @@ class BatchModels:
             self._starts, self._ends = table[order, 0], table[order, 0] + table[order, 1]
             self._names = [fields[k] for k in order]
             self._ref = self._words(lo, span).copy()
+            # the words compared after an environment's own reset: every field but the scene's assets (meshes,
+            # textures, height fields, skins, flexes and the bounding-volume and octree structures built from them),
+            # which a reset does not edit; they are compared when the vector env is made and after access to envs
+            hot = [np.arange(st // 8, (en + 7) // 8) for st, en, n in zip(self._starts, self._ends, self._names,
+                                                                   strict=True) if not n.startswith(_ASSET_PREFIXES)]
+            self._hot = np.concatenate(hot) if hot else np.zeros(0, dtype=np.int64)
+            self._ref_hot = self._ref[self._hot]
+            self._scratch = np.empty_like(self._ref_hot)
             for i, m in enumerate(models):
                 ml = self._layout(m, fields)
                 if ml is not None and ml[1] == span and np.array_equal(ml[2], table):
@@ -116,7 +128,8 @@ class BatchModels:
         self._rows: dict[str, np.ndarray] = {}  # the expanded fields' per-robot values, by field
         #: the robots run on their own models (``Batch.set_models``) instead of the batch's
         self.per_robot = False
-        self.pending: set[int] = set(range(len(models)))  # robots whose models may have been edited since a sync
+        self.pending: set[int] = set()  # robots reset since the last sync (their models' assets are not compared)
+        self.pending_all: set[int] = set(range(len(models)))  # robots whose models may have been edited anywhere
         self.sync()
 
     @staticmethod
@@ -142,34 +155,54 @@ class BatchModels:
 
         return np.ctypeslib.as_array((ctypes.c_uint64 * (span // 8)).from_address(address))
 
-    def edited(self, ids: Any = None) -> None:
-        """Robots ``ids`` (None: all) may have edited models: the next :meth:`sync` reads them."""
-        self.pending.update(range(len(self.models)) if ids is None else (int(i) for i in ids))
+    @property
+    def any_pending(self) -> bool:
+        return bool(self.pending or self.pending_all)
 
-    def _differing(self, i: int) -> set[str]:
-        """The fields of robot i's model that differ, bit for bit, from the batch's model."""
-        m, buf = self.models[i], self._bufs[i]
-        out = {name for name, f, ref in self._opt if np.asarray(getattr(m.opt, f)).tobytes() != ref.tobytes()}
+    def edited(self, ids: Any = None) -> None:
+        """Robots ``ids`` were reset by their environments (their models' assets are not compared), or (None) any
+        model may have been edited anywhere: the next :meth:`sync` reads them."""
+        if ids is None:
+            self.pending_all.update(range(len(self.models)))
+        else:
+            self.pending.update(int(i) for i in ids)
+
+    def _differing(self, i: int, assets: bool = True) -> set[str]:
+        """The fields of robot i's model that differ, bit for bit, from the batch's model (``assets=False``: the
+        scene's asset arrays left out)."""
+        m, buf, o = self.models[i], self._bufs[i], self._opts[i]
+        out = {name for name, f, ref in self._opt if np.asarray(getattr(o, f)).tobytes() != ref}
         if buf is None:
             base = self.batch.model
             return out | {n for n in self._fields if getattr(m, n).tobytes() != getattr(base, n).tobytes()}
-        if np.array_equal(buf, self._ref):
-            return out
+        if assets:
+            neq = buf != self._ref
+            if not _any(neq):
+                return out
+            words = np.flatnonzero(neq)
+        else:
+            hot = np.take(buf, self._hot, out=self._scratch)
+            neq = hot != self._ref_hot
+            if not _any(neq):
+                return out
+            words = self._hot[np.flatnonzero(neq)]
         # the byte offsets of the differing words, each inside one field (every field starts on a word) or in the
         # padding after one (not a field's value: left out)
-        words = np.flatnonzero(buf != self._ref) * 8
+        words = words * 8
         k = np.searchsorted(self._starts, words, side="right") - 1
         inside = (k >= 0) & (words < self._ends[np.maximum(k, 0)])
         return out | {self._names[j] for j in np.unique(k[inside])}
 
     def sync(self) -> None:
         """The edited robots' models into the batch."""
-        ids, self.pending = sorted(self.pending), set()
+        everywhere, reset = self.pending_all, self.pending - self.pending_all
+        self.pending, self.pending_all = set(), set()
         if self.per_robot:
             self.batch.set_models(self.models)  # (the batch reads the caller models; set again after edits)
             return
         rows = self._rows
-        diffs = {i: self._differing(i) for i in ids}
+        diffs = {i: self._differing(i) for i in sorted(everywhere)}
+        diffs.update((i, self._differing(i, assets=False)) for i in sorted(reset))
         fixed = sorted({n for d in diffs.values() for n in d if not n.startswith("opt.") and n not in self._expandable})
         if fixed:
             if rows:
@@ -365,7 +398,7 @@ class FrankaVectorEnv(VectorEnv):
                 o, info = self._envs[i].reset()
                 results[i] = (o, 0.0, False, False, info)
             self._batch_models.edited(np.flatnonzero(self._autoreset))
-        if self._batch_models.pending:
+        if self._batch_models.any_pending:
             self._batch_models.sync()
         stepping = np.flatnonzero(~self._autoreset) if reset_any else self._all
         fast = self._fast_rows(stepping) if self._task is not None and len(stepping) else stepping[:0]
