@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 
 import franka_vs_gym.validation.diagnose  # noqa: F401
+from franka_vs_gym.validation.candidates import resolve_effects
 from franka_vs_gym.validation.compare import as_processed, baseline_config
 from franka_vs_gym.validation.criterion import LOG_RATIO, EvidenceSelector, Library, prior_cov
-from franka_vs_gym.validation.diagnose import _folds, resolve_effects
 from franka_vs_gym.validation.effects import Context, get_effect
 from franka_vs_gym.validation.hidden import make_hidden_effect_log
-from franka_vs_gym.validation.selection import Engine
+from franka_vs_gym.validation.selection import Engine, contiguous_folds
 
 dg = sys.modules["franka_vs_gym.validation.diagnose"]
 
@@ -24,7 +24,7 @@ def _library(effect: str, seed: int, magnitude: float = 1.0, duration: float = 6
     data = as_processed(log, None)
     cfg = baseline_config(data.log, None, False, data=data)
     ctx = Context(data, cfg)
-    eng = Engine(ctx, ctx.residual, _folds(ctx.n, 5), band=True)
+    eng = Engine(ctx, ctx.residual, contiguous_folds(ctx.n, 5), band=True)
     effects = [e for e in resolve_effects(None) if e.name != "link_inertials"]
     return Library(ctx, eng, effects), answer
 

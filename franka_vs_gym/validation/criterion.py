@@ -35,6 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from franka_vs_gym.validation.effects import Context, Effect
+from franka_vs_gym.validation.effects.alternatives import CONFUSABLE
 from franka_vs_gym.validation.effects.base import MAX_DELAY, MAX_PAYLOAD, MAX_TILT, _tau_max
 from franka_vs_gym.validation.effects.inertial import LinkMass
 from franka_vs_gym.validation.estimation import HALF_WIDTH, NoiseModel
@@ -534,8 +535,6 @@ class EvidenceSelector:
         laws on the same joint, in a selected unit's place (each explaining more than ``ln B`` beside the rest): they
         are reported ambiguous with it on the unit's joints (the closest single and the closest pair; at most three
         names in each)."""
-        from franka_vs_gym.validation.diagnose import CONFUSABLE
-
         lib = self.lib
         z = lib.log_evidence(self.members)
         found: dict[tuple[str, ...], list[tuple[int | None, float, float]]] = {}
