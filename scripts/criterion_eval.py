@@ -4,6 +4,10 @@ into diagnose: the same script, options and output as scripts/evaluation.py, wit
 (evidence "band") replaced in-process by criterion.EvidenceSelector.
 
     OMP_NUM_THREADS=1 nice -n 10 python scripts/criterion_eval.py -o after.jsonl --parts tuning --max-seeds 1
+    OMP_NUM_THREADS=1 nice -n 10 python scripts/criterion_eval.py --log-ratio 10 -o lr10.jsonl --parts tuning
+
+``--log-ratio X`` sets the criterion's one threshold ln B (nats; default criterion.LOG_RATIO = ln 20) for a study
+of it on the tuning part. The comparison with diagnose's rules is in docs/workbench/method.md.
 """
 
 from __future__ import annotations
