@@ -405,6 +405,7 @@ class StepPlan(CompiledStep):
         self.depth_d[:], self.pose_d[:] = env.depth_desired, env.tag_pose_desired
         self.cost[0] = float(getattr(env, "torque_cost", 0.0))
         self.camera_substeps = env.camera_substeps
+        self.task_end = False  # whether the task ends a compiled step in one call (env._end_compiled; see ibvs.py)
 
     def _bind(self) -> None:
         super()._bind()
@@ -453,6 +454,11 @@ class StepPlan(CompiledStep):
         if capture:
             env._frame_no += 1
         env._packed_frame_no = -1 if self.state_flag else env._frame_no
+        if self.task_end:
+            env._pack.last = out
+            env._steps += 1
+            return env._end_compiled({k: out[sl] if sh is None else out[sl].reshape(sh) for k, sl, sh in self.views},
+                                     code)
         return self.finish(env, out, code)
 
     def post(self, out: np.ndarray) -> int:
