@@ -142,5 +142,6 @@ class FrankaIBVSEnv(VisualServoEnv):
         else:
             terminated = bool(success and self.terminate_on_success)
         truncated = (not terminated) and self._steps >= self.max_steps
-        info = {"time": self.episode_time, "is_success": success, "failure": failure, "error": err}
+        # (the time: episode_time's, from the data the plant steps)
+        info = {"time": self._d.time - self._t0, "is_success": success, "failure": failure, "error": err}
         return obs, float(reward), terminated, truncated, info
