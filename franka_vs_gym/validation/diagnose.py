@@ -79,6 +79,7 @@ from franka_vs_gym.validation.effects import (
     load_plugin,
 )
 from franka_vs_gym.validation.effects.base import MAX_DELAY, MIN_DELAY
+from franka_vs_gym.validation.effects.constraints import constrained_fits
 from franka_vs_gym.validation.effects.timing import Delay
 from franka_vs_gym.validation.evaluate import evaluate, shift
 from franka_vs_gym.validation.logs import MeasurementLog
@@ -1281,7 +1282,10 @@ def _alternate(ctx: Context, spec, y: np.ndarray, idx: np.ndarray, refine: bool)
                     f.joints = list(joints)
             fits[i] = f
             contrib[i] = e.contribution(ctx, f)
-    return fits  # type: ignore[return-value]
+    # physics inside the estimate: where a least-squares answer is not physically valid (a friction law that would
+    # push, a gravity off the sphere, an inconsistent body, a delay outside its box), the set is fitted again jointly
+    # over the valid values only (the fits stay as they are when every answer is valid)
+    return constrained_fits(ctx, [e for e, _ in spec], fits, y, idx)  # type: ignore[arg-type]
 
 
 def _apply_fits(cfg: ModelConfig, ctx: Context, members: list[Effect],
@@ -1383,7 +1387,8 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
     fl = _folds(ctx.n, FOLDS)
     command_fit = None
     if auto and command_channel and ctx.cmd_residual is not None:  # the channel the diagnosis named
-        command_fit = COMMAND_DELAY.fit(ctx, ctx.cmd_residual, np.arange(ctx.n))
+        command_fit = constrained_fits(ctx, [COMMAND_DELAY], [COMMAND_DELAY.fit(ctx, ctx.cmd_residual,
+                                                                                np.arange(ctx.n))], ctx.cmd_residual)[0]
         names = [n for n in names if n != "delay"]
     elif not auto and "delay" in names and ctx.cmd_residual is not None:
         progress("delay: choosing the channel (measured torque vs motion, or vs command)", verbose)
@@ -1394,7 +1399,8 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
         if not meas.ok:
             cmd = _command_delay(ctx, fl, noise, False)
             if cmd is not None and cmd.ok:
-                command_fit = COMMAND_DELAY.fit(ctx, ctx.cmd_residual, np.arange(ctx.n))
+                command_fit = constrained_fits(ctx, [COMMAND_DELAY], [COMMAND_DELAY.fit(
+                    ctx, ctx.cmd_residual, np.arange(ctx.n))], ctx.cmd_residual)[0]
                 names = [n for n in names if n != "delay"]
     members = [get_effect(n) for n in names]
     spec = []

@@ -31,7 +31,11 @@ from franka_vs_gym.validation.effects.base import (
     _tau_max,
     _vc_choice,
 )
+from franka_vs_gym.validation.effects.constraints import FeasibleSet, per_joint_coef
 from franka_vs_gym.validation.evaluate import sigmoid_friction
+
+LEVEL_MARGIN = 1e-3  # Nm: a constrained direction-dependent level stays this far above zero (the model's sigmoid
+# writes it as a centre offset logit(L_minus / phi1) / phi2, which a level of exactly zero would send to infinity)
 
 
 class _DissipativeLinear(Effect):
@@ -48,13 +52,15 @@ class _DissipativeLinear(Effect):
     def apply(self, config, fit):
         return config.copy(friction=self.friction(config.friction, fit))
 
-    def constrain(self, ctx, config, fit):
-        c = _joint_coef(fit)[:, 0]
+    def _c_min(self, config: ModelConfig, fit: Fit) -> tuple[np.ndarray, np.ndarray] | None:
+        """Per joint the smallest coefficient (7,) that keeps ``config``'s friction law plus this term dissipative on
+        the checked velocities (-inf: any), and the joints (7,) bool where no coefficient does (the rest of the law
+        pushes where this term is ~0); None when the law cannot take the term."""
         try:
             base = self.friction(config.friction, Fit(fit.effect, {**fit.theta, "coef": np.zeros((7, 1))}, fit.joints))
             one = self.friction(config.friction, Fit(fit.effect, {**fit.theta, "coef": np.ones((7, 1))}, fit.joints))
         except NotApplicable:
-            return fit, None
+            return None
         grid = dissipation_grid(config.robot.limits.dq_max, low_speed=True)
         b = base(grid) * grid
         p = one(grid) * grid - b  # >= 0: the term opposes motion
@@ -63,6 +69,32 @@ class _DissipativeLinear(Effect):
         fin = np.isfinite(c_min)  # -inf: any coefficient keeps that joint's law dissipative
         c_min[fin] += 1e-7 + 1e-6 * np.abs(c_min[fin])  # strictly inside (the check allows -1e-9 W)
         infeasible = np.any(~pos & (b < -1e-9), axis=0)  # the rest of the law pushes where this term is ~0
+        return c_min, infeasible
+
+    def feasible_set(self, ctx, fit):
+        """The coefficient of each fitted joint bounded below by the dissipative limit (:meth:`_c_min`); a joint no
+        coefficient makes dissipative is not bounded here (:meth:`constrain` leaves it out)."""
+        lim = self._c_min(ctx.config, fit)
+        if lim is None or not fit.joints:
+            return None
+        c_min, infeasible = lim
+        lower = np.where(infeasible, -np.inf, c_min)[fit.joints]
+        x0 = _joint_coef(fit)[fit.joints, 0]
+
+        def make(x):
+            coef = np.asarray(fit.theta["coef"], dtype=float).reshape(7, -1).copy()
+            coef[:, 0] = per_joint_coef(fit, x, 1)[:, 0]
+            return Fit(fit.effect, {**fit.theta, "coef": coef}, list(fit.joints))
+
+        return FeasibleSet(np.maximum(x0, lower), lambda x: np.asarray(x, dtype=float), make,
+                           bool(np.all(x0 >= lower)), lower=lower)
+
+    def constrain(self, ctx, config, fit):
+        c = _joint_coef(fit)[:, 0]
+        lim = self._c_min(config, fit)
+        if lim is None:
+            return fit, None
+        c_min, infeasible = lim
         joints, said = [], []
         new = c.copy()
         for j in fit.joints:
@@ -434,6 +466,33 @@ class AsymmetricFriction(Effect):
             elif hi > 0.25 * _tau_max(ctx)[j]:
                 out[j] = f"friction level {hi:.3g} Nm is implausibly large"
         return out
+
+    def _lower(self, config: ModelConfig) -> np.ndarray:
+        """(7, 2) the smallest (F_plus, F_minus) per joint that :meth:`apply` can write: the levels it adds them to
+        (the model's sigmoid asymptotes where the joint has a sigmoid, else its Coulomb term) kept positive."""
+        fr = config.friction
+        out = np.empty((7, 2))
+        for j in range(7):
+            if fr.phi1[j] != 0:
+                lp, lm = sigmoid_levels(fr.phi1[j], float(fr.phi2[j]), fr.phi3[j])
+                out[j] = (-float(lp), -float(lm))
+            else:
+                out[j] = (-float(fr.coulomb[j]), -float(fr.coulomb[j]))
+        return out + LEVEL_MARGIN
+
+    def feasible_set(self, ctx, fit):
+        """Both levels of each fitted joint bounded below so that the law's total level in each direction stays
+        positive (what :meth:`apply` writes into the model's sigmoid)."""
+        if not fit.joints:
+            return None
+        lower = self._lower(ctx.config)[fit.joints].ravel()
+        x0 = _joint_coef(fit, 2)[fit.joints].ravel()
+
+        def make(x):
+            return Fit(fit.effect, {**fit.theta, "coef": per_joint_coef(fit, x, 2)}, list(fit.joints))
+
+        return FeasibleSet(np.maximum(x0, lower), lambda x: np.asarray(x, dtype=float), make,
+                           bool(np.all(x0 >= lower)), lower=lower)
 
     def apply(self, config, fit):
         # the two levels go into the model's sigmoid, the law's direction-dependent term. A joint without a sigmoid

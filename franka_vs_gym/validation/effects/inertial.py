@@ -19,6 +19,7 @@ from franka_vs_gym.validation.effects.base import (
     NotApplicable,
     _joint_coef,
 )
+from franka_vs_gym.validation.effects.constraints import FeasibleSet, per_joint_coef
 from franka_vs_gym.validation.evaluate import FLANGE_OFFSET
 
 
@@ -44,6 +45,16 @@ class Armature(Effect):
         tot = ctx.config.armature + _joint_coef(fit)[:, 0]
         return {j: f"negative armature {tot[j]:.3g} kg m^2" for j in fit.joints if tot[j] < 0} | {
             j: f"armature {tot[j]:.3g} kg m^2 is implausibly large" for j in fit.joints if tot[j] > 2.0}
+
+    def feasible_set(self, ctx, fit):
+        """Each fitted joint's change bounded below so that its total armature stays >= 0."""
+        if not fit.joints:
+            return None
+        lower = -np.asarray(ctx.config.armature, dtype=float)[fit.joints]
+        x0 = _joint_coef(fit)[fit.joints, 0]
+        return FeasibleSet(np.maximum(x0, lower), lambda x: np.asarray(x, dtype=float),
+                           lambda x: Fit(fit.effect, {**fit.theta, "coef": per_joint_coef(fit, x, 1)},
+                                         list(fit.joints)), bool(np.all(x0 >= lower)), lower=lower)
 
     def apply(self, config, fit):
         return config.copy(armature=np.maximum(config.armature + _joint_coef(fit)[:, 0], 0.0))
@@ -126,6 +137,50 @@ class GravityTilt(Effect):
         if abs(np.linalg.norm(g) - 9.81) > 0.05 * 9.81:
             out[-1] = f"|g| = {np.linalg.norm(g):.3f} m/s^2 is not Earth's gravity"
         return out
+
+    @staticmethod
+    def _frame(g0: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The model gravity's direction and two unit vectors orthogonal to it (the tilt's angle coordinates)."""
+        u = np.asarray(g0, dtype=float) / np.linalg.norm(g0)
+        a = np.eye(3)[int(np.argmin(np.abs(u)))]
+        e1 = np.cross(u, a)
+        e1 /= np.linalg.norm(e1)
+        return u, e1, np.cross(u, e1)
+
+    @classmethod
+    def gravity_of(cls, g0: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """The gravity vector of tilt angles ``x`` = (a, b) rad: the model's ``g0`` rotated by the rotation vector
+        ``a e1 + b e2`` (``e1``, ``e2`` orthogonal to ``g0``), so ``|g| = |g0|`` for every ``x``."""
+        u, e1, e2 = cls._frame(g0)
+        r = float(x[0]) * e1 + float(x[1]) * e2
+        t = float(np.linalg.norm(r))
+        sinc = 1.0 - t * t / 6.0 if t < 1e-4 else math.sin(t) / t
+        return np.linalg.norm(g0) * (math.cos(t) * u + sinc * np.cross(r, u))
+
+    @classmethod
+    def angles_of(cls, g0: np.ndarray, g: np.ndarray) -> np.ndarray:
+        """The tilt angles (a, b) rad of the direction of ``g`` (its norm is not kept: the projection onto the
+        sphere ``|g| = |g0|``)."""
+        u, e1, e2 = cls._frame(g0)
+        v = np.asarray(g, dtype=float) / max(float(np.linalg.norm(g)), 1e-300)
+        axis = np.cross(u, v)
+        s = float(np.linalg.norm(axis))
+        t = math.atan2(s, float(u @ v))
+        if s < 1e-15:
+            return np.zeros(2)
+        r = axis / s * t
+        return np.array([r @ e1, r @ e2])
+
+    def feasible_set(self, ctx, fit):
+        """Gravity on the sphere ``|g| = |g0|`` (the model's norm, Earth's): two tilt angles, not a free vector. The
+        least-squares change is feasible only when it keeps the norm (to 1e-9 relative)."""
+        g0 = np.asarray(ctx.config.gravity, dtype=float)
+        g = g0 + self.coef(fit)
+        x0 = self.angles_of(g0, g)
+        feasible = abs(float(np.linalg.norm(g)) - float(np.linalg.norm(g0))) <= 1e-9 * float(np.linalg.norm(g0))
+        return FeasibleSet(x0, lambda x: self.gravity_of(g0, x) - g0,
+                           lambda x: Fit(fit.effect, {**fit.theta, "coef": self.gravity_of(g0, x) - g0},
+                                         list(fit.joints)), feasible)
 
     def apply(self, config, fit):
         return config.copy(gravity=config.gravity + self.coef(fit))
@@ -224,6 +279,32 @@ class Payload(Effect):
         _, pr = _payload_body(new)  # the corrected tool: mass, centre of mass (its inertia is projected)
         return {-1: "the corrected tool: " + "; ".join(pr)} if pr else {}
 
+    def feasible_set(self, ctx, fit):
+        """The body at the flange physically consistent (positive-definite pseudo-inertia, through the log-Cholesky
+        parameters of :mod:`~franka_vs_gym.validation.inertials`): the payload itself when the fitted mass is
+        positive (or the model has no flange body), with its mass at most MAX_PAYLOAD; else the corrected tool (the
+        model's flange body plus the change). Feasible: the least-squares body's pseudo-inertia is already positive
+        definite (and the mass within the bound)."""
+        from franka_vs_gym.validation.inertials import nearest_consistent, params_from_theta, pseudo_inertia
+
+        th = self.coef(fit)
+        flange = _flange_params7(ctx.config)
+        lighter = th[0] <= 0 and flange[0] > 0
+        base = flange if lighter else np.zeros(10)
+        body = base + th
+        ev = np.linalg.eigvalsh(pseudo_inertia(body))
+        upper = np.full(10, np.inf)
+        if not lighter:
+            upper[0] = 0.5 * math.log(MAX_PAYLOAD)  # mass = exp(2 alpha)
+        feasible = bool(ev[0] > 1e-9 * max(float(ev[-1]), 1e-12)) and (lighter or body[0] <= MAX_PAYLOAD)
+
+        def coef(x):
+            return params_from_theta(x) - base
+
+        return FeasibleSet(nearest_consistent(body), coef,
+                           lambda x: Fit(fit.effect, {**fit.theta, "coef": coef(x)}, list(fit.joints)), feasible,
+                           upper=upper)
+
     def apply(self, config, fit):
         th = self.coef(fit)
         if th[0] <= 0:  # a lighter tool: the tool becomes the corrected flange body, the payload is absorbed
@@ -285,6 +366,14 @@ class LinkMass(Effect):
         vis = self._visible(ctx, fit)
         bad = [f"link {i + 1} mass scale {s[i]:.3g}" for i in range(7) if vis[i] and not 0.25 <= s[i] <= 2.0]
         return {-1: "outside [0.25, 2]: " + ", ".join(bad)} if bad else {}
+
+    def feasible_set(self, ctx, fit):
+        """Each link's scale change within [-0.5, 0.5] (what :meth:`apply` writes: masses stay positive)."""
+        x0 = self.coef(fit)
+        lo, hi = np.full(7, -0.5), np.full(7, 0.5)
+        return FeasibleSet(np.clip(x0, lo, hi), lambda x: np.asarray(x, dtype=float),
+                           lambda x: Fit(fit.effect, {**fit.theta, "coef": np.asarray(x, dtype=float).copy()},
+                                         list(fit.joints)), bool(np.all((x0 >= lo) & (x0 <= hi))), lo, hi)
 
     def apply(self, config, fit):
         c = np.clip(self.coef(fit), -0.5, 0.5)
@@ -490,6 +579,8 @@ class LinkInertials(Effect):
         if dt > (1.0 + LI_RATE_SLACK) / LI_MIN_RATE:  # a slow log's accelerations do not determine 43 combinations
             return {-1: f"the log's rate ({1.0 / dt:.1f} Hz) is below {LI_MIN_RATE:g} Hz: its accelerations cannot "
                         "identify the link inertials (a payload or mass-scale law may still be named)"}
+        if fit.constrained and fit.theta.get("links") is not None:  # the constrained fit's links: consistent
+            return {}
         new, old, problem = self._links(ctx, fit)
         out = [problem] if problem else []
         for i in range(7):
@@ -498,6 +589,48 @@ class LinkInertials(Effect):
         if not out:
             fit.theta["links"] = new  # what apply writes into the model
         return {-1: "; ".join(out)} if out else {}
+
+    def feasible_set(self, ctx, fit):
+        """Every link physically consistent: the 7 links' log-Cholesky parameters (70), their masses within
+        [0.5, 2] of the published ones (link 7's up to twice its own plus MAX_PAYLOAD: a body held at the flange is
+        part of its parameters), with the prior of :func:`~franka_vs_gym.validation.inertials.consistent_links`
+        towards the published links in the directions the log does not determine. Feasible: the least-squares change
+        passes the consistency check (:meth:`problems`: a consistent arm reproduces it within the noise). Logs below
+        LI_MIN_RATE are not constrained (the effect is not identified there)."""
+        from franka_vs_gym.validation.inertials import link_prior, params_from_theta, theta_from_params
+
+        dt = float(getattr(ctx.data.report, "dt_median", 0.0) or 0.0)
+        if dt > (1.0 + LI_RATE_SLACK) / LI_MIN_RATE:
+            return None
+        b = self.basis(ctx.config)
+        old = self._model_params(ctx.config)
+        old[6] = old[6] - self._flange_params(ctx.config)
+        if fit.constrained and fit.theta.get("links") is not None:
+            new, feasible = np.asarray(fit.theta["links"], dtype=float), False
+        else:
+            feasible = not self.problems(ctx, fit)  # sets fit.theta["links"] when it passes
+            new = fit.theta["links"] if feasible else self._links(ctx, fit)[0]
+        try:
+            prior = link_prior(old)
+        except ValueError:  # the model's own links are not consistent: nothing to constrain towards
+            return None
+        m = old[:, 0]
+        lower = np.full((7, 10), -np.inf)
+        upper = np.full((7, 10), np.inf)
+        lower[:, 0] = 0.5 * np.log(0.5 * m)
+        upper[:, 0] = 0.5 * np.log(2.0 * m)
+        upper[6, 0] = 0.5 * math.log(2.0 * m[6] + MAX_PAYLOAD)
+        K = b["K"]
+
+        def coef(x):
+            return K @ (params_from_theta(np.asarray(x).reshape(7, 10)) - old).ravel()
+
+        def make(x):
+            links = params_from_theta(np.asarray(x).reshape(7, 10))
+            return Fit(fit.effect, {**fit.theta, "coef": K @ (links - old).ravel(), "links": links}, list(fit.joints))
+
+        x0 = np.array([theta_from_params(p) for p in new]).ravel()
+        return FeasibleSet(x0, coef, make, feasible, lower.ravel(), upper.ravel(), prior)
 
     def constrain(self, ctx, config, fit):
         """A fit that failed the consistency check (no consistent arm reproduces it within the tolerance) is applied

@@ -12,6 +12,7 @@ from franka_vs_gym.validation.effects.base import (
     Effect,
     Fit,
 )
+from franka_vs_gym.validation.effects.constraints import FeasibleSet
 from franka_vs_gym.validation.evaluate import shift
 from franka_vs_gym.validation.signals import band_sos
 
@@ -192,6 +193,14 @@ class Delay(Effect):
         if d > MAX_DELAY:
             return {-1: f"delay {d * 1000:.1f} ms exceeds {MAX_DELAY * 1000:.0f} ms"}
         return {}
+
+    def feasible_set(self, ctx, fit):
+        """The delay in its box [MIN_DELAY, MAX_DELAY]."""
+        d = float(self.coef(fit)[0])
+        lo, hi = np.array([MIN_DELAY]), np.array([MAX_DELAY])
+        return FeasibleSet(np.clip([d], lo, hi), lambda x: np.asarray(x, dtype=float),
+                           lambda x: Fit(fit.effect, {**fit.theta, "coef": np.asarray(x, dtype=float).copy()},
+                                         list(fit.joints)), MIN_DELAY <= d <= MAX_DELAY, lo, hi)
 
     def apply(self, config, fit):
         return config.copy(delay=max(0.0, config.delay + float(self.coef(fit)[0])), delay_channel=self.channel)

@@ -1,0 +1,167 @@
+"""Physical constraints inside the fit: the joint estimate of a set of effects over their physically valid values.
+
+Each effect may describe its valid values by :meth:`~franka_vs_gym.validation.effects.base.Effect.feasible_set`: a
+map from free coordinates ``x`` to its linear coefficients (a gravity on the sphere ``|g| = |g0|`` through two
+angles, an inertial body through the log-Cholesky parameters of its pseudo-inertia), box bounds on ``x`` (a friction
+coefficient that keeps the law dissipative, a delay in ``[MIN_DELAY, MAX_DELAY]``, a link's mass within its range),
+an optional prior (the link inertials' pull towards the published links in the directions the log does not
+determine) and whether the least-squares answer already satisfies the constraints.
+
+:func:`constrained_fits` is the constrained fit of the set: when every member's least-squares answer is feasible it
+returns the fits unchanged (today's numbers stay); otherwise it minimises the same data misfit,
+
+    sum_j (n_eff / N) / sigma_j^2 * || y_j - sum_i D_ij c_i(x_i) ||^2  (+ the priors),
+
+jointly over every member's free coordinates (``scipy.optimize.least_squares``, trust-region reflective with the
+bounds, warm-started from each member's least-squares answer projected onto its valid values). ``y`` is the target
+the set explains, ``D`` the effects' design columns, ``sigma_j`` the log's noise floor per joint and ``n_eff`` the
+number of independent samples of the low-passed log (2 cutoff T); the misfit is written through the normal
+equations (``(c - c_ls)^T A (c - c_ls)`` plus a constant, ``c_ls`` the weighted least-squares answer), so each
+iteration is small. What is fitted is therefore always something the model can take: ``fit`` needs no rejection
+after it. Members whose contribution is not linear in coefficients (the re-identified sigmoid, which bounds its own
+parameters) are held at their fit.
+
+:func:`tangent` gives each member's ``d coef / d x`` at the solution with the coordinates on an active bound removed:
+the covariance of the constrained estimate is the unconstrained one projected onto these directions.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from franka_vs_gym.validation.effects.base import Context, Effect, Fit
+
+
+@dataclass
+class FeasibleSet:
+    """An effect's valid values in free coordinates.
+
+    ``x0`` (k,): the least-squares answer projected onto the valid values (inside ``lower``/``upper``);
+    ``coef(x)``: the effect's linear coefficients, flattened in the order of :func:`columns`; ``make(x)``: the
+    :class:`Fit` at ``x``; ``feasible``: the least-squares answer satisfies the constraints (then it is kept);
+    ``prior(x)``: extra residuals (a regularisation), or None."""
+
+    x0: np.ndarray
+    coef: Callable[[np.ndarray], np.ndarray]
+    make: Callable[[np.ndarray], Fit]
+    feasible: bool
+    lower: np.ndarray | None = None
+    upper: np.ndarray | None = None
+    prior: Callable[[np.ndarray], np.ndarray] | None = None
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        k = len(self.x0)
+        lo = np.full(k, -np.inf) if self.lower is None else np.asarray(self.lower, dtype=float)
+        hi = np.full(k, np.inf) if self.upper is None else np.asarray(self.upper, dtype=float)
+        return lo, hi
+
+
+def columns(ctx: Context, e: Effect, fit: Fit, idx: np.ndarray) -> np.ndarray:
+    """(m, 7, p) design columns of ``fit`` on samples ``idx``, one per coefficient the flattened ``coef`` holds: a
+    shared effect's columns as they are; a per-joint effect's coefficient (j, q) as a column acting on joint j only,
+    for j in ``fit.joints`` (joint-major)."""
+    D = e.design(ctx, {k: v for k, v in fit.theta.items() if k != "coef"})[idx]
+    if not e.per_joint:
+        return D
+    out = np.zeros((len(idx), 7, len(fit.joints) * D.shape[2]))
+    k = 0
+    for j in fit.joints:
+        for q in range(D.shape[2]):
+            out[:, j, k] = D[:, j, q]
+            k += 1
+    return out
+
+
+def per_joint_coef(fit: Fit, x: np.ndarray, p: int) -> np.ndarray:
+    """(7, p) coefficients of a per-joint fit whose joints' coefficients are ``x`` (joint-major), zeros elsewhere."""
+    c = np.zeros((7, p))
+    c[fit.joints] = np.asarray(x, dtype=float).reshape(len(fit.joints), p)
+    return c
+
+
+def weights(ctx: Context) -> np.ndarray:
+    """(7,) the weight of a squared torque error per joint: (n_eff / N) / sigma_j^2 (noise floor sigma_j, floored
+    at 1 mNm; n_eff = 2 cutoff T independent samples of the low-passed log)."""
+    sig = np.maximum(np.asarray(ctx.data.noise, dtype=float), 1e-3)
+    n_eff = max(2.0 * ctx.data.settings.cutoff * ctx.n / ctx.data.settings.rate, 1.0)
+    return (n_eff / ctx.n) / sig ** 2
+
+
+def constrained_fits(ctx: Context, effects: list[Effect], fits: list[Fit], y: np.ndarray,
+                     idx: np.ndarray | None = None) -> list[Fit]:
+    """The fits of ``effects`` on target ``y`` (N, 7) (samples ``idx``, default all) constrained to physically
+    valid values (see the module docstring): the fits themselves when every least-squares answer is valid."""
+    idx = np.arange(ctx.n) if idx is None else np.asarray(idx)
+    sets = [e.feasible_set(ctx, f) for e, f in zip(effects, fits, strict=True)]
+    if all(s is None or s.feasible for s in sets):
+        return list(fits)
+    from scipy.optimize import least_squares
+
+    free = [i for i, s in enumerate(sets) if s is not None]
+    held = [i for i, s in enumerate(sets) if s is None]
+    target = y[idx] - sum((effects[i].contribution(ctx, fits[i])[idx] for i in held), np.zeros((len(idx), 7)))
+    cols = [columns(ctx, effects[i], fits[i], idx) for i in free]
+    X = np.concatenate(cols, axis=2)  # (m, 7, P)
+    w = weights(ctx)
+    A = np.einsum("mjp,mjq,j->pq", X, X, w)
+    b = np.einsum("mjp,mj,j->p", X, target, w)
+    lam, V = np.linalg.eigh(0.5 * (A + A.T))
+    keep = lam > 1e-12 * max(float(lam.max(initial=0.0)), 1e-300)
+    R = (V[:, keep] * np.sqrt(lam[keep])).T  # R^T R = A on its range
+    c_ls = V[:, keep] @ ((V[:, keep].T @ b) / lam[keep])
+    r_ls = R @ c_ls
+    sizes = [len(sets[i].x0) for i in free]
+    cuts = np.cumsum([0, *sizes])
+    lo = np.concatenate([sets[i].bounds()[0] for i in free])
+    hi = np.concatenate([sets[i].bounds()[1] for i in free])
+    x0 = np.clip(np.concatenate([sets[i].x0 for i in free]), lo, hi)
+    with np.errstate(invalid="ignore"):  # a start on a bound moves just inside it (what the solver needs)
+        x0 = np.where(np.isfinite(lo) & (x0 <= lo), lo + 1e-12 * np.maximum(1.0, np.abs(lo)), x0)
+        x0 = np.where(np.isfinite(hi) & (x0 >= hi), hi - 1e-12 * np.maximum(1.0, np.abs(hi)), x0)
+
+    def parts(x):
+        return [x[cuts[k]:cuts[k + 1]] for k in range(len(free))]
+
+    def resid(x):
+        xs = parts(x)
+        c = np.concatenate([sets[i].coef(xk) for i, xk in zip(free, xs, strict=True)])
+        out = [R @ c - r_ls]
+        out += [sets[i].prior(xk) for i, xk in zip(free, xs, strict=True) if sets[i].prior is not None]
+        return np.concatenate(out)
+
+    sol = least_squares(resid, x0, bounds=(lo, hi), method="trf", x_scale="jac", xtol=1e-10, ftol=1e-10,
+                        gtol=1e-10, max_nfev=200)
+    out = list(fits)
+    for i, xk in zip(free, parts(sol.x), strict=True):
+        f = sets[i].make(xk)
+        f.constrained = True
+        out[i] = f
+    return out
+
+
+def tangent(ctx: Context, e: Effect, fit: Fit, step: float = 1e-6) -> np.ndarray | None:
+    """(p, k) ``d coef / d x`` of a constrained fit at its value, the coordinates on an active bound left out (their
+    value is fixed by the constraint); None when the effect has no constraint or the fit was not constrained."""
+    if not fit.constrained:
+        return None
+    s = e.feasible_set(ctx, fit)
+    if s is None:
+        return None
+    x = s.x0
+    lo, hi = s.bounds()
+    c0 = s.coef(x)
+    free = ~((np.isfinite(lo) & (x <= lo + 1e-9 * np.maximum(1.0, np.abs(lo))))
+             | (np.isfinite(hi) & (x >= hi - 1e-9 * np.maximum(1.0, np.abs(hi)))))
+    T = np.zeros((len(c0), int(free.sum())))
+    for col, k in enumerate(np.nonzero(free)[0]):
+        h = step * max(1.0, abs(float(x[k])))
+        xp = x.copy()
+        xp[k] += h
+        T[:, col] = (s.coef(xp) - c0) / h
+    return T
+
+
+__all__ = ["FeasibleSet", "columns", "constrained_fits", "per_joint_coef", "tangent", "weights"]
