@@ -79,7 +79,7 @@ from franka_vs_gym.validation.effects import (
     load_plugin,
 )
 from franka_vs_gym.validation.effects.base import MAX_DELAY, MIN_DELAY
-from franka_vs_gym.validation.effects.constraints import constrained_fits
+from franka_vs_gym.validation.effects.constraints import constrained_fits, tangent
 from franka_vs_gym.validation.effects.timing import Delay
 from franka_vs_gym.validation.evaluate import evaluate, shift
 from franka_vs_gym.validation.logs import MeasurementLog
@@ -1545,7 +1545,8 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
         # the jointly fitted effects that the model took (a command-channel delay is fitted on its own channel)
         k = len(members) - (command_fit is not None)
         try:
-            conf = confidence(ctx, members[:k], fits[:k], y)
+            conf = confidence(ctx, members[:k], fits[:k], y,
+                              tangents=[tangent(ctx, e, f) for e, f in zip(members[:k], fits[:k], strict=True)])
         except Exception as exc:  # e.g. a plug-in whose contribution fails off its fitted values: keep the fit
             res.unidentifiable = [f"intervals not computed: {type(exc).__name__}: {exc}"]
         else:

@@ -525,10 +525,41 @@ def _words(null: np.ndarray, labels: list[str], scale: np.ndarray) -> list[str]:
     return out
 
 
+def _constrained_projection(params: list, live: np.ndarray, gram: np.ndarray, tangents: list) -> np.ndarray | None:
+    """(L, L) the map from the unconstrained to the constrained estimate's first-order error over the live
+    parameters: ``B (B^T H B)^+ B^T H`` with ``H`` the Gram matrix of the live parameters' columns and ``B`` the
+    directions the constraints leave free (each constrained fit's ``d coef / d x``, its coefficients in the order
+    :func:`_theta_params` lists them; identity for every other parameter). None when nothing is constrained."""
+    if not any(t is not None for t in tangents):
+        return None
+    blocks = []
+    for k, p in enumerate(params):
+        t = tangents[p.term] if p.term < len(tangents) else None
+        if t is None or p.key != "coef":
+            col = np.zeros((len(params), 1))
+            col[k, 0] = 1.0
+            blocks.append(col)
+    for ti, t in enumerate(tangents):
+        if t is None:
+            continue
+        rows = [k for k, p in enumerate(params) if p.term == ti and p.key == "coef"]
+        if len(rows) != t.shape[0]:
+            return None  # the coefficients are not those the constraint maps (e.g. a plug-in's own layout)
+        b = np.zeros((len(params), t.shape[1]))
+        b[rows] = t
+        blocks.append(b)
+    B = np.concatenate(blocks, axis=1)[live]
+    B = B[:, np.any(B != 0, axis=0)]
+    return B @ np.linalg.pinv(B.T @ gram @ B, hermitian=True) @ B.T @ gram
+
+
 def confidence(ctx, effects: list, fits: list, y: np.ndarray, *, method: str = "hac",
-               draws: int = N_DRAWS, seed: int = 0) -> Confidence:
+               draws: int = N_DRAWS, seed: int = 0, tangents: list | None = None) -> Confidence:
     """Intervals of every reported parameter of the jointly fitted ``effects`` / ``fits`` on target ``y`` (N, 7)
-    (the context's residual the set explains); see the module docstring."""
+    (the context's residual the set explains); see the module docstring. ``tangents``: per effect, the directions
+    its physical constraints leave free at a constrained fit (:func:`~franka_vs_gym.validation.effects.constraints.
+    tangent`, None: unconstrained); the covariance is then the constrained problem's (the unconstrained one
+    projected onto them: a coordinate on an active bound, or the norm of a gravity on its sphere, has no spread)."""
     params: list[_Param] = []
     for ti, (e, f) in enumerate(zip(effects, fits, strict=True)):
         params += _theta_params(e, f, ti)
@@ -575,6 +606,9 @@ def confidence(ctx, effects: list, fits: list, y: np.ndarray, *, method: str = "
     Jl = Jlive.reshape(len(Jlive), -1)
     gram = Jl @ Jl.T
     cv = covariance(Jlive.transpose(1, 2, 0), resid, method=method, gram=gram, nonzero=Jlive.any(axis=1).T)
+    proj = _constrained_projection(params, live, gram, tangents or [])
+    if proj is not None:
+        cv.cov = proj @ cv.cov @ proj.T
     theta = np.array([p.value for p in params])
     bias = np.zeros(P)
     bias[live] = inertial_bias(ctx, effects, [params[k] for k in np.nonzero(live)[0]], gram)

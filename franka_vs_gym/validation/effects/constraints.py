@@ -10,13 +10,14 @@ determine) and whether the least-squares answer already satisfies the constraint
 :func:`constrained_fits` is the constrained fit of the set: when every member's least-squares answer is feasible it
 returns the fits unchanged (today's numbers stay); otherwise it minimises the same data misfit,
 
-    sum_j (n_eff / N) / sigma_j^2 * || y_j - sum_i D_ij c_i(x_i) ||^2  (+ the priors),
+    (n_eff / N) / mean_j(sigma_j^2) * sum_j || y_j - sum_i D_ij c_i(x_i) ||^2  (+ the priors),
 
 jointly over every member's free coordinates (``scipy.optimize.least_squares``, trust-region reflective with the
 bounds, warm-started from each member's least-squares answer projected onto its valid values). ``y`` is the target
-the set explains, ``D`` the effects' design columns, ``sigma_j`` the log's noise floor per joint and ``n_eff`` the
-number of independent samples of the low-passed log (2 cutoff T); the misfit is written through the normal
-equations (``(c - c_ls)^T A (c - c_ls)`` plus a constant, ``c_ls`` the weighted least-squares answer), so each
+the set explains, ``D`` the effects' design columns (every joint weighed alike, as in the least-squares fits),
+``sigma_j`` the log's noise floor per joint and ``n_eff`` the number of independent samples of the low-passed log
+(2 cutoff T); the misfit is written through the normal
+equations (``(c - c_ls)^T A (c - c_ls)`` plus a constant, ``c_ls`` the least-squares answer), so each
 iteration is small. What is fitted is therefore always something the model can take: ``fit`` needs no rejection
 after it. Members whose contribution is not linear in coefficients (the re-identified sigmoid, which bounds its own
 parameters) are held at their fit.
@@ -83,11 +84,14 @@ def per_joint_coef(fit: Fit, x: np.ndarray, p: int) -> np.ndarray:
 
 
 def weights(ctx: Context) -> np.ndarray:
-    """(7,) the weight of a squared torque error per joint: (n_eff / N) / sigma_j^2 (noise floor sigma_j, floored
-    at 1 mNm; n_eff = 2 cutoff T independent samples of the low-passed log)."""
+    """(7,) the weight of a squared torque error per joint: the same on every joint, as in the least-squares fits
+    the constrained fit constrains (``Effect.fit`` weighs every joint's Nm alike), scaled to a chi-square,
+    (n_eff / N) / mean(sigma_j^2) (noise floors sigma_j, floored at 1 mNm; n_eff = 2 cutoff T independent samples
+    of the low-passed log), so that a prior (the link inertials') weighs against the data as in
+    :func:`~franka_vs_gym.validation.inertials.consistent_links`."""
     sig = np.maximum(np.asarray(ctx.data.noise, dtype=float), 1e-3)
     n_eff = max(2.0 * ctx.data.settings.cutoff * ctx.n / ctx.data.settings.rate, 1.0)
-    return (n_eff / ctx.n) / sig ** 2
+    return np.full(7, (n_eff / ctx.n) / float(np.mean(sig ** 2)))
 
 
 def constrained_fits(ctx: Context, effects: list[Effect], fits: list[Fit], y: np.ndarray,
@@ -153,8 +157,9 @@ def tangent(ctx: Context, e: Effect, fit: Fit, step: float = 1e-6) -> np.ndarray
     x = s.x0
     lo, hi = s.bounds()
     c0 = s.coef(x)
-    free = ~((np.isfinite(lo) & (x <= lo + 1e-9 * np.maximum(1.0, np.abs(lo))))
-             | (np.isfinite(hi) & (x >= hi - 1e-9 * np.maximum(1.0, np.abs(hi)))))
+    with np.errstate(invalid="ignore"):  # (an infinite bound is never active)
+        free = ~((np.isfinite(lo) & (x <= lo + 1e-7 * np.maximum(1.0, np.abs(lo))))
+                 | (np.isfinite(hi) & (x >= hi - 1e-7 * np.maximum(1.0, np.abs(hi)))))
     T = np.zeros((len(c0), int(free.sum())))
     for col, k in enumerate(np.nonzero(free)[0]):
         h = step * max(1.0, abs(float(x[k])))
