@@ -1337,8 +1337,9 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
     effects, their joints and the delay's channel): one selection, the one ``franka-vs diagnose`` shows. The held-out
     check is reported beside the fit and does not change that set: an effect whose removal does not raise the
     held-out RMSE is named in ``holdout["no_gain"]`` and in the notes, and kept (``dropped``, ``added`` and
-    ``joints_added`` stay empty). An effect the fit cannot keep (the
-    model cannot take it, e.g. a gravity whose norm is not Earth's once fitted on the whole log) is dropped with its
+    ``joints_added`` stay empty). The fits are constrained to physically valid values
+    (:func:`~franka_vs_gym.validation.effects.constraints.constrained_fits`: what is fitted is what the model can
+    take); an effect the model has no term for (e.g. link inertials from a log below 200 Hz) is dropped with its
     reason in the notes, and the others are fitted again without it.
 
     Named effects: held-out validation (default, ``holdout`` = 0.25): the effects are first fitted on the first 75%
@@ -1486,10 +1487,10 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
             progress(f"{n}: {why}", verbose)
         if all(f is not None for f in applied):
             break
-        # an effect the model cannot take is dropped and the others are fitted again without it. Where several
-        # cannot be taken, one may fail only through another that took its share (link inertials fitted with a
-        # tilt absorbed part of it and left |g| = 8.8 m/s^2): they are dropped one at a time, each time the one
-        # whose removal leaves the largest set the model takes, then the smallest squared residual
+        # an effect the model cannot take (it has no term for it: the fits themselves are constrained to valid
+        # values) is dropped and the others are fitted again without it. Where several cannot be taken they are
+        # dropped one at a time, each time the one whose removal leaves the largest set the model takes, then the
+        # smallest squared residual
         failed = [i for i, f in enumerate(applied) if f is None]
         keep = [i for i, f in enumerate(applied) if f is not None]
         refit = None

@@ -579,7 +579,7 @@ class LinkInertials(Effect):
         if dt > (1.0 + LI_RATE_SLACK) / LI_MIN_RATE:  # a slow log's accelerations do not determine 43 combinations
             return {-1: f"the log's rate ({1.0 / dt:.1f} Hz) is below {LI_MIN_RATE:g} Hz: its accelerations cannot "
                         "identify the link inertials (a payload or mass-scale law may still be named)"}
-        if fit.constrained and fit.theta.get("links") is not None:  # the constrained fit's links: consistent
+        if getattr(fit, "constrained", False) and fit.theta.get("links") is not None:  # the constrained fit's links
             return {}
         new, old, problem = self._links(ctx, fit)
         out = [problem] if problem else []
@@ -632,22 +632,6 @@ class LinkInertials(Effect):
         x0 = np.array([theta_from_params(p) for p in new]).ravel()
         return FeasibleSet(x0, coef, make, feasible, lower.ravel(), upper.ravel(), prior)
 
-    def constrain(self, ctx, config, fit):
-        """A fit that failed the consistency check (no consistent arm reproduces it within the tolerance) is applied
-        as its closest physically consistent links, when they exist and change no link's mass by more than x2: the
-        fit constrained to consistent inertials (the held-out check and the final RMSE judge them)."""
-        if fit.theta.get("links") is not None:  # passed its check: applied as it is
-            return fit, None
-        dt = float(getattr(ctx.data.report, "dt_median", 0.0) or 0.0)
-        if dt > (1.0 + LI_RATE_SLACK) / LI_MIN_RATE:
-            return fit, None
-        new, old, problem = self._links(ctx, fit)
-        if problem is None or problem.startswith("the model's links") or not all(
-                0.5 <= new[i, 0] / old[i, 0] <= 2.0 for i in range(7)):
-            return fit, None
-        out = Fit(fit.effect, {**fit.theta, "links": new}, fit.joints)
-        return out, "applied as the closest physically consistent links (" + problem.split(": ", 1)[-1] + ")"
-
     def apply(self, config, fit):
         from dataclasses import replace
 
@@ -655,7 +639,8 @@ class LinkInertials(Effect):
 
         new = fit.theta.get("links")
         if new is None:
-            raise NotApplicable("link_inertials: the fit has not passed its physical-consistency check")
+            raise NotApplicable("link_inertials: the fit has not passed its physical-consistency check (and was not "
+                                "fitted under it: a log below 200 Hz, or a model whose own links are not consistent)")
         links = []
         for i in range(7):
             body = pin.Inertia.FromDynamicParameters(np.asarray(new[i], dtype=float))
