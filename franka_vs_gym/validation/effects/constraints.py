@@ -52,6 +52,9 @@ class FeasibleSet:
     lower: np.ndarray | None = None
     upper: np.ndarray | None = None
     prior: Callable[[np.ndarray], np.ndarray] | None = None
+    #: ``d coef / d x`` (p, k) and ``d prior / d x`` at ``x``, when the effect gives them (else forward differences)
+    coef_jac: Callable[[np.ndarray], np.ndarray] | None = None
+    prior_jac: Callable[[np.ndarray], np.ndarray] | None = None
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         k = len(self.x0)
@@ -109,9 +112,10 @@ def constrained_fits(ctx: Context, effects: list[Effect], fits: list[Fit], y: np
     target = y[idx] - sum((effects[i].contribution(ctx, fits[i])[idx] for i in held), np.zeros((len(idx), 7)))
     cols = [columns(ctx, effects[i], fits[i], idx) for i in free]
     X = np.concatenate(cols, axis=2)  # (m, 7, P)
-    w = weights(ctx)
-    A = np.einsum("mjp,mjq,j->pq", X, X, w)
-    b = np.einsum("mjp,mj,j->p", X, target, w)
+    sw = np.sqrt(weights(ctx))
+    Xf = (X * sw[None, :, None]).reshape(-1, X.shape[2])
+    A = Xf.T @ Xf
+    b = Xf.T @ (target * sw[None, :]).ravel()
     lam, V = np.linalg.eigh(0.5 * (A + A.T))
     keep = lam > 1e-12 * max(float(lam.max(initial=0.0)), 1e-300)
     R = (V[:, keep] * np.sqrt(lam[keep])).T  # R^T R = A on its range
@@ -136,7 +140,19 @@ def constrained_fits(ctx: Context, effects: list[Effect], fits: list[Fit], y: np
         out += [sets[i].prior(xk) for i, xk in zip(free, xs, strict=True) if sets[i].prior is not None]
         return np.concatenate(out)
 
-    sol = least_squares(resid, x0, bounds=(lo, hi), method="trf", x_scale="jac", xtol=1e-10, ftol=1e-10,
+    def jac(x):
+        xs = parts(x)
+        blocks = [_jac(sets[i].coef, sets[i].coef_jac, xk) for i, xk in zip(free, xs, strict=True)]
+        rows = [R @ _block_diag(blocks)]
+        for k, (i, xk) in enumerate(zip(free, xs, strict=True)):
+            if sets[i].prior is not None:
+                pj = _jac(sets[i].prior, sets[i].prior_jac, xk)
+                full = np.zeros((pj.shape[0], len(x)))
+                full[:, cuts[k]:cuts[k + 1]] = pj
+                rows.append(full)
+        return np.vstack(rows)
+
+    sol = least_squares(resid, x0, jac=jac, bounds=(lo, hi), method="trf", x_scale="jac", xtol=1e-10, ftol=1e-10,
                         gtol=1e-10, max_nfev=200)
     out = list(fits)
     for i, xk in zip(free, parts(sol.x), strict=True):
@@ -146,7 +162,30 @@ def constrained_fits(ctx: Context, effects: list[Effect], fits: list[Fit], y: np
     return out
 
 
-def tangent(ctx: Context, e: Effect, fit: Fit, step: float = 1e-6) -> np.ndarray | None:
+def _jac(fun, given, x: np.ndarray) -> np.ndarray:
+    """``d fun / d x`` at ``x``: the effect's own, else forward differences (steps 1e-7 relative)."""
+    if given is not None:
+        return np.asarray(given(x), dtype=float)
+    f0 = np.asarray(fun(x), dtype=float)
+    out = np.empty((len(f0), len(x)))
+    for k in range(len(x)):
+        h = 1e-7 * max(1.0, abs(float(x[k])))
+        xp = np.array(x, dtype=float, copy=True)
+        xp[k] += h
+        out[:, k] = (np.asarray(fun(xp), dtype=float) - f0) / h
+    return out
+
+
+def _block_diag(blocks: list[np.ndarray]) -> np.ndarray:
+    out = np.zeros((sum(b.shape[0] for b in blocks), sum(b.shape[1] for b in blocks)))
+    r = c = 0
+    for b in blocks:
+        out[r:r + b.shape[0], c:c + b.shape[1]] = b
+        r, c = r + b.shape[0], c + b.shape[1]
+    return out
+
+
+def tangent(ctx: Context, e: Effect, fit: Fit) -> np.ndarray | None:
     """(p, k) ``d coef / d x`` of a constrained fit at its value, the coordinates on an active bound left out (their
     value is fixed by the constraint); None when the effect has no constraint or the fit was not constrained."""
     if not fit.constrained:
@@ -156,17 +195,10 @@ def tangent(ctx: Context, e: Effect, fit: Fit, step: float = 1e-6) -> np.ndarray
         return None
     x = s.x0
     lo, hi = s.bounds()
-    c0 = s.coef(x)
     with np.errstate(invalid="ignore"):  # (an infinite bound is never active)
         free = ~((np.isfinite(lo) & (x <= lo + 1e-7 * np.maximum(1.0, np.abs(lo))))
                  | (np.isfinite(hi) & (x >= hi - 1e-7 * np.maximum(1.0, np.abs(hi)))))
-    T = np.zeros((len(c0), int(free.sum())))
-    for col, k in enumerate(np.nonzero(free)[0]):
-        h = step * max(1.0, abs(float(x[k])))
-        xp = x.copy()
-        xp[k] += h
-        T[:, col] = (s.coef(xp) - c0) / h
-    return T
+    return _jac(s.coef, s.coef_jac, x)[:, free]
 
 
 __all__ = ["FeasibleSet", "columns", "constrained_fits", "per_joint_coef", "tangent", "weights"]

@@ -597,7 +597,12 @@ class LinkInertials(Effect):
         towards the published links in the directions the log does not determine. Feasible: the least-squares change
         passes the consistency check (:meth:`problems`: a consistent arm reproduces it within the noise). Logs below
         LI_MIN_RATE are not constrained (the effect is not identified there)."""
-        from franka_vs_gym.validation.inertials import link_prior, params_from_theta, theta_from_params
+        from franka_vs_gym.validation.inertials import (
+            link_prior,
+            params_from_theta,
+            params_jacobian,
+            theta_from_params,
+        )
 
         dt = float(getattr(ctx.data.report, "dt_median", 0.0) or 0.0)
         if dt > (1.0 + LI_RATE_SLACK) / LI_MIN_RATE:
@@ -611,7 +616,7 @@ class LinkInertials(Effect):
             feasible = not self.problems(ctx, fit)  # sets fit.theta["links"] when it passes
             new = fit.theta["links"] if feasible else self._links(ctx, fit)[0]
         try:
-            prior = link_prior(old)
+            prior, prior_jac = link_prior(old)
         except ValueError:  # the model's own links are not consistent: nothing to constrain towards
             return None
         m = old[:, 0]
@@ -630,7 +635,8 @@ class LinkInertials(Effect):
             return Fit(fit.effect, {**fit.theta, "coef": K @ (links - old).ravel(), "links": links}, list(fit.joints))
 
         x0 = np.array([theta_from_params(p) for p in new]).ravel()
-        return FeasibleSet(x0, coef, make, feasible, lower.ravel(), upper.ravel(), prior)
+        return FeasibleSet(x0, coef, make, feasible, lower.ravel(), upper.ravel(), prior,
+                           coef_jac=lambda x: K @ params_jacobian(x), prior_jac=prior_jac)
 
     def apply(self, config, fit):
         from dataclasses import replace
