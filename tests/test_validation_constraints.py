@@ -18,7 +18,7 @@ from franka_vs_gym.validation.evaluate import FLANGE_OFFSET
 from franka_vs_gym.validation.hidden import make_hidden_effect_log
 from franka_vs_gym.validation.signals import decimated
 
-_diag = importlib.import_module("franka_vs_gym.validation.diagnose")
+_fitting = importlib.import_module("franka_vs_gym.validation.fitting")
 
 
 @pytest.fixture(scope="module")
@@ -30,7 +30,7 @@ def ctx() -> Context:
 
 def _fit(ctx, names, y):
     """The fit path's joint fit (what ``franka-vs fit`` fits on all samples)."""
-    return _diag._alternate(ctx, [(get_effect(n), None) for n in names], y, np.arange(ctx.n), refine=True)
+    return _fitting.fit_jointly(ctx, [(get_effect(n), None) for n in names], y, np.arange(ctx.n), refine=True)
 
 
 def _pseudo_eigs(pi: np.ndarray) -> np.ndarray:
@@ -154,7 +154,7 @@ def test_a_delay_is_fitted_in_its_box(ctx):
     de = get_effect("delay")
     col = de.design(ctx, {})[:, :, 0]
     for d, want in ((0.4 * MIN_DELAY, MIN_DELAY), (1.5 * MAX_DELAY, MAX_DELAY), (0.01, None)):
-        (f,) = _diag._alternate(ctx, [(de, None)], col * d, np.arange(ctx.n), refine=False)
+        (f,) = _fitting.fit_jointly(ctx, [(de, None)], col * d, np.arange(ctx.n), refine=False)
         got = float(de.coef(f)[0])
         assert MIN_DELAY <= got <= MAX_DELAY
         if want is None:
@@ -187,7 +187,7 @@ def test_link_inertials_fitted_consistent_beside_a_tilt(ctx):
 
 
 def test_fit_takes_a_hidden_tilt_with_earths_gravity_and_intervals_without_radial_spread():
-    from franka_vs_gym.validation.diagnose import fit_effects
+    from franka_vs_gym.validation.fitting import fit_effects
 
     log, truth = make_hidden_effect_log("gravity_tilt", seed=2, duration=8.0)
     res = fit_effects(log, ["gravity_tilt"], holdout=None)

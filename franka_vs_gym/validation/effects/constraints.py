@@ -28,6 +28,7 @@ the covariance of the constrained estimate is the unconstrained one projected on
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -201,4 +202,142 @@ def tangent(ctx: Context, e: Effect, fit: Fit) -> np.ndarray | None:
     return _jac(s.coef, s.coef_jac, x)[:, free]
 
 
-__all__ = ["FeasibleSet", "columns", "constrained_fits", "per_joint_coef", "tangent", "weights"]
+# ---------------------------------------------------------------------------------------------- the sets
+def box_set(fit: Fit, x0: np.ndarray, lower=None, upper=None, p: int | None = None) -> FeasibleSet:
+    """Coefficients that are their own coordinates, bounded by a box: a per-joint effect's ``p`` coefficients on each
+    of ``fit.joints`` (joint-major; ``p`` None: a shared effect's coefficients as they are)."""
+    x0 = np.asarray(x0, dtype=float)
+    lo = np.full(len(x0), -np.inf) if lower is None else np.asarray(lower, dtype=float)
+    hi = np.full(len(x0), np.inf) if upper is None else np.asarray(upper, dtype=float)
+
+    def make(x):
+        c = per_joint_coef(fit, x, p) if p else np.asarray(x, dtype=float).copy()
+        return Fit(fit.effect, {**fit.theta, "coef": c}, list(fit.joints))
+
+    return FeasibleSet(np.clip(x0, lo, hi), lambda x: np.asarray(x, dtype=float), make,
+                       bool(np.all((x0 >= lo) & (x0 <= hi))), lo, hi)
+
+
+def _sphere_frame(g0: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The model gravity's direction and two unit vectors orthogonal to it (the tilt's angle coordinates)."""
+    u = np.asarray(g0, dtype=float) / np.linalg.norm(g0)
+    e1 = np.cross(u, np.eye(3)[int(np.argmin(np.abs(u)))])
+    e1 /= np.linalg.norm(e1)
+    return u, e1, np.cross(u, e1)
+
+
+def gravity_of(g0: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """The gravity of tilt angles ``x`` = (a, b) rad: ``g0`` rotated by the rotation vector ``a e1 + b e2``
+    (``e1``, ``e2`` orthogonal to ``g0``), so ``|g| = |g0|`` for every ``x``."""
+    u, e1, e2 = _sphere_frame(g0)
+    r = float(x[0]) * e1 + float(x[1]) * e2
+    t = float(np.linalg.norm(r))
+    sinc = 1.0 - t * t / 6.0 if t < 1e-4 else math.sin(t) / t
+    return np.linalg.norm(g0) * (math.cos(t) * u + sinc * np.cross(r, u))
+
+
+def angles_of(g0: np.ndarray, g: np.ndarray) -> np.ndarray:
+    """The tilt angles (a, b) rad of the direction of ``g`` (its norm dropped: the projection onto the sphere)."""
+    u, e1, e2 = _sphere_frame(g0)
+    v = np.asarray(g, dtype=float) / max(float(np.linalg.norm(g)), 1e-300)
+    axis = np.cross(u, v)
+    s = float(np.linalg.norm(axis))
+    if s < 1e-15:
+        return np.zeros(2)
+    r = axis / s * math.atan2(s, float(u @ v))
+    return np.array([r @ e1, r @ e2])
+
+
+def sphere_set(g0: np.ndarray, fit: Fit, coef: np.ndarray) -> FeasibleSet:
+    """A change of gravity ``coef`` (3,) on the sphere ``|g0 + coef| = |g0|``: two tilt angles, not a free vector.
+    The least-squares change is feasible only when it keeps the norm (to 1e-9 relative)."""
+    g = g0 + coef
+    feasible = abs(float(np.linalg.norm(g)) - float(np.linalg.norm(g0))) <= 1e-9 * float(np.linalg.norm(g0))
+    return FeasibleSet(angles_of(g0, g), lambda x: gravity_of(g0, x) - g0,
+                       lambda x: Fit(fit.effect, {**fit.theta, "coef": gravity_of(g0, x) - g0}, list(fit.joints)),
+                       feasible)
+
+
+def body_set(fit: Fit, coef: np.ndarray, base: np.ndarray, max_mass: float | None) -> FeasibleSet:
+    """A body ``base + coef`` (pinocchio's 10 dynamic parameters) physically consistent: the log-Cholesky parameters
+    of its pseudo-inertia (:mod:`~franka_vs_gym.validation.inertials`), its mass at most ``max_mass`` (None: no
+    bound). Feasible: the least-squares body's pseudo-inertia is positive definite and its mass within the bound."""
+    from franka_vs_gym.validation.inertials import nearest_consistent, params_from_theta, pseudo_inertia
+
+    body = base + coef
+    ev = np.linalg.eigvalsh(pseudo_inertia(body))
+    upper = np.full(10, np.inf)
+    if max_mass is not None:
+        upper[0] = 0.5 * math.log(max_mass)  # mass = exp(2 alpha)
+    feasible = bool(ev[0] > 1e-9 * max(float(ev[-1]), 1e-12)) and (max_mass is None or body[0] <= max_mass)
+
+    def to_coef(x):
+        return params_from_theta(x) - base
+
+    return FeasibleSet(nearest_consistent(body), to_coef,
+                       lambda x: Fit(fit.effect, {**fit.theta, "coef": to_coef(x)}, list(fit.joints)), feasible,
+                       upper=upper)
+
+
+def links_set(fit: Fit, K: np.ndarray, old: np.ndarray, new: np.ndarray, feasible: bool,
+              max_payload: float) -> FeasibleSet:
+    """Seven physically consistent links whose base-parameter change is ``K (pi - old)``: their log-Cholesky
+    parameters (70), started at ``new`` (7, 10), masses within [0.5, 2] of ``old``'s (link 7's up to twice its own
+    plus ``max_payload``: a body held at the flange is part of its parameters), with the prior of
+    :func:`~franka_vs_gym.validation.inertials.consistent_links` towards ``old`` in the directions the log does not
+    determine; the fit's ``theta["links"]`` is the links. None when ``old`` is not consistent itself."""
+    from franka_vs_gym.validation.inertials import link_prior, params_from_theta, params_jacobian, theta_from_params
+
+    try:
+        prior, prior_jac = link_prior(old)
+    except ValueError:  # the model's own links are not consistent: nothing to constrain towards
+        return None
+    m = old[:, 0]
+    lower = np.full((7, 10), -np.inf)
+    upper = np.full((7, 10), np.inf)
+    lower[:, 0] = 0.5 * np.log(0.5 * m)
+    upper[:, 0] = 0.5 * np.log(2.0 * m)
+    upper[6, 0] = 0.5 * math.log(2.0 * m[6] + max_payload)
+
+    def coef(x):
+        return K @ (params_from_theta(np.asarray(x).reshape(7, 10)) - old).ravel()
+
+    def make(x):
+        links = params_from_theta(np.asarray(x).reshape(7, 10))
+        return Fit(fit.effect, {**fit.theta, "coef": K @ (links - old).ravel(), "links": links}, list(fit.joints))
+
+    x0 = np.array([theta_from_params(p) for p in new]).ravel()
+    return FeasibleSet(x0, coef, make, feasible, lower.ravel(), upper.ravel(), prior,
+                       coef_jac=lambda x: K @ params_jacobian(x), prior_jac=prior_jac)
+
+
+def constrained_projection(params: list, live: np.ndarray, gram: np.ndarray, tangents: list) -> np.ndarray | None:
+    """(L, L) the map from the unconstrained to the constrained estimate's first-order error over the live
+    parameters of :func:`~franka_vs_gym.validation.uncertainty.confidence`: ``B (B^T H B)^+ B^T H`` with ``H`` the
+    Gram matrix of the live parameters' columns and ``B`` the directions the constraints leave free (each constrained
+    fit's :func:`tangent`, its coefficients in the order the parameters list them; identity for every other
+    parameter). None when nothing is constrained or a constrained fit's coefficients are not those listed."""
+    if not any(t is not None for t in tangents):
+        return None
+    blocks = []
+    for k, p in enumerate(params):
+        if p.key != "coef" or p.term >= len(tangents) or tangents[p.term] is None:
+            col = np.zeros((len(params), 1))
+            col[k, 0] = 1.0
+            blocks.append(col)
+    for ti, t in enumerate(tangents):
+        if t is None:
+            continue
+        rows = [k for k, p in enumerate(params) if p.term == ti and p.key == "coef"]
+        if len(rows) != t.shape[0]:
+            return None
+        b = np.zeros((len(params), t.shape[1]))
+        b[rows] = t
+        blocks.append(b)
+    B = np.concatenate(blocks, axis=1)[live]
+    B = B[:, np.any(B != 0, axis=0)]
+    return B @ np.linalg.pinv(B.T @ gram @ B, hermitian=True) @ B.T @ gram
+
+
+__all__ = ["FeasibleSet", "angles_of", "body_set", "box_set", "columns", "constrained_fits", "constrained_projection",
+           "gravity_of", "links_set", "per_joint_coef", "sphere_set", "tangent", "weights"]

@@ -19,7 +19,7 @@ from franka_vs_gym.validation.effects.base import (
     NotApplicable,
     _joint_coef,
 )
-from franka_vs_gym.validation.effects.constraints import FeasibleSet, per_joint_coef
+from franka_vs_gym.validation.effects.constraints import body_set, box_set, links_set, sphere_set
 from franka_vs_gym.validation.evaluate import FLANGE_OFFSET
 
 
@@ -48,13 +48,8 @@ class Armature(Effect):
 
     def feasible_set(self, ctx, fit):
         """Each fitted joint's change bounded below so that its total armature stays >= 0."""
-        if not fit.joints:
-            return None
-        lower = -np.asarray(ctx.config.armature, dtype=float)[fit.joints]
-        x0 = _joint_coef(fit)[fit.joints, 0]
-        return FeasibleSet(np.maximum(x0, lower), lambda x: np.asarray(x, dtype=float),
-                           lambda x: Fit(fit.effect, {**fit.theta, "coef": per_joint_coef(fit, x, 1)},
-                                         list(fit.joints)), bool(np.all(x0 >= lower)), lower=lower)
+        j = fit.joints
+        return box_set(fit, _joint_coef(fit)[j, 0], -np.asarray(ctx.config.armature, float)[j], p=1) if j else None
 
     def apply(self, config, fit):
         return config.copy(armature=np.maximum(config.armature + _joint_coef(fit)[:, 0], 0.0))
@@ -138,49 +133,9 @@ class GravityTilt(Effect):
             out[-1] = f"|g| = {np.linalg.norm(g):.3f} m/s^2 is not Earth's gravity"
         return out
 
-    @staticmethod
-    def _frame(g0: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The model gravity's direction and two unit vectors orthogonal to it (the tilt's angle coordinates)."""
-        u = np.asarray(g0, dtype=float) / np.linalg.norm(g0)
-        a = np.eye(3)[int(np.argmin(np.abs(u)))]
-        e1 = np.cross(u, a)
-        e1 /= np.linalg.norm(e1)
-        return u, e1, np.cross(u, e1)
-
-    @classmethod
-    def gravity_of(cls, g0: np.ndarray, x: np.ndarray) -> np.ndarray:
-        """The gravity vector of tilt angles ``x`` = (a, b) rad: the model's ``g0`` rotated by the rotation vector
-        ``a e1 + b e2`` (``e1``, ``e2`` orthogonal to ``g0``), so ``|g| = |g0|`` for every ``x``."""
-        u, e1, e2 = cls._frame(g0)
-        r = float(x[0]) * e1 + float(x[1]) * e2
-        t = float(np.linalg.norm(r))
-        sinc = 1.0 - t * t / 6.0 if t < 1e-4 else math.sin(t) / t
-        return np.linalg.norm(g0) * (math.cos(t) * u + sinc * np.cross(r, u))
-
-    @classmethod
-    def angles_of(cls, g0: np.ndarray, g: np.ndarray) -> np.ndarray:
-        """The tilt angles (a, b) rad of the direction of ``g`` (its norm is not kept: the projection onto the
-        sphere ``|g| = |g0|``)."""
-        u, e1, e2 = cls._frame(g0)
-        v = np.asarray(g, dtype=float) / max(float(np.linalg.norm(g)), 1e-300)
-        axis = np.cross(u, v)
-        s = float(np.linalg.norm(axis))
-        t = math.atan2(s, float(u @ v))
-        if s < 1e-15:
-            return np.zeros(2)
-        r = axis / s * t
-        return np.array([r @ e1, r @ e2])
-
     def feasible_set(self, ctx, fit):
-        """Gravity on the sphere ``|g| = |g0|`` (the model's norm, Earth's): two tilt angles, not a free vector. The
-        least-squares change is feasible only when it keeps the norm (to 1e-9 relative)."""
-        g0 = np.asarray(ctx.config.gravity, dtype=float)
-        g = g0 + self.coef(fit)
-        x0 = self.angles_of(g0, g)
-        feasible = abs(float(np.linalg.norm(g)) - float(np.linalg.norm(g0))) <= 1e-9 * float(np.linalg.norm(g0))
-        return FeasibleSet(x0, lambda x: self.gravity_of(g0, x) - g0,
-                           lambda x: Fit(fit.effect, {**fit.theta, "coef": self.gravity_of(g0, x) - g0},
-                                         list(fit.joints)), feasible)
+        """Gravity on the sphere |g| = |g0| through two tilt angles (:func:`.constraints.sphere_set`)."""
+        return sphere_set(np.asarray(ctx.config.gravity, dtype=float), fit, self.coef(fit))
 
     def apply(self, config, fit):
         return config.copy(gravity=config.gravity + self.coef(fit))
@@ -280,30 +235,10 @@ class Payload(Effect):
         return {-1: "the corrected tool: " + "; ".join(pr)} if pr else {}
 
     def feasible_set(self, ctx, fit):
-        """The body at the flange physically consistent (positive-definite pseudo-inertia, through the log-Cholesky
-        parameters of :mod:`~franka_vs_gym.validation.inertials`): the payload itself when the fitted mass is
-        positive (or the model has no flange body), with its mass at most MAX_PAYLOAD; else the corrected tool (the
-        model's flange body plus the change). Feasible: the least-squares body's pseudo-inertia is already positive
-        definite (and the mass within the bound)."""
-        from franka_vs_gym.validation.inertials import nearest_consistent, params_from_theta, pseudo_inertia
-
-        th = self.coef(fit)
-        flange = _flange_params7(ctx.config)
+        """The payload (m <= MAX_PAYLOAD), or the corrected tool, consistent (:func:`.constraints.body_set`)."""
+        th, flange = self.coef(fit), _flange_params7(ctx.config)
         lighter = th[0] <= 0 and flange[0] > 0
-        base = flange if lighter else np.zeros(10)
-        body = base + th
-        ev = np.linalg.eigvalsh(pseudo_inertia(body))
-        upper = np.full(10, np.inf)
-        if not lighter:
-            upper[0] = 0.5 * math.log(MAX_PAYLOAD)  # mass = exp(2 alpha)
-        feasible = bool(ev[0] > 1e-9 * max(float(ev[-1]), 1e-12)) and (lighter or body[0] <= MAX_PAYLOAD)
-
-        def coef(x):
-            return params_from_theta(x) - base
-
-        return FeasibleSet(nearest_consistent(body), coef,
-                           lambda x: Fit(fit.effect, {**fit.theta, "coef": coef(x)}, list(fit.joints)), feasible,
-                           upper=upper)
+        return body_set(fit, th, flange if lighter else np.zeros(10), None if lighter else MAX_PAYLOAD)
 
     def apply(self, config, fit):
         th = self.coef(fit)
@@ -369,11 +304,7 @@ class LinkMass(Effect):
 
     def feasible_set(self, ctx, fit):
         """Each link's scale change within [-0.5, 0.5] (what :meth:`apply` writes: masses stay positive)."""
-        x0 = self.coef(fit)
-        lo, hi = np.full(7, -0.5), np.full(7, 0.5)
-        return FeasibleSet(np.clip(x0, lo, hi), lambda x: np.asarray(x, dtype=float),
-                           lambda x: Fit(fit.effect, {**fit.theta, "coef": np.asarray(x, dtype=float).copy()},
-                                         list(fit.joints)), bool(np.all((x0 >= lo) & (x0 <= hi))), lo, hi)
+        return box_set(fit, self.coef(fit), np.full(7, -0.5), np.full(7, 0.5))
 
     def apply(self, config, fit):
         c = np.clip(self.coef(fit), -0.5, 0.5)
@@ -430,15 +361,11 @@ class LinkInertials(Effect):
     ``scipy.optimize.least_squares`` in the metric of the log's own data (each joint weighted by its noise floor)
     and regularised towards the published links in the directions the log does not determine (the 27 combinations
     of the 70 standard parameters that no joint torque reveals). Gaz et al. 2019 likewise constrain their
-    identification to physically consistent values. The effect is plausible when these consistent links reproduce
-    the fitted torque change on every joint to within a quarter of the noise floor RMS or half of the change itself
-    (the consistent arm then keeps at least 3/4 of the fit's reduction of the mean squared error: the misfit lies in
-    the span of the regressor, orthogonal to the least-squares residual; otherwise the residual needs an unphysical
-    arm, and the note says how far the closest physical one stays, per joint) and no link mass changes by more than
-    a factor 2, and only for logs of at least 100 Hz (below, accelerations are too poorly resolved: on the
-    independent generator at 30 Hz a payload was taken for it). Not in the hidden-effect generator's random draw
-    (``injectable`` False: the seeds of the existing studies keep drawing the same effects);
-    ``make_hidden_effect_log("link_inertials")`` injects it.
+    identification to physically consistent values. In ``diagnose`` the effect is plausible when these links
+    reproduce the fitted torque change on every joint within a quarter of the noise floor RMS or half of the change
+    (keeping >= 3/4 of the fit's reduction of the mean squared error), no link mass changes by more than x2, and the
+    log is at >= 200 Hz; ``fit`` fits the links under these constraints (:meth:`feasible_set`). Not in the
+    generator's random draw (``injectable`` False); ``make_hidden_effect_log("link_inertials")`` injects it.
 
     Signature: pose-, velocity- and acceleration-dependent torque errors on all joints (mass-matrix, Coriolis and
     gravity terms), the structure test's "acceleration" and "position" groups. ``apply`` writes the corrected link
@@ -579,8 +506,8 @@ class LinkInertials(Effect):
         if dt > (1.0 + LI_RATE_SLACK) / LI_MIN_RATE:  # a slow log's accelerations do not determine 43 combinations
             return {-1: f"the log's rate ({1.0 / dt:.1f} Hz) is below {LI_MIN_RATE:g} Hz: its accelerations cannot "
                         "identify the link inertials (a payload or mass-scale law may still be named)"}
-        if getattr(fit, "constrained", False) and fit.theta.get("links") is not None:  # the constrained fit's links
-            return {}
+        if getattr(fit, "constrained", False) and fit.theta.get("links") is not None:
+            return {}  # the constrained fit's links: consistent and in their mass ranges by construction
         new, old, problem = self._links(ctx, fit)
         out = [problem] if problem else []
         for i in range(7):
@@ -591,52 +518,17 @@ class LinkInertials(Effect):
         return {-1: "; ".join(out)} if out else {}
 
     def feasible_set(self, ctx, fit):
-        """Every link physically consistent: the 7 links' log-Cholesky parameters (70), their masses within
-        [0.5, 2] of the published ones (link 7's up to twice its own plus MAX_PAYLOAD: a body held at the flange is
-        part of its parameters), with the prior of :func:`~franka_vs_gym.validation.inertials.consistent_links`
-        towards the published links in the directions the log does not determine. Feasible: the least-squares change
-        passes the consistency check (:meth:`problems`: a consistent arm reproduces it within the noise). Logs below
-        LI_MIN_RATE are not constrained (the effect is not identified there)."""
-        from franka_vs_gym.validation.inertials import (
-            link_prior,
-            params_from_theta,
-            params_jacobian,
-            theta_from_params,
-        )
-
+        """Consistent links in their mass ranges (:func:`.constraints.links_set`); feasible: :meth:`problems` passes."""
         dt = float(getattr(ctx.data.report, "dt_median", 0.0) or 0.0)
         if dt > (1.0 + LI_RATE_SLACK) / LI_MIN_RATE:
             return None
-        b = self.basis(ctx.config)
-        old = self._model_params(ctx.config)
-        old[6] = old[6] - self._flange_params(ctx.config)
+        old = self._model_params(ctx.config) - np.eye(7)[:, 6:7] * self._flange_params(ctx.config)  # links alone
         if fit.constrained and fit.theta.get("links") is not None:
             new, feasible = np.asarray(fit.theta["links"], dtype=float), False
         else:
             feasible = not self.problems(ctx, fit)  # sets fit.theta["links"] when it passes
             new = fit.theta["links"] if feasible else self._links(ctx, fit)[0]
-        try:
-            prior, prior_jac = link_prior(old)
-        except ValueError:  # the model's own links are not consistent: nothing to constrain towards
-            return None
-        m = old[:, 0]
-        lower = np.full((7, 10), -np.inf)
-        upper = np.full((7, 10), np.inf)
-        lower[:, 0] = 0.5 * np.log(0.5 * m)
-        upper[:, 0] = 0.5 * np.log(2.0 * m)
-        upper[6, 0] = 0.5 * math.log(2.0 * m[6] + MAX_PAYLOAD)
-        K = b["K"]
-
-        def coef(x):
-            return K @ (params_from_theta(np.asarray(x).reshape(7, 10)) - old).ravel()
-
-        def make(x):
-            links = params_from_theta(np.asarray(x).reshape(7, 10))
-            return Fit(fit.effect, {**fit.theta, "coef": K @ (links - old).ravel(), "links": links}, list(fit.joints))
-
-        x0 = np.array([theta_from_params(p) for p in new]).ravel()
-        return FeasibleSet(x0, coef, make, feasible, lower.ravel(), upper.ravel(), prior,
-                           coef_jac=lambda x: K @ params_jacobian(x), prior_jac=prior_jac)
+        return links_set(fit, self.basis(ctx.config)["K"], old, new, feasible, MAX_PAYLOAD)
 
     def apply(self, config, fit):
         from dataclasses import replace
@@ -645,8 +537,8 @@ class LinkInertials(Effect):
 
         new = fit.theta.get("links")
         if new is None:
-            raise NotApplicable("link_inertials: the fit has not passed its physical-consistency check (and was not "
-                                "fitted under it: a log below 200 Hz, or a model whose own links are not consistent)")
+            raise NotApplicable("link_inertials: the fit has not passed its physical-consistency check (nor was fitted "
+                                "under it: a log below 200 Hz, or a model whose own links are not consistent)")
         links = []
         for i in range(7):
             body = pin.Inertia.FromDynamicParameters(np.asarray(new[i], dtype=float))

@@ -11,8 +11,9 @@ from franka_vs_gym.validation.effects.base import (
     MIN_DELAY,
     Effect,
     Fit,
+    without_motor_terms,
 )
-from franka_vs_gym.validation.effects.constraints import FeasibleSet
+from franka_vs_gym.validation.effects.constraints import box_set
 from franka_vs_gym.validation.evaluate import shift
 from franka_vs_gym.validation.signals import band_sos
 
@@ -196,11 +197,7 @@ class Delay(Effect):
 
     def feasible_set(self, ctx, fit):
         """The delay in its box [MIN_DELAY, MAX_DELAY]."""
-        d = float(self.coef(fit)[0])
-        lo, hi = np.array([MIN_DELAY]), np.array([MAX_DELAY])
-        return FeasibleSet(np.clip([d], lo, hi), lambda x: np.asarray(x, dtype=float),
-                           lambda x: Fit(fit.effect, {**fit.theta, "coef": np.asarray(x, dtype=float).copy()},
-                                         list(fit.joints)), MIN_DELAY <= d <= MAX_DELAY, lo, hi)
+        return box_set(fit, self.coef(fit)[:1], [MIN_DELAY], [MAX_DELAY])
 
     def apply(self, config, fit):
         return config.copy(delay=max(0.0, config.delay + float(self.coef(fit)[0])), delay_channel=self.channel)
@@ -211,33 +208,6 @@ class Delay(Effect):
 
     def public(self, fit):
         return {"delay_s": round(float(self.coef(fit)[0]), 6), "channel": self.channel}
-
-
-MOTOR_COULOMB_VEL = 0.02  # rad/s: velocity scale of the motor-side Coulomb column tanh(dq / v)
-
-
-def motor_terms(data) -> np.ndarray:
-    """(N, 7, 4) per joint, what lies between the commanded torque and a link-side torque sensor besides gravity:
-    ``ddq`` (the motors' reflected inertia, the effective armature ``RobotDescription.rotor_inertia``, enters as
-    ``-I_r ddq``), ``dq`` and ``tanh(dq / MOTOR_COULOMB_VEL)`` (viscous and Coulomb friction on the motor side of
-    the sensor) and a constant (a sensor offset)."""
-    dq = data.dq
-    return np.stack([data.ddq, dq, np.tanh(dq / MOTOR_COULOMB_VEL), np.ones_like(dq)], axis=2)
-
-
-def without_motor_terms(data, y: np.ndarray) -> np.ndarray:
-    """``y`` (N, 7) minus, per joint, its least-squares fit on :func:`motor_terms`. On a robot with joint torque
-    sensors ``tau_J - g(q) - tau_J_d`` is ``-I_r ddq`` minus the motor-side friction even without any delay (on the
-    simulated FER with its effective armature: 0.08-0.21 Nm RMS in a PD-controlled sine motion, which a delay fit
-    on the raw difference took for a 12 ms command delay). Removing these terms from the residual and from the
-    delay's column alike gives the delay coefficient of the joint regression (Frisch-Waugh-Lovell) with the motor
-    terms' coefficients free per joint, and scores the delay only on what they cannot explain."""
-    Z = motor_terms(data)
-    out = np.empty_like(y, dtype=float)
-    for j in range(y.shape[1]):
-        coef, *_ = np.linalg.lstsq(Z[:, j], y[:, j], rcond=None)
-        out[:, j] = y[:, j] - Z[:, j] @ coef
-    return out
 
 
 class CommandDelay(Delay):
