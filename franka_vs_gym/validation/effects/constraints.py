@@ -13,7 +13,8 @@ returns the fits unchanged (today's numbers stay); otherwise it minimises the sa
     (n_eff / N) / mean_j(sigma_j^2) * sum_j || y_j - sum_i D_ij c_i(x_i) ||^2  (+ the priors),
 
 jointly over every member's free coordinates (``scipy.optimize.least_squares``, trust-region reflective with the
-bounds, warm-started from each member's least-squares answer projected onto its valid values). ``y`` is the target
+bounds, warm-started from each member's least-squares answer projected onto its valid values; members without
+constraints take part with free coefficients). ``y`` is the target
 the set explains, ``D`` the effects' design columns (every joint weighed alike, as in the least-squares fits),
 ``sigma_j`` the log's noise floor per joint and ``n_eff`` the number of independent samples of the low-passed log
 (2 cutoff T); the misfit is written through the normal
@@ -106,6 +107,9 @@ def constrained_fits(ctx: Context, effects: list[Effect], fits: list[Fit], y: np
     sets = [e.feasible_set(ctx, f) for e, f in zip(effects, fits, strict=True)]
     if all(s is None or s.feasible for s in sets):
         return list(fits)
+    # members without constraints take part with their coefficients free, when their contribution is linear in them
+    sets = [s if s is not None or type(e).contribution is not Effect.contribution else _free_set(e, f)
+            for e, f, s in zip(effects, fits, sets, strict=True)]
     from scipy.optimize import least_squares
 
     free = [i for i, s in enumerate(sets) if s is not None]
@@ -161,6 +165,15 @@ def constrained_fits(ctx: Context, effects: list[Effect], fits: list[Fit], y: np
         f.constrained = True
         out[i] = f
     return out
+
+
+def _free_set(e: Effect, fit: Fit) -> FeasibleSet:
+    """An unconstrained effect's coefficients, free (its least-squares answer is feasible)."""
+    c = np.asarray(fit.theta["coef"], dtype=float)
+    if not e.per_joint:
+        return box_set(fit, c.ravel())
+    c = c.reshape(7, -1)
+    return box_set(fit, c[fit.joints].ravel(), p=c.shape[1])
 
 
 def _jac(fun, given, x: np.ndarray) -> np.ndarray:
