@@ -50,8 +50,8 @@ def fit_jointly(ctx: Context, spec, y: np.ndarray, idx: np.ndarray, refine: bool
             fits[i] = f
             contrib[i] = e.contribution(ctx, f)
     # physics inside the estimate: where a least-squares answer is not physically valid (a friction law that would
-    # push, a gravity off the sphere, an inconsistent body, a delay outside its box), the set is fitted again jointly
-    # over the valid values only (the fits stay as they are when every answer is valid)
+    # push, an inconsistent body, a delay outside its box), the set is fitted again jointly over the valid values
+    # only (the fits stay as they are when every answer is valid); a gravity tilt is not constrained (a free vector)
     return constrained_fits(ctx, [e for e, _ in spec], fits, y, idx)  # type: ignore[arg-type]
 
 
@@ -106,8 +106,9 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
     held-out RMSE is named in ``holdout["no_gain"]`` and in the notes, and kept (``dropped``, ``added`` and
     ``joints_added`` stay empty). The fits are constrained to physically valid values
     (:func:`~franka_vs_gym.validation.effects.constraints.constrained_fits`: what is fitted is what the model can
-    take); an effect the model has no term for (e.g. link inertials from a log below 200 Hz) is dropped with its
-    reason in the notes, and the others are fitted again without it.
+    take), except the gravity tilt's norm; an effect the model cannot take (e.g. link inertials from a log below
+    200 Hz, a gravity whose norm is not Earth's once fitted on the whole log) is dropped with its reason in the
+    notes, and the others are fitted again without it.
 
     Named effects: held-out validation (default, ``holdout`` = 0.25): the effects are first fitted on the first 75%
     of the log and the RMSE of the full calibrated model is measured on the last 25%; an effect whose removal does
@@ -254,10 +255,10 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
             progress(f"{n}: {why}", verbose)
         if all(f is not None for f in applied):
             break
-        # an effect the model cannot take (it has no term for it: the fits themselves are constrained to valid
-        # values) is dropped and the others are fitted again without it. Where several cannot be taken they are
-        # dropped one at a time, each time the one whose removal leaves the largest set the model takes, then the
-        # smallest squared residual
+        # an effect the model cannot take (it has no term for it, or a gravity tilt, fitted unconstrained, whose
+        # norm is not Earth's) is dropped and the others are fitted again without it. Where several cannot be taken
+        # they are dropped one at a time, each time the one whose removal leaves the largest set the model takes,
+        # then the smallest squared residual
         failed = [i for i, f in enumerate(applied) if f is None]
         keep = [i for i, f in enumerate(applied) if f is not None]
         refit = None

@@ -240,7 +240,7 @@ def confidence(ctx, effects: list, fits: list, y: np.ndarray, *, method: str = "
     (the context's residual the set explains); see the module docstring. ``tangents``: per effect, the directions
     its physical constraints leave free at a constrained fit (:func:`~franka_vs_gym.validation.effects.constraints.
     tangent`, None: unconstrained); the covariance is then the constrained problem's (the unconstrained one
-    projected onto them: a coordinate on an active bound, or the norm of a gravity on its sphere, has no spread)."""
+    projected onto them: a coordinate on an active bound has no spread)."""
     params: list[_Param] = []
     for ti, (e, f) in enumerate(zip(effects, fits, strict=True)):
         params += _theta_params(e, f, ti)

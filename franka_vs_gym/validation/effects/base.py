@@ -268,8 +268,8 @@ class Effect:
 
     def feasible_set(self, ctx: Context, fit: Fit):
         """The effect's physically valid values around ``fit`` in free coordinates (a
-        :class:`~franka_vs_gym.validation.effects.constraints.FeasibleSet`: e.g. a gravity on the sphere through two
-        angles, a body through the log-Cholesky parameters of its pseudo-inertia, box bounds on a coefficient), used
+        :class:`~franka_vs_gym.validation.effects.constraints.FeasibleSet`: e.g. a body through the log-Cholesky
+        parameters of its pseudo-inertia, box bounds on a coefficient), used
         by the constrained fit of ``franka-vs fit``; None: no constraint (the default)."""
         return None
 
