@@ -75,14 +75,15 @@ class Clock:
 
 
 def evaluate_ibvs(model: Any, env_id: str, n: int, seed: int, action_scale: float, env_kwargs: dict[str, Any],
-                  nthread: int | None) -> dict[str, float]:
+                  nthread: int | None, observation_layout: str | None = None) -> dict[str, float]:
     """The first episode of each of n robots (robot i reset with seed + i, as franka_vs_gym.evaluate's episode i),
     deterministic actions, all stepped together: (success rate, mean time to converge of the successes)."""
     from franka_vs_gym.envs.sb3 import make_agent_vec_env
 
-    key = (env_id, n, action_scale, nthread, json.dumps(env_kwargs, sort_keys=True))
+    key = (env_id, n, action_scale, nthread, observation_layout, json.dumps(env_kwargs, sort_keys=True))
     if key not in _EVAL_ENVS:  # made once (its robots' models), reset with the held-out seeds at each evaluation
-        _EVAL_ENVS[key] = make_agent_vec_env(env_id, n, action_scale, nthread=nthread, **env_kwargs)
+        _EVAL_ENVS[key] = make_agent_vec_env(env_id, n, action_scale, nthread=nthread,
+                                             observation_layout=observation_layout, **env_kwargs)
     venv = _EVAL_ENVS[key]
     venv.seed(seed)
     obs = venv.reset()
@@ -107,10 +108,13 @@ def evaluate_ibvs(model: Any, env_id: str, n: int, seed: int, action_scale: floa
 VELOCITY_ENVS = ("FrankaIBVS-v0", "FrankaPBVS-v0", "FrankaIBVSEyeToHand-v0", "FrankaPBVSEyeToHand-v0")
 TORQUE_ENVS = ("FrankaTorqueTracking-v0", "FrankaVisualTorque-v0")
 ROBOTS = ("fer", "fr3")
-#: per joint-velocity env: the PPO hyper-parameters, the robots of the native vector env and the action scale (rad/s
-#: of an action of 1); the IBVS features agent's recipe unless a row says otherwise
-RECIPES: dict[str, dict[str, Any]] = {env_id: {"hyperparameters": IBVS_PPO, "n_envs": 16, "action_scale": 0.5}
-                                      for env_id in VELOCITY_ENVS}
+LAYOUTS = ("servo-vector/2", "servo-pose-vector/1")  # franka_vs_gym.envs.wrappers.OBS_LAYOUT, POSE_LAYOUT
+#: per joint-velocity env: the PPO hyper-parameters, the robots of the native vector env, the action scale (rad/s
+#: of an action of 1) and the observation (``--observation``: the servo vector, or with the tag's pose error); the
+#: IBVS features agent's recipe for every env
+RECIPES: dict[str, dict[str, Any]] = {
+    env_id: {"hyperparameters": IBVS_PPO, "n_envs": 16, "action_scale": 0.5, "observation_layout": LAYOUTS[0]}
+    for env_id in VELOCITY_ENVS}
 
 
 def _other(robot: str) -> str:
@@ -135,16 +139,18 @@ def run_velocity(args: argparse.Namespace) -> dict[str, Any]:
 
     import franka_vs_gym
     from franka_vs_gym.envs.sb3 import make_agent_vec_env
-    from franka_vs_gym.envs.wrappers import OBS_LAYOUT, AgentPolicy
+    from franka_vs_gym.envs.wrappers import AgentPolicy
 
     recipe = RECIPES[args.task]
     hp = recipe["hyperparameters"]
     n_envs = args.n_envs or recipe["n_envs"]
     scale = args.action_scale or recipe["action_scale"]
+    layout = args.observation or recipe["observation_layout"]
     env_kwargs: dict[str, Any] = {} if args.robot == "fer" else {"robot": args.robot}
     load0 = _load()
     clock = Clock()
-    env = VecMonitor(make_agent_vec_env(args.task, n_envs, scale, nthread=args.batch_threads, **env_kwargs))
+    env = VecMonitor(make_agent_vec_env(args.task, n_envs, scale, nthread=args.batch_threads,
+                                        observation_layout=layout, **env_kwargs))
     env.seed(args.seed)
     model = PPO("MlpPolicy", env, seed=args.seed, device="cpu", verbose=0, **hp)
     curve: list[dict[str, float]] = []
@@ -160,7 +166,7 @@ def run_velocity(args: argparse.Namespace) -> dict[str, Any]:
             self.next += args.eval_every
             t = time.perf_counter()
             r = evaluate_ibvs(self.model, args.task, args.eval_episodes, args.eval_seed, scale, env_kwargs,
-                              args.batch_threads)
+                              args.batch_threads, layout)
             clock.eval_wall += time.perf_counter() - t
             r.pop("episodes")
             r = {k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in r.items()}
@@ -175,7 +181,7 @@ def run_velocity(args: argparse.Namespace) -> dict[str, Any]:
     wall, cpu = clock.wall(), clock.cpu()
     solved = bool(curve and curve[-1]["success_rate"] >= args.goal)
     eval_kw = {"observation_type": "features", "action_type": "joint_velocity"}
-    agent = AgentPolicy(model, scale, args.task, env_kwargs)
+    agent = AgentPolicy(model, scale, args.task, env_kwargs, layout)
     confirm = None
     if solved:  # the same 100 episodes one by one through franka_vs_gym.evaluate (outside the clock)
         r = franka_vs_gym.evaluate(agent, args.task, args.eval_episodes, args.eval_seed,
@@ -184,7 +190,8 @@ def run_velocity(args: argparse.Namespace) -> dict[str, Any]:
     env.close()
     steps = curve[-1]["steps"] if curve else 0
     result = {"task": f"{args.task} features agent on the {args.robot.upper()}", "algo": "PPO",
-              "hyperparameters": hp, "n_envs": n_envs, "action_scale": scale, "vector_env": "native (mujoco.batch)",
+              "hyperparameters": hp, "n_envs": n_envs, "action_scale": scale, "observation_layout": layout,
+              "vector_env": "native (mujoco.batch)",
               "solved": solved, "steps": steps, "wall_s": round(wall, 1), "cpu_s": round(cpu, 1),
               "eval_wall_s": round(clock.eval_wall, 1), "curve": curve, "confirmation_franka_vs_gym_evaluate": confirm}
     if args.save:
@@ -197,7 +204,7 @@ def run_velocity(args: argparse.Namespace) -> dict[str, Any]:
         cmd = " ".join(args.argv if args.argv is not None else sys.argv[1:])
         meta: dict[str, Any] = {
             "algo": "ppo", "env_id": args.task, "robot": args.robot, "env_kwargs": env_kwargs, "action_scale": scale,
-            "action_type": "joint_velocity", "observation_layout": OBS_LAYOUT, "timesteps": steps,
+            "action_type": "joint_velocity", "observation_layout": layout, "timesteps": steps,
             "seed": args.seed, "n_envs": n_envs, "batched": True, "hyper_parameters": hp, "torch_threads": args.threads,
             "goal": args.goal, "solved": solved, "train_time_s": round(wall, 1), "train_cpu_s": round(cpu, 1),
             "eval_wall_s": round(clock.eval_wall, 1), "load_at_start": load0, "load_at_end": _load(),
@@ -373,6 +380,8 @@ def main(argv: list[str] | None = None) -> int:
                     "recipe, 16; ibvs-pixels 16)")
     ap.add_argument("--action-scale", type=float, default=None, help="rad/s of an action of 1 (joint-velocity envs; "
                     "default: the env's recipe, 0.5)")
+    ap.add_argument("--observation", choices=LAYOUTS, default=None, help="the agent's observation (joint-velocity "
+                    "envs; default: the env's recipe)")
     ap.add_argument("--max-steps", type=int, default=None, help="training steps at most (default 2000000; the "
                     "torque envs: the torque recipe's default)")
     ap.add_argument("--budget", type=float, default=3600.0, help="give up after this wall time, s (default 3600)")

@@ -137,3 +137,27 @@ def test_time_to_solve_torque_task_names_the_recipe(tmp_path, monkeypatch, capsy
     with pytest.raises(SystemExit) as e:
         mod.main(["--task", "FrankaTorqueTracking-v0"])
     assert "baselines/train_torque.py" in str(e.value.code)
+
+
+@pytest.mark.parametrize("env_id", ["FrankaPBVS-v0", "FrankaPBVSEyeToHand-v0"])
+def test_pose_layout_is_the_envs_pose_error(env_id):
+    """servo_pose_vector's pose error (``--observation servo-pose-vector/1``) has the norms of the env's own PBVS
+    error (translation, rotation: its success criterion), over a few steps of a moving arm; it starts with the
+    servo vector."""
+    import gymnasium as gym
+    import numpy as np
+
+    from franka_vs_gym.envs.wrappers import POSE_VECTOR_SIZE, VECTOR_SIZE, servo_pose_vector, servo_vector
+
+    env = gym.make(env_id, observation_type="features")
+    obs, _ = env.reset(seed=3)
+    for k in range(4):
+        v = servo_pose_vector(obs)
+        assert v.shape == (POSE_VECTOR_SIZE,) and v.dtype == np.float32
+        np.testing.assert_array_equal(v[:VECTOR_SIZE], servo_vector(obs))
+        et, er = env.unwrapped._pose_error()
+        assert et > 0.01 and er > 0.01  # far from the goal: a real comparison
+        np.testing.assert_allclose(np.linalg.norm(v[VECTOR_SIZE:VECTOR_SIZE + 3]) / 10.0, et, rtol=1e-5)
+        np.testing.assert_allclose(np.linalg.norm(v[VECTOR_SIZE + 3:VECTOR_SIZE + 6]) / 3.0, er, rtol=1e-5)
+        obs, *_ = env.step(np.full(7, 0.3 * (-1) ** k, np.float32))
+    env.close()
