@@ -12,7 +12,8 @@ import pytest
 from franka_vs_gym.cli import main as cli
 from franka_vs_gym.model.config import ModelConfig
 from franka_vs_gym.validation.hidden import make_hidden_effect_log
-from franka_vs_gym.validation.logs import load_log, save_log
+from franka_vs_gym.validation.loading import load_log
+from franka_vs_gym.validation.logs import save_log
 
 ROOT = Path(__file__).resolve().parents[1]
 GAZ = ROOT / ".." / "shared" / "data" / "gaz2019_traj1"
@@ -139,8 +140,9 @@ def test_script_random_keeps_answer_separate(tmp_path):
 def test_gaz_real_data_friction_missing_and_fit_reaches_published():
     from franka_vs_gym.model.config import Friction, Tool
     from franka_vs_gym.validation.compare import as_processed, compare
-    from franka_vs_gym.validation.diagnose import diagnose, fit_effects
+    from franka_vs_gym.validation.diagnose import diagnose
     from franka_vs_gym.validation.effects import FRICTION_EFFECTS
+    from franka_vs_gym.validation.fitting import fit_effects
 
     data = as_processed(str(GAZ))
     assert data.report.stale_rows > 1000  # the repeated rows of the real log were found and dropped

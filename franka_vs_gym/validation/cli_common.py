@@ -60,7 +60,7 @@ def settings_from(args: argparse.Namespace) -> CleanSettings:
 
 def load_from(args: argparse.Namespace):
     """The log named on the command line, read with the --topic option (a path stays a path when not needed)."""
-    from franka_vs_gym.validation.logs import load_log
+    from franka_vs_gym.validation.loading import load_log
 
     return load_log(args.log, topic=args.topic, progress=not getattr(args, "quiet", False),
                     tool=getattr(args, "tool", None))

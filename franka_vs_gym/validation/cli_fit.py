@@ -37,7 +37,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from franka_vs_gym.io import OutputSet
-    from franka_vs_gym.validation.diagnose import fit_effects
+    from franka_vs_gym.validation.fitting import fit_effects
 
     out = Path(args.output)
     effects = [e for e in args.add.split(",") if e.strip()]
