@@ -161,3 +161,23 @@ def test_pose_layout_is_the_envs_pose_error(env_id):
         np.testing.assert_allclose(np.linalg.norm(v[VECTOR_SIZE + 3:VECTOR_SIZE + 6]) / 3.0, er, rtol=1e-5)
         obs, *_ = env.step(np.full(7, 0.3 * (-1) ** k, np.float32))
     env.close()
+
+
+@pytest.mark.slow
+def test_train_sb3_takes_env_and_robot(tmp_path):
+    """baselines/train_sb3.py --env/--robot: a smoke run on an eye-to-hand env on the FR3 records the robot in the
+    sidecar's env kwargs (so the agent loads onto that arm); a --robot that contradicts --env-kwargs is refused."""
+    import subprocess
+    import sys
+
+    script = str(ROOT / "baselines" / "train_sb3.py")
+    r = subprocess.run([sys.executable, script, "--smoke", "--algo", "ppo", "--env", "FrankaPBVSEyeToHand-v0",
+                        "--robot", "fr3", "--out", str(tmp_path / "a"), "--tensorboard", "", "--eval-episodes", "0"],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    meta = json.loads((tmp_path / "a.json").read_text())
+    assert meta["env_id"] == "FrankaPBVSEyeToHand-v0" and meta["robot"] == "fr3"
+    assert load_agent(tmp_path / "a.zip").env_kwargs == {"robot": "fr3"}
+    r = subprocess.run([sys.executable, script, "--robot", "fr3", "--env-kwargs", '{"robot": "fer"}', "--out",
+                        str(tmp_path / "b")], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "--robot fr3" in r.stderr and not (tmp_path / "b.zip").exists()
