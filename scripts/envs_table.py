@@ -6,6 +6,7 @@ evaluation file.
     python scripts/envs_table.py --check      # exit 1 when docs/envs.md's table is out of date
     python scripts/envs_table.py --scripted   # evaluate the scripted policies again (100 episodes per env and
                                               # robot, a few minutes) into docs/envs_scripted.json, then the table
+    python scripts/envs_table.py --figure docs/images/envs_agents.png   # also draw the agents' training curves
 
 Sources, nothing else: every agent sidecar ``franka_vs_gym/policies/agents/*.json`` (its ``env_id``, ``robot``
 (absent: the FER), ``evaluation``, ``evaluation_other_robot``, ``timesteps``, ``train_time_s``, ``train_cpu_s``)
@@ -169,11 +170,43 @@ def evaluate_scripted(episodes: int = EPISODES, seed: int = SEED) -> dict[str, A
     return results
 
 
+def figure(path: Path, agents_dir: Path = AGENTS) -> None:
+    """The held-out success of every agent with a training curve, against training steps and process CPU time."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharey=True)
+    for a in load_agents(agents_dir):
+        curve = a.get("training_curve")
+        if a.get("action_type") != "joint_velocity" or not curve or "steps" not in curve[0]:
+            continue
+        label = f"{a['name']} ({a['env_id']}, {a['robot'].upper()})"
+        style = "-" if a["robot"] == "fer" else "--"
+        for ax, key, scale in ((axes[0], "steps", 1e3), (axes[1], "cpu_s", 1.0)):
+            if all(key in r for r in curve):
+                ax.plot([r[key] / scale for r in curve], [r["success_rate"] for r in curve], style,
+                        marker="o", ms=3, label=label)
+    axes[0].set_xlabel("training steps (thousands)")
+    axes[1].set_xlabel("process CPU time (s), one torch thread")
+    axes[0].set_ylabel("success on 100 held-out episodes")
+    for ax in axes:
+        ax.axhline(0.95, color="grey", lw=0.8, ls=":")
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=7, loc="center right")
+    fig.suptitle("Joint-velocity agents: PPO, the IBVS features recipe (solid: FER, dashed: FR3)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--check", action="store_true", help="exit 1 if docs/envs.md's table is out of date")
     ap.add_argument("--scripted", action="store_true", help="evaluate the scripted controllers again first "
                     f"({EPISODES} episodes per env and robot, seeds {SEED}...) into {SCRIPTED.relative_to(ROOT)}")
+    ap.add_argument("--figure", default=None, help="also draw the agents' training curves into this PNG")
     args = ap.parse_args(argv)
     if args.check and args.scripted:
         ap.error("--check and --scripted exclude each other")
@@ -191,6 +224,9 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as e:
         print(f"envs_table: error: {e}", file=sys.stderr)
         return 2
+    if args.figure:
+        figure(Path(args.figure))
+        print(f"wrote {args.figure}")
     if args.check:
         if new != doc:
             print(f"{DOC.relative_to(ROOT)}'s table is out of date: run python scripts/envs_table.py",
