@@ -105,6 +105,8 @@ def evaluate_ibvs(model: Any, env_id: str, n: int, seed: int, action_scale: floa
                          for a, b, c in zip(success, length, t_conv, strict=True)]}
 
 
+#: the torque envs' recipe: a script with ``train(env_id, robot, seed, out, ...)`` returning the agent's sidecar dict
+TORQUE_RECIPE = Path(__file__).resolve().parents[1] / "baselines" / "train_torque.py"
 VELOCITY_ENVS = ("FrankaIBVS-v0", "FrankaPBVS-v0", "FrankaIBVSEyeToHand-v0", "FrankaPBVSEyeToHand-v0")
 TORQUE_ENVS = ("FrankaTorqueTracking-v0", "FrankaVisualTorque-v0")
 ROBOTS = ("fer", "fr3")
@@ -233,7 +235,7 @@ def run_torque(args: argparse.Namespace) -> dict[str, Any]:
     import importlib.util
     import tempfile
 
-    path = Path(__file__).resolve().parents[1] / "baselines" / "train_torque.py"
+    path = TORQUE_RECIPE
     if not path.is_file():
         raise SystemExit(f"time_to_solve: --task {args.task} needs the torque recipe baselines/train_torque.py "
                          "(train(env_id, robot, seed, out, ...)), which this checkout does not have")

@@ -128,12 +128,29 @@ def test_envs_table_follows_the_sidecars(tmp_path):
         mod.render(tmp_path)
 
 
-def test_time_to_solve_torque_task_names_the_recipe(tmp_path, monkeypatch, capsys):
-    """A torque env id runs baselines/train_torque.py's train(...); where that file is absent the script says so in
-    one line (exit status != 0) instead of training something else."""
+def test_time_to_solve_torque_task_calls_the_torque_recipe(tmp_path, monkeypatch, capsys):
+    """A torque env id runs the torque recipe's train(env_id, robot, seed, out, ...) (here a stand-in that records
+    its call and returns a sidecar) and reports its curve and evaluation; where the recipe file is absent the script
+    says so in one line (exit status != 0) instead of training something else."""
     mod = _script("time_to_solve")
-    if (ROOT / "baselines" / "train_torque.py").is_file():
-        pytest.skip("the torque recipe is present (its own tests cover it)")
+    fake = tmp_path / "train_torque.py"
+    fake.write_text(
+        "import json\n"
+        "def train(env_id, robot, seed, out, eval_episodes=100, eval_seed=10000, threads=1, command=None, **kw):\n"
+        "    json.dump([env_id, robot, seed, str(out), eval_episodes, eval_seed], open(CALL, 'w'))\n"
+        "    return {'algo': 'ppo', 'timesteps': 4096, 'train_time_s': 12.5, 'train_cpu_s': 11.0,\n"
+        "            'training_curve': [{'steps': 4096, 'success_rate': 0.5}],\n"
+        "            'evaluation': {'success_rate': 0.97}, 'evaluation_other_robot': {'success_rate': 0.9}}\n"
+        .replace("CALL", repr(str(tmp_path / "call.json"))))
+    monkeypatch.setattr(mod, "TORQUE_RECIPE", fake)
+    out = tmp_path / "result.json"
+    assert mod.main(["--task", "FrankaVisualTorque-v0", "--robot", "fr3", "--seed", "3", "--test-seed", "500",
+                     "--test-episodes", "7", "--json", str(out)]) == 0
+    env_id, robot, seed, _, n, first = json.loads((tmp_path / "call.json").read_text())
+    assert (env_id, robot, seed, n, first) == ("FrankaVisualTorque-v0", "fr3", 3, 7, 500)
+    r = json.loads(out.read_text())
+    assert r["solved"] and r["steps"] == 4096 and r["cpu_s"] == 11.0 and r["evaluation_other_robot"]
+    monkeypatch.setattr(mod, "TORQUE_RECIPE", tmp_path / "absent.py")
     with pytest.raises(SystemExit) as e:
         mod.main(["--task", "FrankaTorqueTracking-v0"])
     assert "baselines/train_torque.py" in str(e.value.code)
