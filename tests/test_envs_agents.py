@@ -198,3 +198,19 @@ def test_train_sb3_takes_env_and_robot(tmp_path):
     r = subprocess.run([sys.executable, script, "--robot", "fr3", "--env-kwargs", '{"robot": "fer"}', "--out",
                         str(tmp_path / "b")], capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and "--robot fr3" in r.stderr and not (tmp_path / "b.zip").exists()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", [n for n in NEW_AGENTS if "eye_to_hand" in n and n.endswith("fr3")][:1])
+def test_time_to_solve_checks_are_evaluate_episodes(name):
+    """time_to_solve's held-out checks (all episodes stepped together on the native vector env, eye-to-hand task
+    logic in the batch) give each episode's success and length as franka_vs_gym.evaluate one by one, on the FR3."""
+    pytest.importorskip("stable_baselines3")
+    meta = _sidecar(name)
+    agent = load_agent(name)
+    r = _script("time_to_solve").evaluate_ibvs(agent.model, meta["env_id"], 4, 30_000, meta["action_scale"],
+                                                meta["env_kwargs"], None, meta["observation_layout"])
+    kw = {"observation_type": "features", "action_type": "joint_velocity"} | meta["env_kwargs"]
+    ref = franka_vs_gym.evaluate(agent, meta["env_id"], 4, 30_000, env_kwargs=kw)
+    assert [(e["success"], e["length"]) for e in r["episodes"]] == [(e["success"], e["length"])
+                                                                    for e in ref["episodes"]]
