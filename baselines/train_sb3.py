@@ -1,4 +1,7 @@
-"""Train a stable-baselines3 agent (SAC or PPO) on FrankaIBVS-v0: features observations, joint-velocity actions.
+"""Train a stable-baselines3 agent (SAC or PPO) on a visual-servoing env: features observations, joint velocities.
+
+``--env`` picks the env (FrankaIBVS-v0 by default; FrankaPBVS-v0, FrankaIBVSEyeToHand-v0, FrankaPBVSEyeToHand-v0:
+the same observation keys) and ``--robot`` the arm (fer or fr3; stored in the sidecar and its env kwargs).
 
 The agent acts in [-1, 1]^7, scaled to +-``--action-scale`` rad/s, and observes the flat vector of
 ``franka_vs_gym.envs.wrappers.servo_vector`` (feature error, features, depth error, q, dq, visibility). Progress
@@ -30,7 +33,11 @@ import numpy as np
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--algo", choices=["sac", "ppo"], default="sac")
-    p.add_argument("--env-id", default="FrankaIBVS-v0")
+    p.add_argument("--env", "--env-id", dest="env_id", default="FrankaIBVS-v0",
+                   choices=["FrankaIBVS-v0", "FrankaPBVS-v0", "FrankaIBVSEyeToHand-v0", "FrankaPBVSEyeToHand-v0"],
+                   help="the joint-velocity env to train on (default FrankaIBVS-v0)")
+    p.add_argument("--robot", choices=["fer", "fr3"], default=None, help="the simulated arm (default: the env's, "
+                   "the FER)")
     p.add_argument("--timesteps", type=int, default=60_000, help="environment steps to train for")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--n-envs", type=int, default=0, help="environments stepped together (default: 1 for SAC, 8 for "
@@ -105,6 +112,10 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
     env_kwargs = json.loads(args.env_kwargs)
     if not isinstance(env_kwargs, dict):
         raise ValueError("--env-kwargs must be a JSON object")
+    if args.robot is not None:
+        if env_kwargs.get("robot", args.robot) != args.robot:
+            raise ValueError(f"--robot {args.robot} and --env-kwargs robot {env_kwargs['robot']!r} differ")
+        env_kwargs["robot"] = args.robot
     out = Path(args.out)
     if out.suffix == ".zip":
         out = out.with_suffix("")
@@ -150,7 +161,8 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
     train_time = time.perf_counter() - t0
     out.parent.mkdir(parents=True, exist_ok=True)
     model.save(str(zip_path), exclude=["replay_buffer"])
-    meta = {"algo": args.algo, "env_id": args.env_id, "env_kwargs": env_kwargs, "action_scale": args.action_scale,
+    meta = {"algo": args.algo, "env_id": args.env_id, "robot": str(env_kwargs.get("robot", "fer")),
+            "env_kwargs": env_kwargs, "action_scale": args.action_scale,
             "action_type": "joint_velocity", "observation_layout": OBS_LAYOUT, "timesteps": timesteps,
             "seed": args.seed, "n_envs": n_envs, "batched": bool(args.batched), "train_time_s": round(train_time, 1),
             "command": "python " + " ".join(sys.argv)}

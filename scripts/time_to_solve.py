@@ -2,6 +2,8 @@
 """Time to solve: wall-clock time from nothing to an agent with >= 95 % success on 100 held-out episodes.
 
     python scripts/time_to_solve.py                        # FrankaIBVS-v0, features agent (PPO, native vector env)
+    python scripts/time_to_solve.py --task FrankaPBVS-v0 --robot fr3   # any registered env id, on either robot
+    python scripts/time_to_solve.py --task FrankaPBVS-v0 --save franka_vs_gym/policies/agents/pbvs_ppo  # + ship it
     python scripts/time_to_solve.py --task panda-reach     # panda-gym's PandaReach-v3, its documented SB3 recipe
     python scripts/time_to_solve.py --task ibvs-pixels     # FrankaIBVS-v0 from the camera image (DAgger student)
     python scripts/time_to_solve.py --json result.json     # also write the result (the file must not exist)
@@ -13,13 +15,22 @@ reported). Also reported: the process CPU time (all threads), which is what the 
 machine with as many cores as threads used, and the machine's load (``os.getloadavg``) at start and end: on a
 shared machine the wall time says more about the neighbours than about the method.
 
-FrankaIBVS-v0 (``--task ibvs``): PPO on ``franka_vs_gym.envs.sb3.make_agent_vec_env`` (``n_envs`` robots on one
-``mujoco.batch``, the flat servo vector observation and [-1, 1] actions of ``baselines/train_sb3.py``), evaluated
-with all 100 held-out episodes stepped together on the same native vector env (the same episodes, bit for bit, as
-``franka_vs_gym.evaluate`` with that seed, which confirms the final agent). PandaReach-v3 (``--task panda-reach``,
-needs ``pip install panda-gym``): panda-gym's documented recipe, ``DDPG(policy="MultiInputPolicy", env)`` with
-SB3's defaults and a 30 000-step budget (panda-gym's "Train with stable-baselines3" page), evaluated on 100
-episodes the same way (deterministic actions, success = ``info["is_success"]`` at the episode's end).
+The joint-velocity envs (``--task FrankaIBVS-v0`` (alias ``ibvs``), ``FrankaPBVS-v0``, ``FrankaIBVSEyeToHand-v0``,
+``FrankaPBVSEyeToHand-v0``; ``--robot fer`` or ``fr3``): PPO with the env's recipe (:data:`RECIPES`) on
+``franka_vs_gym.envs.sb3.make_agent_vec_env`` (``n_envs`` robots on one ``mujoco.batch``, the flat servo vector
+observation and [-1, 1] actions of ``baselines/train_sb3.py``), evaluated with all 100 held-out episodes stepped
+together on the same native vector env (the same episodes, bit for bit, as ``franka_vs_gym.evaluate`` with that
+seed, which confirms the final agent). With ``--save PATH`` the final agent is written as ``PATH.zip`` and a sidecar
+``PATH.json`` (the schema of the shipped ``ibvs_ppo.json`` plus ``robot``, the hyper-parameters, wall and CPU
+training time, the training curve, and ``franka_vs_gym.evaluate`` on 100 test episodes (seeds ``--test-seed`` ...:
+neither the training nor the stopping rule saw them) on its robot and on the other robot); it loads with
+``franka_vs_gym.policies.load_agent`` and ``franka-vs evaluate PATH.zip``. The torque envs
+(``FrankaTorqueTracking-v0``, ``FrankaVisualTorque-v0``) run the torque recipe, ``baselines/train_torque.py``'s
+``train(env_id, robot, seed, out, ...)``, and report its curve and evaluation in the same format. PandaReach-v3
+(``--task panda-reach``, needs ``pip install panda-gym``): panda-gym's documented recipe,
+``DDPG(policy="MultiInputPolicy", env)`` with SB3's defaults and a 30 000-step budget (panda-gym's "Train with
+stable-baselines3" page), evaluated on 100 episodes the same way (deterministic actions, success =
+``info["is_success"]`` at the episode's end).
 FrankaIBVS-v0 from the camera image (``--task ibvs-pixels``): ``baselines/train_pixels.py``'s DAgger student
 (64x48 image, q, dq; the scripted IBVS teacher's actions as labels), its held-out evaluation every 3 iterations
 (12 000 labelled states with 16 robots), stopped at ``--goal``; the saved agent is confirmed with
@@ -64,14 +75,15 @@ class Clock:
 
 
 def evaluate_ibvs(model: Any, env_id: str, n: int, seed: int, action_scale: float, env_kwargs: dict[str, Any],
-                  nthread: int | None) -> dict[str, float]:
+                  nthread: int | None, observation_layout: str | None = None) -> dict[str, float]:
     """The first episode of each of n robots (robot i reset with seed + i, as franka_vs_gym.evaluate's episode i),
     deterministic actions, all stepped together: (success rate, mean time to converge of the successes)."""
     from franka_vs_gym.envs.sb3 import make_agent_vec_env
 
-    key = (env_id, n, action_scale, nthread, json.dumps(env_kwargs, sort_keys=True))
+    key = (env_id, n, action_scale, nthread, observation_layout, json.dumps(env_kwargs, sort_keys=True))
     if key not in _EVAL_ENVS:  # made once (its robots' models), reset with the held-out seeds at each evaluation
-        _EVAL_ENVS[key] = make_agent_vec_env(env_id, n, action_scale, nthread=nthread, **env_kwargs)
+        _EVAL_ENVS[key] = make_agent_vec_env(env_id, n, action_scale, nthread=nthread,
+                                             observation_layout=observation_layout, **env_kwargs)
     venv = _EVAL_ENVS[key]
     venv.seed(seed)
     obs = venv.reset()
@@ -93,7 +105,33 @@ def evaluate_ibvs(model: Any, env_id: str, n: int, seed: int, action_scale: floa
                          for a, b, c in zip(success, length, t_conv, strict=True)]}
 
 
-def run_ibvs(args: argparse.Namespace) -> dict[str, Any]:
+#: the torque envs' recipe: a script with ``train(env_id, robot, seed, out, ...)`` returning the agent's sidecar dict
+TORQUE_RECIPE = Path(__file__).resolve().parents[1] / "baselines" / "train_torque.py"
+VELOCITY_ENVS = ("FrankaIBVS-v0", "FrankaPBVS-v0", "FrankaIBVSEyeToHand-v0", "FrankaPBVSEyeToHand-v0")
+TORQUE_ENVS = ("FrankaTorqueTracking-v0", "FrankaVisualTorque-v0")
+ROBOTS = ("fer", "fr3")
+LAYOUTS = ("servo-vector/2", "servo-pose-vector/1")  # franka_vs_gym.envs.wrappers.OBS_LAYOUT, POSE_LAYOUT
+#: per joint-velocity env: the PPO hyper-parameters, the robots of the native vector env, the action scale (rad/s
+#: of an action of 1) and the observation (``--observation``: the servo vector, or with the tag's pose error); the
+#: IBVS features agent's recipe for every env
+RECIPES: dict[str, dict[str, Any]] = {
+    env_id: {"hyperparameters": IBVS_PPO, "n_envs": 16, "action_scale": 0.5, "observation_layout": LAYOUTS[0]}
+    for env_id in VELOCITY_ENVS}
+
+
+def _other(robot: str) -> str:
+    return "fr3" if robot == "fer" else "fer"
+
+
+def _summary(r: dict[str, Any], seed: int, robot: str) -> dict[str, Any]:
+    """franka_vs_gym.evaluate's summary in strict JSON (no NaN), with its seed and robot."""
+    out = {k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in r.items() if k != "episodes"}
+    return out | {"seed": seed, "robot": robot}
+
+
+def run_velocity(args: argparse.Namespace) -> dict[str, Any]:
+    """PPO on a joint-velocity env (the env's :data:`RECIPES` row), stopped at the first held-out check at
+    ``--goal`` or at the budget; with ``--save``, the agent and its sidecar."""
     import torch
 
     torch.set_num_threads(args.threads)
@@ -105,12 +143,18 @@ def run_ibvs(args: argparse.Namespace) -> dict[str, Any]:
     from franka_vs_gym.envs.sb3 import make_agent_vec_env
     from franka_vs_gym.envs.wrappers import AgentPolicy
 
-    env_kwargs: dict[str, Any] = {}
+    recipe = RECIPES[args.task]
+    hp = recipe["hyperparameters"]
+    n_envs = args.n_envs or recipe["n_envs"]
+    scale = args.action_scale or recipe["action_scale"]
+    layout = args.observation or recipe["observation_layout"]
+    env_kwargs: dict[str, Any] = {} if args.robot == "fer" else {"robot": args.robot}
+    load0 = _load()
     clock = Clock()
-    env = VecMonitor(make_agent_vec_env(args.env_id, args.n_envs, args.action_scale, nthread=args.batch_threads,
-                                        **env_kwargs))
+    env = VecMonitor(make_agent_vec_env(args.task, n_envs, scale, nthread=args.batch_threads,
+                                        observation_layout=layout, **env_kwargs))
     env.seed(args.seed)
-    model = PPO("MlpPolicy", env, seed=args.seed, device="cpu", verbose=0, **IBVS_PPO)
+    model = PPO("MlpPolicy", env, seed=args.seed, device="cpu", verbose=0, **hp)
     curve: list[dict[str, float]] = []
 
     class Periodic(BaseCallback):
@@ -123,34 +167,99 @@ def run_ibvs(args: argparse.Namespace) -> dict[str, Any]:
                 return True
             self.next += args.eval_every
             t = time.perf_counter()
-            r = evaluate_ibvs(self.model, args.env_id, args.eval_episodes, args.eval_seed, args.action_scale,
-                              env_kwargs, args.batch_threads)
+            r = evaluate_ibvs(self.model, args.task, args.eval_episodes, args.eval_seed, scale, env_kwargs,
+                              args.batch_threads, layout)
             clock.eval_wall += time.perf_counter() - t
             r.pop("episodes")
+            r = {k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in r.items()}
             row = {"steps": int(self.num_timesteps), "wall_s": round(clock.wall(), 1), "cpu_s": round(clock.cpu(), 1),
                    **r}
             curve.append(row)
             print(f"  {row['steps']:>8d} steps  wall {row['wall_s']:7.1f} s  cpu {row['cpu_s']:7.1f} s  success "
                   f"{r['success_rate']:.2f}", flush=True)
-            return r["success_rate"] < args.goal and clock.wall() < args.budget
+            return r["success_rate"] < args.goal and clock.wall() < args.budget and clock.cpu() < args.cpu_budget
 
     model.learn(total_timesteps=args.max_steps, callback=Periodic())
     wall, cpu = clock.wall(), clock.cpu()
     solved = bool(curve and curve[-1]["success_rate"] >= args.goal)
+    eval_kw = {"observation_type": "features", "action_type": "joint_velocity"}
+    agent = AgentPolicy(model, scale, args.task, env_kwargs, layout)
     confirm = None
     if solved:  # the same 100 episodes one by one through franka_vs_gym.evaluate (outside the clock)
-        agent = AgentPolicy(model, args.action_scale, args.env_id)
-        r = franka_vs_gym.evaluate(agent, args.env_id, args.eval_episodes, args.eval_seed,
-                                   env_kwargs={"observation_type": "features", "action_type": "joint_velocity"})
+        r = franka_vs_gym.evaluate(agent, args.task, args.eval_episodes, args.eval_seed,
+                                   env_kwargs=eval_kw | env_kwargs)
         confirm = {k: r[k] for k in ("success_rate", "mean_time_to_converge", "failures")}
-        if args.save:
-            model.save(args.save)
     env.close()
-    return {"task": "FrankaIBVS-v0 features agent", "algo": "PPO", "hyperparameters": IBVS_PPO,
-            "n_envs": args.n_envs, "action_scale": args.action_scale, "vector_env": "native (mujoco.batch)",
-            "solved": solved, "steps": curve[-1]["steps"] if curve else 0, "wall_s": round(wall, 1),
-            "cpu_s": round(cpu, 1), "eval_wall_s": round(clock.eval_wall, 1), "curve": curve,
-            "confirmation_franka_vs_gym_evaluate": confirm}
+    steps = curve[-1]["steps"] if curve else 0
+    result = {"task": f"{args.task} features agent on the {args.robot.upper()}", "algo": "PPO",
+              "hyperparameters": hp, "n_envs": n_envs, "action_scale": scale, "observation_layout": layout,
+              "vector_env": "native (mujoco.batch)",
+              "solved": solved, "steps": steps, "wall_s": round(wall, 1), "cpu_s": round(cpu, 1),
+              "eval_wall_s": round(clock.eval_wall, 1), "curve": curve, "confirmation_franka_vs_gym_evaluate": confirm}
+    if args.save:
+        out = Path(args.save)
+        out = out.with_suffix("") if out.suffix == ".zip" else out
+        zip_path = out.with_name(out.name + ".zip")
+        meta_path = out.with_name(out.name + ".json")
+        out.parent.mkdir(parents=True, exist_ok=True)
+        model.save(str(zip_path))
+        cmd = " ".join(args.argv if args.argv is not None else sys.argv[1:])
+        meta: dict[str, Any] = {
+            "algo": "ppo", "env_id": args.task, "robot": args.robot, "env_kwargs": env_kwargs, "action_scale": scale,
+            "action_type": "joint_velocity", "observation_layout": layout, "timesteps": steps,
+            "seed": args.seed, "n_envs": n_envs, "batched": True, "hyper_parameters": hp, "torch_threads": args.threads,
+            "goal": args.goal, "solved": solved, "train_time_s": round(wall, 1), "train_cpu_s": round(cpu, 1),
+            "eval_wall_s": round(clock.eval_wall, 1), "load_at_start": load0, "load_at_end": _load(),
+            "command": f"python scripts/time_to_solve.py {cmd}".strip(),
+            "training_curve": [{"steps": r["steps"], "wall_s": r["wall_s"], "cpu_s": r["cpu_s"],
+                                "success_rate": r["success_rate"]} for r in curve],
+            "training_curve_seed": args.eval_seed}
+        meta_path.write_text(json.dumps(meta, indent=2))
+        shipped = AgentPolicy.load(zip_path)  # the saved files, through the loading path users take
+        for key, robot in (("evaluation", args.robot), ("evaluation_other_robot", _other(args.robot))):
+            kw = eval_kw | {"robot": robot}
+            r = franka_vs_gym.evaluate(shipped, args.task, args.test_episodes, args.test_seed, env_kwargs=kw)
+            meta[key] = _summary(r, args.test_seed, robot)
+            print(f"  {key}: {robot.upper()}, {args.test_episodes} test episodes (seeds {args.test_seed}...): success "
+                  f"{r['success_rate']:.2f}, failures {r['failures']}", flush=True)
+        meta_path.write_text(json.dumps(meta, indent=2))
+        print(f"saved {zip_path} ({zip_path.stat().st_size / 1e3:.0f} kB) and {meta_path}", flush=True)
+        result["evaluation"] = meta["evaluation"]
+        result["evaluation_other_robot"] = meta["evaluation_other_robot"]
+    return result
+
+
+def run_torque(args: argparse.Namespace) -> dict[str, Any]:
+    """The torque envs: the torque recipe's ``baselines.train_torque:train(env_id, robot, seed, out, ...)`` (its
+    own clock, curve and evaluations), reported in this script's format."""
+    import importlib.util
+    import tempfile
+
+    path = TORQUE_RECIPE
+    if not path.is_file():
+        raise SystemExit(f"time_to_solve: --task {args.task} needs the torque recipe baselines/train_torque.py "
+                         "(train(env_id, robot, seed, out, ...)), which this checkout does not have")
+    spec = importlib.util.spec_from_file_location("train_torque", path)
+    tt = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tt)
+    if not callable(getattr(tt, "train", None)):
+        raise SystemExit("time_to_solve: baselines/train_torque.py has no train(env_id, robot, seed, out, ...)")
+    cmd = " ".join(args.argv if args.argv is not None else sys.argv[1:])
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(args.save) if args.save else Path(tmp) / "torque_agent"
+        kw: dict[str, Any] = {"eval_episodes": args.test_episodes, "eval_seed": args.test_seed,
+                              "threads": args.threads, "command": f"python scripts/time_to_solve.py {cmd}".strip()}
+        if args.max_steps_set:
+            kw["timesteps"] = args.max_steps
+        meta = tt.train(args.task, args.robot, args.seed, out, **kw)
+    ev = meta.get("evaluation") or {}
+    curve = meta.get("training_curve", [])
+    return {"task": f"{args.task} torque agent on the {args.robot.upper()}", "algo": meta.get("algo", "?").upper(),
+            "hyperparameters": meta.get("hyper_parameters"), "n_envs": meta.get("n_envs"),
+            "solved": bool(ev.get("success_rate", 0.0) >= args.goal), "steps": meta.get("timesteps", 0),
+            "wall_s": meta.get("train_time_s", float("nan")), "cpu_s": meta.get("train_cpu_s", float("nan")),
+            "eval_wall_s": 0.0, "curve": curve, "evaluation": ev,
+            "evaluation_other_robot": meta.get("evaluation_other_robot")}
 
 
 def evaluate_panda(model: Any, n: int, seed: int) -> dict[str, float]:
@@ -250,42 +359,80 @@ def run_ibvs_pixels(args: argparse.Namespace) -> dict[str, Any]:
                 "success_rate", "mean_time_to_converge", "failures")}}
 
 
+TASKS = {"ibvs": "FrankaIBVS-v0"}  # the historical name of the IBVS features task
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--task", choices=["ibvs", "panda-reach", "ibvs-pixels"], default="ibvs")
-    ap.add_argument("--env-id", default="FrankaIBVS-v0", help=argparse.SUPPRESS)
+    ap.add_argument("--task", default="FrankaIBVS-v0", metavar="TASK",
+                    help=f"a registered env id ({', '.join(VELOCITY_ENVS + TORQUE_ENVS)}; 'ibvs' is FrankaIBVS-v0), "
+                    "panda-reach or ibvs-pixels (default FrankaIBVS-v0)")
+    ap.add_argument("--robot", choices=ROBOTS, default="fer", help="the simulated arm of the env tasks (default fer)")
     ap.add_argument("--goal", type=float, default=0.95, help="success rate to reach (default 0.95)")
     ap.add_argument("--seed", type=int, default=0, help="training seed (default 0)")
     ap.add_argument("--eval-seed", type=int, default=10_000, help="first held-out seed (default 10000)")
     ap.add_argument("--eval-episodes", type=int, default=100)
+    ap.add_argument("--test-seed", type=int, default=20_000, help="first seed of the saved agent's test episodes "
+                    "(--save; default 20000)")
+    ap.add_argument("--test-episodes", type=int, default=100, help="test episodes of the saved agent (default 100)")
     ap.add_argument("--eval-every", type=int, default=None,
-                    help="env steps between evaluations (default 32768 for ibvs, 5000 for panda-reach; "
+                    help="env steps between evaluations (default 32768 for the env tasks, 5000 for panda-reach; "
                     "ibvs-pixels: 3 DAgger iterations of 250 steps of each robot)")
-    ap.add_argument("--n-envs", type=int, default=16, help="robots in the native vector env (ibvs, ibvs-pixels; "
-                    "default 16)")
-    ap.add_argument("--action-scale", type=float, default=0.5, help="rad/s of an action of 1 (ibvs; default 0.5)")
-    ap.add_argument("--max-steps", type=int, default=2_000_000, help="training steps at most (ibvs)")
+    ap.add_argument("--n-envs", type=int, default=None, help="robots in the native vector env (default: the env's "
+                    "recipe, 16; ibvs-pixels 16)")
+    ap.add_argument("--action-scale", type=float, default=None, help="rad/s of an action of 1 (joint-velocity envs; "
+                    "default: the env's recipe, 0.5)")
+    ap.add_argument("--observation", choices=LAYOUTS, default=None, help="the agent's observation (joint-velocity "
+                    "envs; default: the env's recipe)")
+    ap.add_argument("--max-steps", type=int, default=None, help="training steps at most (default 2000000; the "
+                    "torque envs: the torque recipe's default)")
     ap.add_argument("--budget", type=float, default=3600.0, help="give up after this wall time, s (default 3600)")
+    ap.add_argument("--cpu-budget", type=float, default=1800.0, help="give up after this process CPU time, s "
+                    "(joint-velocity envs; default 1800: the 30 minutes of a training)")
     ap.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     ap.add_argument("--batch-threads", type=int, default=None, help="mujoco.batch threads (default min(N, CPUs))")
-    ap.add_argument("--save", default=None, help="save the solving agent here (ibvs; ibvs-pixels: "
-                    "<save>.zip, .json and _curve.png)")
+    ap.add_argument("--save", default=None, help="save the final agent as <save>.zip + <save>.json (env tasks; "
+                    "ibvs-pixels: <save>.zip, .json and _curve.png)")
     ap.add_argument("--json", default=None, help="write the result to this JSON file (must not exist)")
     args = ap.parse_args(argv)
+    args.argv = argv
+    args.task = TASKS.get(args.task, args.task)
+    if args.task not in VELOCITY_ENVS + TORQUE_ENVS + ("panda-reach", "ibvs-pixels"):
+        known = ", ".join(VELOCITY_ENVS + TORQUE_ENVS)
+        ap.error(f"--task: unknown task {args.task!r}; use a registered env id ({known}), ibvs, panda-reach or "
+                 "ibvs-pixels")
     args.eval_every_set = args.eval_every is not None
     if args.eval_every is None:
         args.eval_every = 32_768
-    for name in ("eval_every", "eval_episodes", "n_envs", "max_steps", "threads"):
-        if getattr(args, name) < 1:
+    args.max_steps_set = args.max_steps is not None
+    if args.max_steps is None:
+        args.max_steps = 2_000_000
+    if args.n_envs is None and args.task == "ibvs-pixels":
+        args.n_envs = 16
+    for name in ("eval_every", "eval_episodes", "test_episodes", "n_envs", "max_steps", "threads"):
+        if getattr(args, name) is not None and getattr(args, name) < 1:
             ap.error(f"--{name.replace('_', '-')} must be >= 1")
+    if args.action_scale is not None and not args.action_scale > 0:
+        ap.error("--action-scale must be > 0")
     if not 0 < args.goal <= 1:
         ap.error("--goal must be in (0, 1]")
     if args.json and Path(args.json).exists():
         ap.error(f"{args.json} exists; choose another --json path")
+    if args.save and args.task in VELOCITY_ENVS + TORQUE_ENVS:
+        out = Path(args.save)
+        out = out.with_suffix("") if out.suffix == ".zip" else out
+        for p in (out.with_name(out.name + ".zip"), out.with_name(out.name + ".json")):
+            if p.exists():
+                ap.error(f"--save: {p} exists; choose another path (nothing is overwritten)")
     machine = {"cpus": os.cpu_count(), "load_at_start": _load()}
     print(f"time to solve: {args.task}, goal {args.goal:.0%} on {args.eval_episodes} held-out episodes; "
           f"{machine['cpus']} CPUs, load {machine['load_at_start']}", flush=True)
-    result = {"ibvs": run_ibvs, "panda-reach": run_panda, "ibvs-pixels": run_ibvs_pixels}[args.task](args)
+    if args.task in VELOCITY_ENVS:
+        result = run_velocity(args)
+    elif args.task in TORQUE_ENVS:
+        result = run_torque(args)
+    else:
+        result = {"panda-reach": run_panda, "ibvs-pixels": run_ibvs_pixels}[args.task](args)
     machine["load_at_end"] = _load()
     cmd = " ".join(argv if argv is not None else sys.argv[1:])
     result.update({"goal": args.goal, "seed": args.seed, "eval_seed": args.eval_seed,

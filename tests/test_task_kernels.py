@@ -420,3 +420,30 @@ def test_a_deep_copy_runs_the_compiled_step_on_its_own_physics():
     _assert_same(r1, r2)
     assert not np.array_equal(r1[-1][0]["q"], r1[0][0]["q"])  # (the torque moved the arm)
     env.close()
+
+
+def test_compiled_end_is_taken_only_for_the_evaluation_it_stands_for():
+    """The IBVS tasks' compiled steps end in one call (FrankaIBVSEnv._end_compiled, checked bit for bit against the
+    general path above); a subclass with its own evaluation ends them through its _evaluate."""
+    from franka_vs_gym.envs.visual_torque import FrankaVisualTorqueEnv
+
+    for env_id, expected in (("FrankaIBVS-v0", True), ("FrankaVisualTorque-v0", True),
+                             ("FrankaIBVSEyeToHand-v0", True), ("FrankaPBVS-v0", False)):
+        env = gym.make(env_id)
+        assert env.unwrapped._plan.task_end is expected, env_id
+        env.close()
+
+    class Shaped(FrankaVisualTorqueEnv):
+        def _evaluate(self, action):
+            reward, success, failure, info = super()._evaluate(action)
+            return reward - 5.0, success, failure, info
+
+    shaped, plain = Shaped(), FrankaVisualTorqueEnv()
+    assert not shaped._plan.task_end and plain._plan.task_end
+    shaped._plan.fast = True  # (a class outside the package takes the general path; its compiled step here)
+    shaped.reset(seed=2)
+    plain.reset(seed=2)
+    a = np.zeros(7, np.float32)
+    for _ in range(3):
+        rs, rp = shaped.step(a), plain.step(a)
+        assert rs[1] == rp[1] - 5.0

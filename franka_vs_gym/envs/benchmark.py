@@ -328,9 +328,13 @@ def bench_step_parts(env_id: str, n: int | None = None, rounds: int = 7, seed: i
             fns.update({
                 "compiled command": lambda: plant.visual_pre(plan.P, plan.I, plan.d_addr, a, *views),
                 "compiled period end (reflexes, task, observation)": lambda: plan.post(out),
-                "reward, info (Python)": lambda: u._finish_step(obs, False),
-                "observation dict (Python)": lambda: {k: out[sl] if sh is None else out[sl].reshape(sh)
-                                                      for k, sl, sh in plan.views},
+                # (the IBVS tasks end a compiled step in one call, FrankaIBVSEnv._end_compiled)
+                "reward, info (Python)": ((lambda: u._end_compiled(obs, 0)) if getattr(plan, "task_end", False)
+                                          else (lambda: u._finish_step(obs, False))),
+                "observation dict (Python)": ((lambda: {k: out[sl] for k, sl in plan.flat_views})
+                                              if getattr(plan, "flat_views", None) is not None
+                                              else (lambda: {k: out[sl] if sh is None else out[sl].reshape(sh)
+                                                             for k, sl, sh in plan.views})),
             })
         else:
             fns.update({

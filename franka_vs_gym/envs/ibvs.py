@@ -3,12 +3,13 @@
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
 
-from franka_vs_gym.envs.base import _positive
-from franka_vs_gym.envs.kernels import R_ERROR, TAG_LOST, feature_reward, success_bonus
+from franka_vs_gym.envs.base import FrankaEnv, _positive
+from franka_vs_gym.envs.kernels import R_ERROR, R_VISIBLE, TAG_LOST, feature_reward, success_bonus
 from franka_vs_gym.envs.visual import VisualServoEnv
 
 
@@ -95,6 +96,13 @@ class FrankaIBVSEnv(VisualServoEnv):
         self.success_threshold = _positive(success_threshold, "success_threshold")
         self.error_scale = _positive(error_scale, "error_scale")
         super().__init__(action_type=action_type, control_period=control_period, time_limit=time_limit, **kwargs)
+        cls = type(self)
+        # the compiled step ends in one call (_end_compiled) when this task's evaluation is the one it stands for
+        self._plan.task_end = (cls._evaluate is cls._end_compiled_evaluates
+                               and cls._task_error is FrankaIBVSEnv._task_error and cls._seen is VisualServoEnv._seen
+                               and cls._finish_step is FrankaEnv._finish_step
+                               and cls._robot_failure is FrankaEnv._robot_failure)
+        self._end_cost = 0.0  # (FrankaVisualTorque-v0: the torque cost is subtracted, see _end_compiled)
 
     def _task_error(self) -> float:
         return float(self._truth_now()[R_ERROR])
@@ -107,3 +115,33 @@ class FrankaIBVSEnv(VisualServoEnv):
         success = failure is None and err < self.success_threshold
         reward = success_bonus(feature_reward(err, self.error_scale), success, self.success_bonus)
         return reward, success, failure, {"error": err}
+
+    #: the evaluation _end_compiled stands for (a subclass that overrides _evaluate ends its compiled steps through
+    #: FrankaEnv._finish_step, unless it names its own evaluation here and _end_compiled does what it does)
+    _end_compiled_evaluates = _evaluate
+
+    def _end_compiled(self, obs: dict[str, np.ndarray], code: int):
+        """The end of a compiled step (``StepPlan.step``) in one call: ``FrankaEnv._finish_step`` with this task's
+        ``_evaluate``, on the truth record the compiled period end has just written (the same arithmetic, so the
+        same bits; FrankaVisualTorque-v0's torque cost is the compiled command's, ``plan.cost_now``)."""
+        self._last_obs = obs
+        plan = self._plan
+        t = plan.truth
+        err = float(t[R_ERROR])
+        failure = TAG_LOST if self.terminate_on_tag_lost and not t[R_VISIBLE] else None
+        success = failure is None and err < self.success_threshold
+        reward = -min(math.sqrt(err / self.error_scale), 1.0) + (self.success_bonus if success else 0.0)
+        if self._end_cost:
+            reward -= float(plan.cost_now[0])
+        if failure is None and code == 1:
+            failure = self._robot_failure()
+        if failure is not None:
+            success = False
+            reward -= self._failure_cost()
+            terminated = True
+        else:
+            terminated = bool(success and self.terminate_on_success)
+        truncated = (not terminated) and self._steps >= self.max_steps
+        # (the time: episode_time's, from the data the plant steps)
+        info = {"time": self._d.time - self._t0, "is_success": success, "failure": failure, "error": err}
+        return obs, float(reward), terminated, truncated, info

@@ -111,11 +111,13 @@ class SB3VecEnv(VecEnv):
 
 
 def make_agent_vec_env(env_id: str, num_envs: int, action_scale: Any = 0.5, nthread: int | None = None,
-                       **env_kwargs: Any) -> SB3VecEnv:
+                       observation_layout: str | None = None, **env_kwargs: Any) -> SB3VecEnv:
     """The training environment of ``baselines/train_sb3.py --batched``: :func:`~franka_vs_gym.envs.wrappers.
-    make_agent_env`'s observation (the flat servo vector) and action scaling ([-1, 1] to +-``action_scale``
-    rad/s), for ``num_envs`` robots on one batch."""
-    from franka_vs_gym.envs.wrappers import VECTOR_SIZE, servo_vector
+    make_agent_env`'s observation (the flat servo vector; ``observation_layout`` POSE_LAYOUT: with the tag's pose
+    error) and action scaling ([-1, 1] to +-``action_scale`` rad/s), for ``num_envs`` robots on one batch."""
+    from franka_vs_gym.envs.wrappers import OBS_LAYOUT, layout_vector
+
+    obs_fn, size = layout_vector(observation_layout or OBS_LAYOUT)
 
     env_kwargs.setdefault("observation_type", "features")
     env_kwargs.setdefault("action_type", "joint_velocity")
@@ -132,7 +134,7 @@ def make_agent_vec_env(env_id: str, num_envs: int, action_scale: Any = 0.5, nthr
             raise ValueError("actions contain NaN or inf")
         return (np.clip(a, -1.0, 1.0) * scale).astype(np.float32)
 
-    return SB3VecEnv(venv, servo_vector, spaces.Box(-np.inf, np.inf, (VECTOR_SIZE,), dtype=np.float32),
+    return SB3VecEnv(venv, obs_fn, spaces.Box(-np.inf, np.inf, (size,), dtype=np.float32),
                      action_fn, spaces.Box(-1.0, 1.0, box.shape, dtype=np.float32))
 
 

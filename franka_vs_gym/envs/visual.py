@@ -405,6 +405,10 @@ class StepPlan(CompiledStep):
         self.depth_d[:], self.pose_d[:] = env.depth_desired, env.tag_pose_desired
         self.cost[0] = float(getattr(env, "torque_cost", 0.0))
         self.camera_substeps = env.camera_substeps
+        self.task_end = False  # whether the task ends a compiled step in one call (env._end_compiled; see ibvs.py)
+        # the observation's keys and slices when every key is a vector (no reshape: the features observations)
+        self.flat_views = None if any(sh is not None for _, _, sh in self.views) else \
+            tuple((k, sl) for k, sl, _ in self.views)
 
     def _bind(self) -> None:
         super()._bind()
@@ -434,7 +438,7 @@ class StepPlan(CompiledStep):
         k0 = env._k
         k1 = k0 + self.n_substeps
         last = (k1 // self.camera_substeps) * self.camera_substeps
-        return (last <= k0 or last == k1) and super().eligible(env)
+        return (last <= k0 or last == k1) and env.sim.runs_inside_mj_step(self.control_state)  # (CompiledStep's)
 
     def step(self, env: VisualServoEnv, action: Any):
         """One control period in the compiled step; None (nothing done) when the action is not a plain vector inside
@@ -453,6 +457,10 @@ class StepPlan(CompiledStep):
         if capture:
             env._frame_no += 1
         env._packed_frame_no = -1 if self.state_flag else env._frame_no
+        if self.task_end and self.flat_views is not None:
+            env._pack.last = out
+            env._steps += 1
+            return env._end_compiled({k: out[sl] for k, sl in self.flat_views}, code)
         return self.finish(env, out, code)
 
     def post(self, out: np.ndarray) -> int:

@@ -41,6 +41,7 @@ class FrankaVisualTorqueEnv(FrankaIBVSEnv):
         self.torque_cost = float(torque_cost)
         super().__init__(action_type=action_type, control_period=control_period, camera_period=camera_period,
                          time_limit=time_limit, **kwargs)
+        self._end_cost = self.action_type == "torque" and bool(self.torque_cost)  # (what _evaluate subtracts)
 
     def _evaluate(self, action):
         reward, success, failure, info = super()._evaluate(action)
@@ -50,3 +51,5 @@ class FrankaVisualTorqueEnv(FrankaIBVSEnv):
             reward -= float(plan.cost_now[0]) if action is plan.action else torque_penalty(action, self.tau_max,
                                                                                           self.torque_cost)
         return reward, success, failure, info
+
+    _end_compiled_evaluates = _evaluate  # (FrankaIBVSEnv._end_compiled subtracts the compiled command's torque cost)

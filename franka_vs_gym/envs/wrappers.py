@@ -23,10 +23,13 @@ import numpy as np
 from gymnasium import spaces
 
 OBS_LAYOUT = "servo-vector/2"
+#: the servo vector followed by the pose error of the tag (the PBVS agents: their success is judged on the pose)
+POSE_LAYOUT = "servo-pose-vector/1"
 #: the pixel agent's layout (franka_vs_gym.envs.pixels.IMAGE_LAYOUT: the camera image, q and dq)
 IMAGE_LAYOUT = "image-q-dq/1"
-OBS_LAYOUTS = (OBS_LAYOUT, IMAGE_LAYOUT)
+OBS_LAYOUTS = (OBS_LAYOUT, POSE_LAYOUT, IMAGE_LAYOUT)
 VECTOR_SIZE = 8 + 8 + 1 + 8 + 4 + 7 + 7 + 1
+POSE_VECTOR_SIZE = VECTOR_SIZE + 3 + 3 + 2
 
 
 def servo_vector(obs: dict[str, Any]) -> np.ndarray:
@@ -46,21 +49,50 @@ def servo_vector(obs: dict[str, Any]) -> np.ndarray:
                            np.asarray(obs["visible"], np.float64)]).astype(np.float32)
 
 
-class ServoVectorObservation(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
-    """Dict contract observation -> the flat vector of :func:`servo_vector` (Box (44,), float32)."""
+def servo_pose_vector(obs: dict[str, Any]) -> np.ndarray:
+    """Flat float32 vector (52,): :func:`servo_vector`, then the pose error of the tag seen by the camera, from the
+    observation's ``tag_pose`` (cMo) and ``tag_pose_desired`` (cdMo): ``10 t``, ``3 theta u`` of
+    ``cdMc = cdMo cMo^-1`` (FrankaPBVS-v0's error: zero exactly at the goal pose), and ``log10(||t|| + 0.001) / 3``,
+    ``log10(||theta u|| + 0.001) / 3`` (informative at the 5 mm / 0.02 rad of the PBVS tasks' success). Where the
+    tag is not seen its pose is zeros, as in the observation; ``visible`` (in the servo vector) says so."""
+    from pinocchio import log3
 
-    def __init__(self, env: gym.Env) -> None:
-        gym.utils.RecordConstructorArgs.__init__(self)
+    from franka_vs_gym.model.geometry import inverse_pose, pose_from_vector
+
+    cdMc = pose_from_vector(np.asarray(obs["tag_pose_desired"], np.float64)) @ inverse_pose(
+        pose_from_vector(np.asarray(obs["tag_pose"], np.float64)))
+    t, w = cdMc[:3, 3], log3(cdMc[:3, :3])
+    return np.concatenate([servo_vector(obs), 10.0 * t, 3.0 * w, [np.log10(np.linalg.norm(t) + 0.001) / 3.0,
+                                                                   np.log10(np.linalg.norm(w) + 0.001) / 3.0]
+                           ]).astype(np.float32)
+
+
+def layout_vector(layout: str) -> tuple[Any, int]:
+    """(the observation function, its size) of a flat layout (OBS_LAYOUT or POSE_LAYOUT)."""
+    if layout == OBS_LAYOUT:
+        return servo_vector, VECTOR_SIZE
+    if layout == POSE_LAYOUT:
+        return servo_pose_vector, POSE_VECTOR_SIZE
+    raise ValueError(f"observation layout must be {OBS_LAYOUT!r} or {POSE_LAYOUT!r}, got {layout!r}")
+
+
+class ServoVectorObservation(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
+    """Dict contract observation -> the flat vector of :func:`servo_vector` (Box (44,), float32), or with
+    ``layout=POSE_LAYOUT`` of :func:`servo_pose_vector` (Box (52,))."""
+
+    def __init__(self, env: gym.Env, layout: str = OBS_LAYOUT) -> None:
+        gym.utils.RecordConstructorArgs.__init__(self, layout=layout)
+        self._fn, size = layout_vector(layout)
         gym.ObservationWrapper.__init__(self, env)
         needed = {"features", "features_desired", "feature_depth", "tag_pose_desired", "q", "dq", "visible"}
         have = set(getattr(env.observation_space, "spaces", {}))
         if not needed <= have:
             raise ValueError(f"ServoVectorObservation needs the observation keys {sorted(needed)} "
                              f"(observation_type 'features' or 'state'); the env has {sorted(have)}")
-        self.observation_space = spaces.Box(-np.inf, np.inf, (VECTOR_SIZE,), dtype=np.float32)
+        self.observation_space = spaces.Box(-np.inf, np.inf, (size,), dtype=np.float32)
 
     def observation(self, observation: dict[str, Any]) -> np.ndarray:
-        return servo_vector(observation)
+        return self._fn(observation)
 
 
 class ScaledAction(gym.ActionWrapper, gym.utils.RecordConstructorArgs):
@@ -87,16 +119,18 @@ class ScaledAction(gym.ActionWrapper, gym.utils.RecordConstructorArgs):
         return (np.clip(a, -1.0, 1.0) * self.scale).astype(np.float32)
 
 
-def make_agent_env(env_id: str = "FrankaIBVS-v0", action_scale: Any = 0.5, **env_kwargs: Any) -> gym.Env:
+def make_agent_env(env_id: str = "FrankaIBVS-v0", action_scale: Any = 0.5, observation_layout: str = OBS_LAYOUT,
+                   **env_kwargs: Any) -> gym.Env:
     """The training environment of ``baselines/train_sb3.py``: ``env_id`` with features observations and
-    joint-velocity actions by default, actions scaled from [-1, 1] to +-``action_scale`` rad/s, flat observation."""
+    joint-velocity actions by default, actions scaled from [-1, 1] to +-``action_scale`` rad/s, flat observation
+    (``observation_layout``: the servo vector, or with POSE_LAYOUT the servo vector and the tag's pose error)."""
     import franka_vs_gym  # noqa: F401  (registers the ids)
 
     env_kwargs.setdefault("observation_type", "features")
     env_kwargs.setdefault("action_type", "joint_velocity")
     env_kwargs.setdefault("action_scale", "physical")  # (ScaledAction does the scaling)
     env = gym.make(env_id, **env_kwargs)
-    return ServoVectorObservation(ScaledAction(env, action_scale))
+    return ServoVectorObservation(ScaledAction(env, action_scale), observation_layout)
 
 
 class AgentPolicy:
@@ -151,6 +185,8 @@ class AgentPolicy:
             from franka_vs_gym.envs.pixels import image_observation
 
             seen: Any = image_observation(observation)
+        elif self.observation_layout == POSE_LAYOUT:
+            seen = servo_pose_vector(observation)
         else:
             seen = servo_vector(observation)
         a, _ = self.model.predict(seen, deterministic=deterministic)
