@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import os
+import sys
 
 import numpy as np
 import pytest
@@ -125,3 +127,66 @@ def test_runner_errors_are_one_line():
     assert r.returncode == 1 and len(r.stderr.strip().splitlines()) == 1, r.stderr
     r = run(loopback_host(NET + 3), "--seeds", "x")
     assert r.returncode == 2 and "--seeds" in r.stderr
+
+
+def _descendants(pid: int) -> set[int]:
+    """The pids of a process's descendants (Linux /proc)."""
+    out: set[int] = set()
+    todo = [pid]
+    while todo:
+        p = todo.pop()
+        try:
+            tasks = os.listdir(f"/proc/{p}/task")
+        except OSError:
+            continue
+        for t in tasks:
+            try:
+                kids = [int(k) for k in open(f"/proc/{p}/task/{t}/children").read().split()]
+            except OSError:
+                continue
+            out.update(kids)
+            todo.extend(kids)
+    return out
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc for the study's child processes")
+def test_sigterm_ends_the_truth_server(tmp_path):
+    """scripts/sim_to_real.py killed with SIGTERM while a truth server runs (here: idle, during the calibration)
+    leaves no process behind (its server and its client processes end with it)."""
+    import signal
+    import subprocess
+    import time
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    proc = subprocess.Popen([sys.executable, str(root / "scripts" / "sim_to_real.py"), "--out", str(tmp_path / "o"),
+                             "--robots", "0", "--episodes", "1", "--duration", "6", "--evaluations", "10",
+                             "--controllers", "computed_torque", "--host", loopback_host(NET + 4)],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=s2r._env())
+    kids: set[int] = set()
+    try:
+        for line in proc.stdout:  # the server is up and idle while the recording is calibrated
+            if "calibrating" in line:
+                break
+        time.sleep(0.5)
+        kids = _descendants(proc.pid)
+        assert kids, "no child process while calibrating"
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(timeout=60)
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline and any(_alive(k) for k in kids):
+            time.sleep(0.2)
+        left = [k for k in kids if _alive(k)]
+        assert not left, f"processes left after SIGTERM: {left}"
+    finally:
+        for k in kids | {proc.pid}:
+            if _alive(k):
+                os.kill(k, signal.SIGKILL)
