@@ -40,7 +40,7 @@ def _episodes(policy, env_id, robot, seeds, **kw):
 def test_the_four_torque_agents_ship():
     have = {(m["env_id"], m["robot"]) for m in (json.loads((AGENTS_DIR / f"{n}.json").read_text())
                                                 for n in TORQUE_AGENTS)}
-    assert {("FrankaTorqueTracking-v0", "fer"), ("FrankaTorqueTracking-v0", "fr3")} <= have, have
+    assert {(e, r) for e in LAYOUTS for r in ("fer", "fr3")} <= have, have
 
 
 @pytest.mark.parametrize("name", TORQUE_AGENTS)
