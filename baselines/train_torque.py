@@ -89,15 +89,19 @@ def evaluate_agent(agent: Any, env_id: str, robot: str, n: int, seed: int, env_k
 
     env = gym.make(env_id, **dict(env_kwargs, robot=robot, action_type="torque", action_scale="physical",
                                   clip_actions=True))
-    succ, rms, final, conv, fails = [], [], [], [], {}
+    succ, rms, final, conv, fails, rets, lens = [], [], [], [], {}, [], []
     try:
         for i in range(n):
             obs, _ = env.reset(seed=seed + i)
             agent.reset()
+            ret, length = 0.0, 0
             while True:
-                obs, _, term, trunc, info = env.step(agent.predict(obs)[0])
+                obs, r, term, trunc, info = env.step(agent.predict(obs)[0])
+                ret, length = ret + float(r), length + 1
                 if term or trunc:
                     break
+            rets.append(ret)
+            lens.append(length)
             succ.append(bool(info.get("is_success", False)))
             final.append(float(info.get("error", np.nan)))
             if info.get("rms_error") is not None:
@@ -110,7 +114,8 @@ def evaluate_agent(agent: Any, env_id: str, robot: str, n: int, seed: int, env_k
     finally:
         env.close()
     out = {"n_episodes": n, "seed": seed, "success_rate": float(np.mean(succ)), "failures": fails,
-           "mean_final_error": float(np.nanmean(final)),
+           "mean_final_error": float(np.nanmean(final)), "median_final_error": float(np.nanmedian(final)),
+           "mean_return": float(np.mean(rets)), "mean_length": float(np.mean(lens)),
            "mean_time_to_converge": float(np.mean(conv)) if conv else None}
     if env_id == "FrankaTorqueTracking-v0":
         out["mean_rms_error"] = float(np.mean(rms)) if rms else None  # (episodes that ended by a failure excluded)
