@@ -149,7 +149,7 @@ def _diagnose_one(path: str, model: Any, fit: bool, rigid_body: bool, robot: Any
     """The workbench's diagnose (and fit) of one log, as JSON-ready values (runs in a Ray task)."""
     from franka_vs_gym.errors import UserError
     from franka_vs_gym.validation import diagnose, fit_effects
-    from franka_vs_gym.validation.logs import load_log
+    from franka_vs_gym.validation.loading import load_log
 
     try:
         log = load_log(path, tool=tool)

@@ -282,7 +282,8 @@ def bench_large_log(quick: bool) -> dict:
         env_py = [sys.executable]
         rows = []
         for what, cmd in [
-            ("load_log", env_py + ["-c", f"from franka_vs_gym.validation.logs import load_log; load_log({str(p)!r})"]),
+            ("load_log", env_py + ["-c", "from franka_vs_gym.validation.loading import load_log; "
+                                         f"load_log({str(p)!r})"]),
             ("franka-vs compare --no-replay", env_py + ["-m", "franka_vs_gym.cli", "compare", str(p), "--json",
                                                         "--quiet", "--no-replay"]),
             ("franka-vs compare (with replay)", env_py + ["-m", "franka_vs_gym.cli", "compare", str(p), "--json",

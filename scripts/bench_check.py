@@ -123,7 +123,7 @@ def env_step_ratio(env_id: str, n_steps: int = 300) -> float:
     return float(_time_env(env_id, n_steps, 0, _env_kwargs(env_id))["ratio_cpu"])
 
 
-def vector_ratio(env_id: str, num_envs: int = 64, rounds: int = 6, per_round: int = 3) -> float:
+def vector_ratio(env_id: str, num_envs: int = 64, rounds: int = 6, per_round: int = 3, **kwargs: Any) -> float:
     """The native vector env of ``num_envs`` robots (``gymnasium.make_vec``, one batch thread, zero actions):
     process CPU time per robot step over the CPU time of one robot's raw ``mj_step`` substeps (on a copy of robot
     0's state), alternating blocks, fastest of each. Its inverse is the share of the one-core raw-physics limit."""
@@ -132,7 +132,7 @@ def vector_ratio(env_id: str, num_envs: int = 64, rounds: int = 6, per_round: in
 
     import franka_vs_gym  # noqa: F401
 
-    venv = gym.make_vec(env_id, num_envs=num_envs, nthread=1, **_env_kwargs(env_id))
+    venv = gym.make_vec(env_id, num_envs=num_envs, nthread=1, **_env_kwargs(env_id), **kwargs)
     try:
         venv.reset(seed=0)
         a = np.zeros(venv.action_space.shape, dtype=venv.action_space.dtype)
@@ -226,6 +226,10 @@ def ratio_figures() -> dict[str, Callable[[], float]]:
         figs[f"env step / raw physics: {env_id}"] = lambda e=env_id: env_step_ratio(e)
     for env_id in ENVS:
         figs[f"vector env N=64 (1 thread) / raw physics: {env_id}"] = lambda e=env_id: vector_ratio(e)
+    # with resets: every robot's episode ends every 20 steps (time limit 0.2 s), so each timed block of 20 steps holds
+    # one reset of all robots (what a reset costs the batch: the robots' models read again, their states loaded)
+    figs["vector env N=64 (1 thread), 20-step episodes / raw physics: FrankaTorqueTracking-v0"] = \
+        lambda: vector_ratio("FrankaTorqueTracking-v0", rounds=4, per_round=20, time_limit=0.2)
     figs[f"image step {IMAGE_SIZE[0]}x{IMAGE_SIZE[1]} / raw physics: FrankaIBVS-v0"] = image_step_ratio
     figs["FrankaSim.step / mj_step (reflexes on)"] = frankasim_step_ratio
     return figs

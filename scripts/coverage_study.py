@@ -308,13 +308,13 @@ def main(argv=None) -> int:
     from franka_vs_gym.validation.uncertainty import confidence
 
     captured: dict = {}
-    orig = D._attach_confidence
+    orig = D.attach_confidence
 
     def capture(ctx, y, chosen, cur, selection):  # keep the fitted set to re-run other estimators on it
         captured.update(ctx=ctx, y=y, terms=list(chosen), fits=list(cur.fits))
         orig(ctx, y, chosen, cur, selection)
 
-    D._attach_confidence = capture
+    D.attach_confidence = capture
     rates = [float(r) for r in args.rates.split(",")]
     methods = args.methods.split(",")
     gens = set(args.generators.split(","))

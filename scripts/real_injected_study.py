@@ -45,7 +45,8 @@ from franka_vs_gym.model.config import ModelConfig, Tool  # noqa: E402
 from franka_vs_gym.model.description import robot_description  # noqa: E402
 from franka_vs_gym.validation.diagnose import diagnose  # noqa: E402
 from franka_vs_gym.validation.injected import KINDS, LIBRARY_KINDS, every_kth, inject, truth_effects  # noqa: E402
-from franka_vs_gym.validation.logs import MeasurementLog, load_log  # noqa: E402
+from franka_vs_gym.validation.loading import load_log  # noqa: E402
+from franka_vs_gym.validation.logs import MeasurementLog  # noqa: E402
 from franka_vs_gym.validation.scoring import OUTCOMES, named, score_case  # noqa: E402
 from franka_vs_gym.validation.signals import clean  # noqa: E402
 

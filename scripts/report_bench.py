@@ -80,8 +80,9 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
 
     from franka_vs_gym.validation.compare import compare
-    from franka_vs_gym.validation.diagnose import diagnose, fit_effects
-    from franka_vs_gym.validation.logs import load_log
+    from franka_vs_gym.validation.diagnose import diagnose
+    from franka_vs_gym.validation.fitting import fit_effects
+    from franka_vs_gym.validation.loading import load_log
 
     log = load_log(args.log)
     kinds = args.kinds.split(",")

@@ -150,13 +150,13 @@ def _inside(ci, t) -> tuple[int, int]:
 
 def compare_case(label: str, log, effects: list[str], truth: dict | None) -> dict:
     from franka_vs_gym.validation.compare import as_processed, baseline_config
-    from franka_vs_gym.validation.diagnose import _split
     from franka_vs_gym.validation.effects import Context
+    from franka_vs_gym.validation.fitting import holdout_split
 
     data = as_processed(log)
     ctx = Context(data, baseline_config(data.log, None, False))
     y = ctx.residual
-    train, test = _split(ctx.n)
+    train, test = holdout_split(ctx.n)
     wp, wci, wr, ws = workbench_fit(ctx, y, train, test, effects)
     sp, shalf, sr, ss = sysid_fit(data, y, train, test, effects)
     row = {"case": label, "effects": effects, "rmse_baseline": float(np.sqrt(np.mean(y[test] ** 2))),
@@ -335,14 +335,14 @@ def closed_loop_case(seed: int, duration: float) -> dict:
     """Both fits on one closed-loop log: each one's parameters judged by both criteria (held-out torque RMSE of the
     inverse dynamics, held-out replay RMSE of the joint positions), interval widths, coverage, wall time."""
     from franka_vs_gym.validation.compare import as_processed, baseline_config
-    from franka_vs_gym.validation.diagnose import _split
     from franka_vs_gym.validation.effects import Context
+    from franka_vs_gym.validation.fitting import holdout_split
 
     log, truth = closed_loop_log(seed, duration)
     data = as_processed(log)
     ctx = Context(data, baseline_config(data.log, None, True))  # the plant has no joint friction: rigid body
     y = ctx.residual
-    train, test = _split(ctx.n)
+    train, test = holdout_split(ctx.n)
     wp, wci, _, ws = workbench_fit(ctx, y, train, test, ["viscous_friction", "armature"])
     w_b = np.array(wp["viscous_friction"]["viscous_Nms_per_rad"])
     w_i = np.array(wp["armature"]["armature_kgm2"])
@@ -402,7 +402,7 @@ def main(argv=None) -> int:
         rows.append(compare_case(f"H seed {s} (closed loop, MuJoCo plant)", log, ["armature", "payload"], tr))
         print(rows[-1], file=sys.stderr)
     if args.gaz and not args.only_closed_loop:
-        from franka_vs_gym.validation.logs import load_log
+        from franka_vs_gym.validation.loading import load_log
 
         rows.append(compare_case("Gaz 2019 traj. 1 (real FER)", load_log(args.gaz), ["viscous_friction", "armature"],
                                  None))

@@ -54,7 +54,8 @@ def read_fr3(path: Path):
 
 def logs(data: Path, tmp: Path, only: set[str]) -> list[dict]:
     """The recordings as (name, path, robot flag, locked) in every form and rate, written into ``tmp``."""
-    from franka_vs_gym.validation.logs import MeasurementLog, load_log, save_log
+    from franka_vs_gym.validation.loading import load_log
+    from franka_vs_gym.validation.logs import MeasurementLog, save_log
 
     out = []
 

@@ -12,18 +12,10 @@ from conftest import loopback_host
 
 from franka_vs_gym.model.config import ModelConfig
 from franka_vs_gym.model.franka_model import FrankaModel
-from franka_vs_gym.validation.excite import (
-    Design,
-    FourierMotion,
-    design_excitation,
-    effect_widths,
-    generic_motion,
-    generic_playable,
-    motion_information,
-    predicted_widths,
-    scripts,
-    trajectory_table,
-)
+from franka_vs_gym.validation.excite import Design, design_excitation, effect_widths
+from franka_vs_gym.validation.excite_information import motion_information, predicted_widths
+from franka_vs_gym.validation.excite_motion import FourierMotion, generic_motion, generic_playable
+from franka_vs_gym.validation.excite_scripts import scripts, trajectory_table
 
 NET = 231  # this file's loopback nets (conftest.loopback_host)
 
@@ -177,9 +169,10 @@ def test_end_to_end_designed_payload_on_serve_with_hidden_truth(tmp_path):
     from franka_vs_gym.cli import main as cli_main
     from franka_vs_gym.fci import FCIServer
     from franka_vs_gym.validation.compare import as_processed
-    from franka_vs_gym.validation.diagnose import diagnose, fit_effects
+    from franka_vs_gym.validation.diagnose import diagnose
     from franka_vs_gym.validation.effects import get_effect
-    from franka_vs_gym.validation.logs import load_log
+    from franka_vs_gym.validation.fitting import fit_effects
+    from franka_vs_gym.validation.loading import load_log
 
     duration = 8.0
     out = tmp_path / "excite"
@@ -257,7 +250,7 @@ def test_franky_script_plays_the_design(tmp_path):
     torque ripple."""
     from franka_vs_gym.cli import main as cli_main
     from franka_vs_gym.fci import FCIServer
-    from franka_vs_gym.validation.logs import load_log
+    from franka_vs_gym.validation.loading import load_log
 
     out = tmp_path / "excite"
     assert cli_main(["excite", "--effects", "armature", "--duration", "6", "--time-budget", "60", "--evaluations", "30",
@@ -285,7 +278,7 @@ def test_sigmoid_question_is_its_three_parameters():
     column is the law at height 1 (it is linear in phi1), and all 21 parameters get finite widths."""
     from franka_vs_gym.model.friction import gaz_sigmoid
     from franka_vs_gym.validation.effects import get_effect
-    from franka_vs_gym.validation.excite import columns, motion_context
+    from franka_vs_gym.validation.excite_information import columns, motion_context
 
     m = _random_motion(np.random.default_rng(6), L=5)
     cfg = ModelConfig()

@@ -22,7 +22,7 @@ def _only_run(tmp_path, prefix):
 
 # ---------------------------------------------------------------------------------------------- tracking (IV-A)
 def test_tracking_cli_writes_plots_metrics_and_a_workbench_log(tmp_path, capsys):
-    from franka_vs_gym.validation.logs import load_log
+    from franka_vs_gym.validation.loading import load_log
 
     args = ["experiment", "tracking", "--duration", "1.2", "--out", str(tmp_path), "--no-video", "--quiet"]
     assert cli_main(args) == 0
@@ -74,7 +74,8 @@ def test_tracking_rejects_bad_input(tmp_path):
 
 
 def test_measurement_log_of_a_run_round_trips(tmp_path):
-    from franka_vs_gym.validation.logs import load_log, save_log
+    from franka_vs_gym.validation.loading import load_log
+    from franka_vs_gym.validation.logs import save_log
 
     r = run_tracking(0.2, progress=False)
     p = save_log(to_measurement_log(r), tmp_path / "x.csv")

@@ -26,7 +26,8 @@ from franka_vs_gym.errors import UserError
 from franka_vs_gym.model import FrankaModel
 from franka_vs_gym.model.config import Friction, ModelConfig, RigidBody
 from franka_vs_gym.model.description import FER
-from franka_vs_gym.validation.logs import MeasurementLog, load_log, save_log
+from franka_vs_gym.validation.loading import load_log
+from franka_vs_gym.validation.logs import MeasurementLog, save_log
 
 ROOT = Path(__file__).resolve().parents[1]
 Q0 = np.array(FER.q_neutral)

@@ -169,7 +169,7 @@ def test_fr3_model_from_its_description():
 
 
 def test_record_writes_a_workbench_log(tmp_path):
-    from franka_vs_gym.validation.logs import load_log
+    from franka_vs_gym.validation.loading import load_log
 
     log_path = tmp_path / "session.csv"
     with FCIServer(loopback_host(26), lockstep=True, camera=False, verbose=False,

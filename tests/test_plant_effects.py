@@ -235,8 +235,10 @@ def _play_generic(tmp_path, truth_items, net, seed=1, period=5.0, periods=2, noi
     import sys
 
     from franka_vs_gym.fci import FCIServer
-    from franka_vs_gym.validation.excite import Design, FourierMotion, generic_playable, scripts
-    from franka_vs_gym.validation.logs import load_log
+    from franka_vs_gym.validation.excite import Design
+    from franka_vs_gym.validation.excite_motion import FourierMotion, generic_playable
+    from franka_vs_gym.validation.excite_scripts import scripts
+    from franka_vs_gym.validation.loading import load_log
 
     like = FourierMotion(FER.neutral(), np.zeros((7, 5)), np.zeros((7, 5)), period, periods, 1.0)
     motion = generic_playable(like, seed=seed)

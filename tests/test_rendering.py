@@ -95,3 +95,32 @@ def test_shared_renderer_draws_each_robots_own_image():
         for s in sims:
             s.world.close()
         pool.close()
+
+
+def test_a_framebuffer_of_the_images_size_draws_the_same_pixels():
+    """make_renderer sizes the offscreen framebuffer to the image (less to clear and resolve per frame): the wrist
+    and overview images of random arm poses are those of a renderer with the model's 640x480 framebuffer, pixel for
+    pixel, at two image sizes; the views differ from pose to pose, so the comparison is not vacuous."""
+    from franka_vs_gym.sim.rendering import make_renderer
+
+    sim = FrankaSim(camera=True, tags=[TagSpec(0, 0.08, (0.55, 0.0, 0.0))])
+    m, d = sim.world.model, sim.world.data
+    assert (m.vis.global_.offwidth, m.vis.global_.offheight) == (640, 480)
+    rng = np.random.default_rng(1)
+    lim = sim.model.limits()
+    for w, h in ((64, 48), (160, 120)):
+        small, full = make_renderer(m, w, h), mujoco.Renderer(m, h, w)
+        try:
+            assert (small.model.vis.global_.offwidth, small.model.vis.global_.offheight) == (w, h)
+            images = []
+            for _ in range(6):
+                sim.joint_views()[0][:] = rng.uniform(0.8 * lim["q_min"], 0.8 * lim["q_max"])
+                mujoco.mj_forward(m, d)
+                for cam in (sim.camera_name(), -1):
+                    a, b = render_view(small, m, d, cam), render_view(full, m, d, cam)
+                    assert np.array_equal(a, b), (w, h, cam)
+                    images.append(a)
+            assert len({im.tobytes() for im in images}) >= 6
+        finally:
+            small.close()
+            full.close()

@@ -110,7 +110,7 @@ def test_load_dependent_friction_is_refused_with_its_reason(tmp_path):
         e.apply(ModelConfig(), Fit(e.name, {"coef": np.ones((7, 1)), "coulomb_vel": 0.01}))
     msg = str(info.value)
     assert "\n" not in msg and "implicit in forward dynamics" in msg
-    from franka_vs_gym.validation.diagnose import fit_effects
+    from franka_vs_gym.validation.fitting import fit_effects
     from franka_vs_gym.validation.hidden import make_hidden_effect_log
 
     log, _ = make_hidden_effect_log("none", 1, duration=3.0)

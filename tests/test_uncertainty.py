@@ -10,14 +10,8 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from franka_vs_gym.validation.uncertainty import (
-    _meat_ewc,
-    _meat_newey_west,
-    confidence,
-    covariance,
-    covered,
-    parameter_covariance,
-)
+from franka_vs_gym.validation.covariance import _meat_ewc, _meat_newey_west, covariance, parameter_covariance
+from franka_vs_gym.validation.uncertainty import confidence, covered
 
 
 def _ar1(rng, n, rho, sd, k=1):
@@ -215,7 +209,8 @@ def test_command_channel_delay_gets_an_interval_that_covers_it():
     from test_validation_foreign import _foreign_log
 
     from franka_vs_gym.model.config import ModelConfig
-    from franka_vs_gym.validation.diagnose import diagnose, fit_effects
+    from franka_vs_gym.validation.diagnose import diagnose
+    from franka_vs_gym.validation.fitting import fit_effects
     from franka_vs_gym.validation.signals import clean
 
     data = clean(_foreign_log(ModelConfig(delay=0.015), seed=2))
@@ -257,7 +252,7 @@ def test_spectral_variance_matches_the_exact_toeplitz_variance():
     white-noise formula is off by the noise's whole long-run factor."""
     from scipy.linalg import toeplitz
 
-    from franka_vs_gym.validation.uncertainty import _meat_spectral
+    from franka_vs_gym.validation.covariance import _meat_spectral
 
     rng = np.random.default_rng(11)
     n, rho, sd = 3000, 0.97, 0.2

@@ -23,7 +23,7 @@ pytest.importorskip("rosbags")
 from franka_vs_gym.model.config import Tool  # noqa: E402
 from franka_vs_gym.validation.diagnose import diagnose  # noqa: E402
 from franka_vs_gym.validation.hidden import make_hidden_effect_log  # noqa: E402
-from franka_vs_gym.validation.logs import load_log  # noqa: E402
+from franka_vs_gym.validation.loading import load_log  # noqa: E402
 
 _ERRORS_ROS1 = [
     "joint_position_limits_violation", "cartesian_position_limits_violation", "self_collision_avoidance_violation",

@@ -12,7 +12,8 @@ import pytest
 from franka_vs_gym.cli import main as cli
 from franka_vs_gym.model.config import ModelConfig
 from franka_vs_gym.validation.hidden import make_hidden_effect_log
-from franka_vs_gym.validation.logs import load_log, save_log
+from franka_vs_gym.validation.loading import load_log
+from franka_vs_gym.validation.logs import save_log
 
 ROOT = Path(__file__).resolve().parents[1]
 GAZ = ROOT / ".." / "shared" / "data" / "gaz2019_traj1"
@@ -92,6 +93,41 @@ def test_fit_writes_model_refuses_overwrite_and_compare_uses_it(tilt_log, tmp_pa
     assert max(c["replay"]["rmse_q"]) < 1e-3
 
 
+def test_diagnose_and_fit_run_on_one_blas_thread_and_give_the_setting_back(tilt_log, tmp_path, monkeypatch, capsys):
+    """franka-vs diagnose and fit run their least squares with the BLAS libraries on one thread (threadpoolctl:
+    multi-threaded OpenBLAS on their small, long problems cost 2.5 times the CPU on a busy machine), and the
+    process's setting is back afterwards."""
+    import importlib
+
+    threadpoolctl = pytest.importorskip("threadpoolctl")
+    dg = importlib.import_module("franka_vs_gym.validation.diagnose")  # the module (the package exports the function)
+    fitting = importlib.import_module("franka_vs_gym.validation.fitting")
+
+    def blas_threads() -> list[int]:
+        return [i["num_threads"] for i in threadpoolctl.threadpool_info() if i["user_api"] == "blas"]
+
+    seen = []
+
+    def counting(real):
+        def run(*args, **kwargs):
+            seen.append(blas_threads())
+            return real(*args, **kwargs)
+        return run
+
+    monkeypatch.setattr(dg, "diagnose", counting(dg.diagnose))
+    monkeypatch.setattr(fitting, "fit_effects", counting(fitting.fit_effects))
+    with threadpoolctl.threadpool_limits(2, "blas"):  # two threads, also where OPENBLAS_NUM_THREADS=1 is set
+        before = blas_threads()
+        if not before or max(before) < 2:
+            pytest.skip("the BLAS libraries here cannot run on two threads: nothing to limit")
+        assert cli(["diagnose", str(tilt_log), "--json", "--quiet"]) == 0
+        assert cli(["fit", str(tilt_log), "--add", "gravity_tilt", "-o", str(tmp_path / "m.json"), "--quiet"]) == 0
+        after = blas_threads()
+    capsys.readouterr()
+    assert len(seen) == 2 and all(n and set(n) == {1} for n in seen), seen
+    assert after == before
+
+
 def test_unknown_effect_and_malformed_log_are_clear_errors(tilt_log, tmp_path, capsys):
     assert cli(["fit", str(tilt_log), "--add", "magic_friction", "-o", str(tmp_path / "x.json"), "--quiet"]) == 2
     assert "unknown effect 'magic_friction'" in capsys.readouterr().err
@@ -139,8 +175,9 @@ def test_script_random_keeps_answer_separate(tmp_path):
 def test_gaz_real_data_friction_missing_and_fit_reaches_published():
     from franka_vs_gym.model.config import Friction, Tool
     from franka_vs_gym.validation.compare import as_processed, compare
-    from franka_vs_gym.validation.diagnose import diagnose, fit_effects
+    from franka_vs_gym.validation.diagnose import diagnose
     from franka_vs_gym.validation.effects import FRICTION_EFFECTS
+    from franka_vs_gym.validation.fitting import fit_effects
 
     data = as_processed(str(GAZ))
     assert data.report.stale_rows > 1000  # the repeated rows of the real log were found and dropped

@@ -11,8 +11,10 @@ import pytest
 from franka_vs_gym.model.config import ModelConfig
 from franka_vs_gym.model.franka_model import FrankaModel
 from franka_vs_gym.validation.compare import compare
-from franka_vs_gym.validation.diagnose import diagnose, fit_effects, n_eff
+from franka_vs_gym.validation.diagnose import diagnose
+from franka_vs_gym.validation.fitting import fit_effects
 from franka_vs_gym.validation.hidden import EFFECTS, make_hidden_effect_log
+from franka_vs_gym.validation.selection import n_eff
 from franka_vs_gym.validation.signals import clean
 
 DURATION = 12.0

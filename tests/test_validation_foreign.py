@@ -13,7 +13,8 @@ from franka_vs_gym.model.config import ModelConfig, RigidBody
 from franka_vs_gym.model.franka_model import FrankaModel
 from franka_vs_gym.sim.robot import FORCE_TORQUE, JOINT_STATE, FrankaSim
 from franka_vs_gym.validation.compare import compare
-from franka_vs_gym.validation.diagnose import diagnose, fit_effects
+from franka_vs_gym.validation.diagnose import diagnose
+from franka_vs_gym.validation.fitting import fit_effects
 from franka_vs_gym.validation.logs import MeasurementLog
 from franka_vs_gym.validation.signals import clean
 

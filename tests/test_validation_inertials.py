@@ -9,8 +9,9 @@ import pinocchio as pin
 import pytest
 
 from franka_vs_gym.model.config import ModelConfig
-from franka_vs_gym.validation.diagnose import diagnose, fit_effects
+from franka_vs_gym.validation.diagnose import diagnose
 from franka_vs_gym.validation.effects import get_effect, physical_problems
+from franka_vs_gym.validation.fitting import fit_effects
 from franka_vs_gym.validation.hidden import make_hidden_effect_log
 from franka_vs_gym.validation.inertials import consistent_links, params_from_theta, pseudo_inertia, theta_from_params
 

@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from franka_vs_gym.validation.logs import MeasurementLog, load_log, save_log, sidecar_path
+from franka_vs_gym.validation.loading import load_log
+from franka_vs_gym.validation.logs import MeasurementLog, save_log, sidecar_path
 
 GAZ = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "gaz2019_traj1"
 

@@ -17,7 +17,8 @@ import pytest
 from franka_vs_gym.cli import main as cli
 from franka_vs_gym.model import FrankaModel
 from franka_vs_gym.model.description import FER, robot_description, robot_from_words
-from franka_vs_gym.validation.logs import MeasurementLog, load_log, save_log, tool_from_words
+from franka_vs_gym.validation.loading import load_log
+from franka_vs_gym.validation.logs import MeasurementLog, save_log, tool_from_words
 
 
 def _log(n: int = 2400, rate: float = 400.0, robot: str = "fer", q6: float = 1.6) -> MeasurementLog:

@@ -13,7 +13,8 @@ import pytest
 
 from franka_vs_gym.validation.diagnose import diagnose
 from franka_vs_gym.validation.hidden import make_hidden_effect_log
-from franka_vs_gym.validation.logs import MeasurementLog, load_log
+from franka_vs_gym.validation.loading import load_log
+from franka_vs_gym.validation.logs import MeasurementLog
 from franka_vs_gym.validation.readers import joint_index
 from franka_vs_gym.validation.signals import clean
 
@@ -195,7 +196,7 @@ def test_effects_from_an_installed_package_entry_point(monkeypatch):
 
     from franka_vs_gym.validation.effects import ENTRY_POINT_GROUP, REGISTRY, EffectRegistry, load_plugin
 
-    dg = importlib.import_module("franka_vs_gym.validation.diagnose")  # the module (the package exports the function)
+    dg = importlib.import_module("franka_vs_gym.validation.candidates")  # where diagnose finds its candidates
     reg_tmp = EffectRegistry()
     load_plugin(EXAMPLE, reg_tmp)
     cls = type(reg_tmp.get("tool_mass_error"))
@@ -224,7 +225,7 @@ def test_a_tool_heavier_than_the_real_one_is_corrected_not_misnamed():
     a log recorded without the Hand but compared with it is the same). The payload effect fits a negative mass,
     the corrected tool is physical, so it is selected (not a torque offset) and fit restores the real tool."""
     from franka_vs_gym.model.config import ModelConfig, RigidBody, Tool
-    from franka_vs_gym.validation.diagnose import fit_effects
+    from franka_vs_gym.validation.fitting import fit_effects
 
     log, _ = make_hidden_effect_log("none", 5, duration=8.0)
     hand = Tool.franka_hand()

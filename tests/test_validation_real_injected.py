@@ -14,7 +14,7 @@ pytestmark = pytest.mark.skipif(not GAZ.is_dir(), reason="Gaz et al. 2019 data n
 
 @pytest.fixture(scope="module")
 def gaz():
-    from franka_vs_gym.validation.logs import load_log
+    from franka_vs_gym.validation.loading import load_log
     from franka_vs_gym.validation.signals import clean
 
     log = load_log(GAZ)
@@ -74,8 +74,9 @@ def test_ambiguity_seam_and_offset_at_30_hz(gaz):
     """At 30 Hz an offset added on one joint is named there, or said to be ambiguous with the law that the rate
     cannot separate from it; every ambiguity carries its candidates, joints, evidence (on each joint within AMBIGUOUS
     of the selected law or above it) and the motion that separates them, in the JSON and in words."""
-    from franka_vs_gym.validation.diagnose import AMBIGUOUS, Ambiguity
+    from franka_vs_gym.validation.diagnose import AMBIGUOUS
     from franka_vs_gym.validation.injected import inject
+    from franka_vs_gym.validation.results import Ambiguity
 
     log, noise = gaz
     new, (truth,) = inject(log, "offset", 0, noise=noise)

@@ -32,7 +32,7 @@ needs_bag = pytest.mark.skipif(not BAG.is_file(), reason="the ROS 1 FER bag is n
 def fr3_path(name: str, tmp_path: Path) -> Path:
     """The FR3 run as the user has it; while the reader does not take its time column ``t`` (issue 33 section 1,
     another branch), a copy with that one header name spelled ``time``."""
-    from franka_vs_gym.validation.logs import load_log
+    from franka_vs_gym.validation.loading import load_log
 
     p = FR3 / name
     try:
@@ -51,7 +51,8 @@ def fr3_path(name: str, tmp_path: Path) -> Path:
 def bag_half(which: str, tmp_path: Path) -> Path:
     """The first or second half (by time) of the ROS 1 bag as a CSV with a sidecar (the hand on, as its README
     says)."""
-    from franka_vs_gym.validation.logs import MeasurementLog, load_log, save_log
+    from franka_vs_gym.validation.loading import load_log
+    from franka_vs_gym.validation.logs import MeasurementLog, save_log
 
     log = load_log(BAG)
     mid = log.time[0] + 0.5 * (log.time[-1] - log.time[0])
@@ -63,7 +64,8 @@ def bag_half(which: str, tmp_path: Path) -> Path:
 
 def decimated_gaz(step: int, tmp_path: Path) -> Path:
     """The Gaz log keeping every ``step``-th row (33: a 30 Hz recording of the same motion), no tool declared."""
-    from franka_vs_gym.validation.logs import MeasurementLog, load_log, save_log
+    from franka_vs_gym.validation.loading import load_log
+    from franka_vs_gym.validation.logs import MeasurementLog, save_log
 
     log = load_log(GAZ)
     idx = np.arange(0, log.n, step)
@@ -159,14 +161,14 @@ def test_a_gravity_the_model_cannot_take_is_dropped_with_its_reason_not_an_error
     """A fitted gravity change whose norm is not Earth's (10.66 m/s^2): the fit leaves it out and says why, the
     other effects are applied (before: the whole fit ended with 'gravity ... has norm 10.66 m/s^2')."""
     from franka_vs_gym.model.config import ModelConfig
-    from franka_vs_gym.validation.diagnose import _apply_fits
     from franka_vs_gym.validation.effects import Fit, get_effect
+    from franka_vs_gym.validation.fitting import apply_fits
 
     cfg = ModelConfig()
     tilt, visc = get_effect("gravity_tilt"), get_effect("viscous_friction")
     fits = [Fit("gravity_tilt", {"coef": np.array([-0.1084, -0.1086, -0.8444])}, list(range(7))),
             Fit("viscous_friction", {"coef": np.full((7, 1), 0.2)}, [0, 1])]
-    new, applied, notes = _apply_fits(cfg, None, [tilt, visc], fits)
+    new, applied, notes = apply_fits(cfg, None, [tilt, visc], fits)
     assert applied[0] is None and "not applied" in notes["gravity_tilt"] and "norm 10.66" in notes["gravity_tilt"]
     assert applied[1] is not None
     np.testing.assert_array_equal(new.gravity, cfg.gravity)

@@ -9,7 +9,8 @@ import pytest
 
 from franka_vs_gym.model.config import ModelConfig
 from franka_vs_gym.model.franka_model import FrankaModel
-from franka_vs_gym.validation.logs import MeasurementLog, load_log, save_log
+from franka_vs_gym.validation.loading import load_log
+from franka_vs_gym.validation.logs import MeasurementLog, save_log
 
 
 def _fr3_log(**kw) -> MeasurementLog:

@@ -89,7 +89,7 @@ def test_franky_states_recorded_and_dumped_are_read_and_at_the_floor(tmp_path):
     if importlib.util.find_spec("pylibfranka") is not None:
         # a process that has imported pylibfranka cannot import franky's types (both bind libfranka's): the pickle
         # is then read in a fresh process, with the same result
-        code = ("import sys, json, pylibfranka; from franka_vs_gym.validation.logs import load_log; "
+        code = ("import sys, json, pylibfranka; from franka_vs_gym.validation.loading import load_log; "
                 "log = load_log(sys.argv[1]); print(json.dumps([log.n, float(abs(log.q).sum()), log.tool]))")
         run = subprocess.run([sys.executable, "-c", code, str(tmp_path / "states.pkl")], capture_output=True,
                              text=True, timeout=300)

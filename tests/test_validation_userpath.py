@@ -83,14 +83,14 @@ def test_friction_fit_is_constrained_to_the_dissipative_set(effect, theta):
 
 
 def test_fit_application_leaves_out_what_the_model_cannot_take():
-    from franka_vs_gym.validation.diagnose import _apply_fits
+    from franka_vs_gym.validation.fitting import apply_fits
 
     cfg = ModelConfig()
     co = get_effect("coulomb_friction")
     sg = get_effect("sigmoid_friction")
     fits = [Fit("coulomb_friction", {"coef": np.full((7, 1), -2.0), "coulomb_vel": 0.01}, [0, 2]),
             sg.make_fit(None, np.zeros((7, 2)), {"phi2": np.full(7, 10.0), "phi3": np.zeros(7)}, None)]
-    new, applied, notes = _apply_fits(cfg, None, [co, sg], fits)  # an additive sigmoid cannot be written
+    new, applied, notes = apply_fits(cfg, None, [co, sg], fits)  # an additive sigmoid cannot be written
     new.friction.check_dissipative()
     assert applied[1] is None and "not applied" in notes["sigmoid_friction"]
     assert applied[0] is not None and "joint 0 constrained" in notes["coulomb_friction"]
@@ -102,8 +102,8 @@ def test_fit_application_leaves_out_what_the_model_cannot_take():
 def test_fit_auto_ends_with_a_model_on_the_real_gaz_log_at_30_hz(rigid, tmp_path):
     """The real log resampled as a 30 Hz ROS recording would give it (every 33rd row): fit --add auto writes a
     model whose friction is dissipative and whose error is not above the starting model's on any joint."""
-    from franka_vs_gym.validation.diagnose import fit_effects
-    from franka_vs_gym.validation.logs import load_log
+    from franka_vs_gym.validation.fitting import fit_effects
+    from franka_vs_gym.validation.loading import load_log
 
     log = load_log(GAZ)
     idx = np.arange(0, log.n, 33)

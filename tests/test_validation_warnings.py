@@ -34,7 +34,8 @@ def _exact_log(seconds: float = 4.0, still: tuple[int, ...] = ()) -> Measurement
 
 @pytest.mark.parametrize("still", [(), (1, 3, 5)])
 def test_diagnose_and_fit_on_a_noise_free_log_raise_no_warning(still):
-    from franka_vs_gym.validation.diagnose import diagnose, fit_effects
+    from franka_vs_gym.validation.diagnose import diagnose
+    from franka_vs_gym.validation.fitting import fit_effects
 
     log = _exact_log(4.0, still)
     with warnings.catch_warnings():

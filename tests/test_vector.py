@@ -117,6 +117,10 @@ def test_batched_vector_env_is_bit_identical_to_single_envs(env_id, kwargs, n_st
     ("FrankaVisualTorque-v0", dict(action_scale="normalized", time_limit=0.3), 300, None),
     ("FrankaIBVS-v0", dict(action_scale="normalized", time_limit=0.6), 200, None),
     ("FrankaTorqueTracking-v0", dict(limit_rate=False, time_limit=0.4, torque_scale=1.0), 300, None),
+    # the eye-to-hand tasks (the camera's placement drawn per episode, a static observation key), pixel noise
+    ("FrankaIBVSEyeToHand-v0", dict(link_mass_range=(0.9, 1.1), time_limit=0.6), 200, None),
+    ("FrankaPBVSEyeToHand-v0", dict(friction_scale_range=(0.5, 1.5), time_limit=0.6), 200, AutoresetMode.SAME_STEP),
+    ("FrankaIBVSEyeToHand-v0", dict(feature_noise=0.5, joint_noise=1e-3, time_limit=0.6), 200, None),
     # the joint-limit guard at work: random joint velocities for long enough to reach the limits
     ("FrankaTorqueTracking-v0", dict(action_type="joint_velocity", action_scale="normalized", robot="fr3",
                                      max_tracking_error=None, control_period=0.05, time_limit=4.0), 300, None),
@@ -131,6 +135,59 @@ def test_task_logic_over_all_robots_is_bit_identical_to_single_envs(env_id, kwar
                                                   autoreset_mode=mode)
     assert ends >= 6
     assert in_batch >= 0.6 * 3 * n_steps
+
+
+def _model_field(m, name):
+    return np.asarray(getattr(m.opt, name[4:]) if name.startswith("opt.") else getattr(m, name))
+
+
+def _batch_runs_each_robots_model(vec) -> None:
+    """Every field mujoco.batch can hold per simulation equals, bit for bit, the robot's own model's."""
+    from mujoco import batch as mjbatch
+
+    envs = vec._envs
+    for i, e in enumerate(envs):
+        bm = vec.batch.get_model(i)
+        for name in mjbatch.MODEL_FIELDS:
+            a, b = _model_field(bm, name), _model_field(e.world.model, name)
+            assert a.tobytes() == b.tobytes(), (i, name)
+
+
+def test_the_batch_holds_one_model_and_each_robots_differing_fields():
+    """The batch runs one model (not a copy per robot) and holds per robot only the fields that differ: each robot's
+    tag placement and randomised masses and friction (a reset draws them), and an edit made through ``envs``."""
+    vec = gym.make_vec("FrankaIBVS-v0", num_envs=4, nthread=1, link_mass_range=(0.8, 1.2),
+                       friction_scale_range=(0.5, 1.5), time_limit=0.1)
+    vec.reset(seed=3)
+    a = np.zeros(vec.action_space.shape, np.float32)
+    vec.step(a)
+    assert vec.batch.models is None  # no caller models: the batch's own, with per-robot fields
+    held = set(vec._batch_models.expanded)
+    assert {"body_pos", "body_mass", "body_inertia", "jnt_user"} <= held, held
+    assert "geom_size" not in held and "mesh_vert" not in held
+    _batch_runs_each_robots_model(vec)
+    # the differing fields found from the models' memory as a whole are those a field-by-field comparison finds
+    bm, base = vec._batch_models, vec.batch.model
+    assert all(b is not None for b in bm._bufs)
+    for i, e in enumerate(vec._envs):
+        m = e.world.model
+        by_field = {n for n in bm._fields if getattr(m, n).tobytes() != getattr(base, n).tobytes()}
+        assert bm._differing(i) == by_field, i
+        assert bm._differing(i, assets=False) == by_field, i  # (after a reset: the assets are not compared)
+        assert {"body_pos", "body_mass"} <= by_field
+    for _ in range(15):  # through autoresets (new draws)
+        vec.step(a)
+    vec.envs[2].unwrapped.sim.set_dynamics(friction_scale=0.25)  # an edit through envs, read before the next step
+    vec.step(a)
+    _batch_runs_each_robots_model(vec)
+    vec.close()
+    # without randomisation no robot's masses or friction are held per robot
+    vec = gym.make_vec("FrankaTorqueTracking-v0", num_envs=3, nthread=1)
+    vec.reset(seed=0)
+    vec.step(np.zeros(vec.action_space.shape, np.float32))
+    assert not {"body_mass", "jnt_user"} & set(vec._batch_models.expanded)
+    _batch_runs_each_robots_model(vec)
+    vec.close()
 
 def test_same_step_autoreset_and_partial_reset():
     kw = dict(time_limit=0.05)  # 5 steps of FrankaTorqueTracking-v0

@@ -360,16 +360,23 @@ class TorqueTrackingBatch(BatchedTask):
 
 
 class VisualBatch(BatchedTask):
-    """FrankaIBVS-v0, FrankaPBVS-v0 and FrankaVisualTorque-v0 over N robots, with the ideal projection of the tag
-    corners and feature or state observations. The camera's ground truth of all robots (forward kinematics, cMo, the
-    projection, visibility, the pose vector, the feature error) is one call of the compiled kernel the single
-    environments use (:func:`~franka_vs_gym.envs.kernels.truth_records`), into (N, REC) truth records; the held
-    frames are records too (``VisualServoEnv._truth_rec`` / ``_frame_rec``)."""
+    """FrankaIBVS-v0, FrankaPBVS-v0, FrankaVisualTorque-v0 and the eye-to-hand tasks over N robots, with the ideal
+    projection of the tag corners and feature or state observations (the eye-to-hand truth kernel takes each robot's
+    camera placement cMf in place of fMo; its placement in the observation is a per-robot static key). The camera's
+    ground truth of all robots (forward kinematics, cMo, the projection, visibility, the pose vector, the feature
+    error) is one call of the compiled kernel the single environments use
+    (:func:`~franka_vs_gym.envs.kernels.truth_records`), into (N, REC) truth records; the held frames are records
+    too (``VisualServoEnv._truth_rec`` / ``_frame_rec``)."""
 
     def __init__(self, envs: list[Any], batch: Any) -> None:
         super().__init__(envs, batch)
         n, e0 = self.n, envs[0]
         self.kind = type(e0).__name__
+        task = _task_class(e0)  # (the eye-to-hand tasks are those of FrankaIBVS-v0 / FrankaPBVS-v0 turned round)
+        self.pbvs = task == "FrankaPBVSEnv"
+        # observation keys a task writes once per episode (the eye-to-hand camera's placement), per robot
+        sl = e0._pack._slices
+        self.static = {k: np.zeros((n, sl[k].stop - sl[k].start)) for k in getattr(e0, "_static_keys", ())}
         self.terminate_on_success = e0.terminate_on_success
         self.state_obs = e0.observation_type == "state"
         self.tag_size, self.intrinsics = e0.tag_size, e0.intrinsics
@@ -385,7 +392,9 @@ class VisualBatch(BatchedTask):
         self.geo = e0._plan.geo.copy() if e0._plan.geo_or_none is not None else None
         self.truth, self.frame = np.zeros((n, REC)), np.zeros((n, REC))  # the truth now, the held frame
         self.truth_k = np.full(n, -1, dtype=np.int64)
-        if self.kind == "FrankaIBVSEnv" or self.kind == "FrankaVisualTorqueEnv":
+        self._desired_rows = (np.broadcast_to(self.features_desired, (n, 8)),
+                              np.broadcast_to(self.tag_pose_desired, (n, 6)))
+        if not self.pbvs:
             self.success_threshold, self.error_scale = e0.success_threshold, e0.error_scale
             self.torque_cost = getattr(e0, "torque_cost", 0.0) if self.torque else 0.0
         else:
@@ -417,6 +426,8 @@ class VisualBatch(BatchedTask):
         self.k[i] = env._k
         self.fMo[i] = env._fMo.ravel()
         self.truth[i], self.frame[i], self.truth_k[i] = env._truth_rec, env._frame_rec, env._truth_k
+        for k, rows in self.static.items():  # (as the packer holds them: clipped, which clipping again keeps)
+            rows[i] = env._pack._work[env._pack._slices[k]]
 
     def store(self, i: int) -> None:
         super().store(i)
@@ -427,19 +438,32 @@ class VisualBatch(BatchedTask):
         env._packed_frame_no = -1
 
     def step_end(self, ids: np.ndarray, out: np.ndarray, capture: np.ndarray):
-        self.steps[ids] += 1
-        self.k[ids] += self.n_substeps
         m = len(ids)
+        allrows = m == self.n
+        r = self.rows(ids)  # (a slice when all robots step: views instead of fancy-index copies)
+        self.steps[r] += 1
+        self.k[r] += self.n_substeps
         q, dq = self.joint_state(ids)
         # the truth now (VisualServoEnv._truth_now for all rows)
-        allrows = m == self.n
         rec = self.truth if allrows else np.empty((m, REC))
         truth_records(self.geo, np.ascontiguousarray(q), self.fMo if allrows else self.fMo[ids], rec)
         if not allrows:
             self.truth[ids] = rec
-        self.truth_k[ids] = self.k[ids]
+        self.truth_k[r] = self.k[r]
         vis = rec[:, R_VISIBLE] != 0.0
-        cap = ids[capture]
+        if allrows and not self.feature_noise and _all(capture):
+            # every robot takes a frame (the default periods) without pixel noise: the frame is the truth, zeros
+            # where not seen (VisualServoEnv._capture)
+            fr = self.frame
+            np.copyto(fr, rec)
+            if not _all(vis):
+                unseen = ~vis
+                fr[unseen, R_FEATURES] = 0.0
+                fr[unseen, R_DEPTH] = self.depth_desired
+                fr[unseen, R_POSE] = 0.0
+            cap = ids[:0]
+        else:
+            cap = ids[capture]
         if len(cap):  # VisualServoEnv._capture: the frame is the truth, zeros where not seen
             sel = capture
             fr = rec[sel].copy()
@@ -456,7 +480,7 @@ class VisualBatch(BatchedTask):
             fr[unseen, R_DEPTH] = self.depth_desired
             fr[unseen, R_POSE] = 0.0
             self.frame[cap] = fr
-        src = rec if self.state_obs else self.frame[ids]
+        src = rec if self.state_obs else self.frame[r]
         if self.state_obs:
             seen = vis[:, None]
             raw = {"features": np.where(seen, rec[:, R_FEATURES], 0.0),
@@ -466,27 +490,35 @@ class VisualBatch(BatchedTask):
             raw = {"features": src[:, R_FEATURES], "feature_depth": src[:, R_DEPTH], "tag_pose": src[:, R_POSE]}
         raw["visible"] = src[:, R_VISIBLE]
         raw["q"], raw["dq"] = self.observed_joint_state(ids, q, dq)
-        raw["features_desired"] = np.broadcast_to(self.features_desired, (m, 8))
-        raw["tag_pose_desired"] = np.broadcast_to(self.tag_pose_desired, (m, 6))
+        for k, rows in self.static.items():
+            raw[k] = rows if allrows else rows[ids]
+        if allrows:
+            raw["features_desired"], raw["tag_pose_desired"] = self._desired_rows
+        else:
+            raw["features_desired"] = np.broadcast_to(self.features_desired, (m, 8))
+            raw["tag_pose_desired"] = np.broadcast_to(self.tag_pose_desired, (m, 6))
         self.pack(ids, raw, out)
         # the task's evaluation
-        failure = np.full(m, None, dtype=object)
-        if self.terminate_on_tag_lost:
+        if self.terminate_on_tag_lost and not _all(vis):
+            failure = np.full(m, None, dtype=object)
             failure[~vis] = TAG_LOST
+            ok = vis  # (failure == None)
+        else:
+            failure, ok = None, True  # (no row failed: finish writes the info column of Nones)
         extra: dict[str, np.ndarray] = {}
-        if self.kind == "FrankaPBVSEnv":
+        if self.pbvs:
             et, er = pbvs_errors(self.cdMo, rec[:, R_CMO].reshape(m, 4, 4))
-            success = (failure == None) & (et < self.translation_threshold) & (er < self.rotation_threshold)  # noqa: E711
+            success = ok & (et < self.translation_threshold) & (er < self.rotation_threshold)
             reward = pose_reward(et, er, self.translation_scale, self.rotation_scale)
             extra = {"error": et, "rotation_error": er}
         else:
             err = rec[:, R_ERROR].copy()
-            success = (failure == None) & (err < self.success_threshold)  # noqa: E711
+            success = ok & (err < self.success_threshold)
             reward = feature_reward(err, self.error_scale)
             extra = {"error": err}
         reward = success_bonus(reward, success, self.success_bonus)
         if self.kind == "FrankaVisualTorqueEnv" and self.torque_cost:
-            reward = reward - torque_penalty(self.action[ids], self.tau_max, self.torque_cost)
+            reward = reward - torque_penalty(self.action[r], self.tau_max, self.torque_cost)
         reward, term, trunc, info = self.finish(ids, reward, success, failure)
         info.update(extra)
         return reward, term, trunc, info
@@ -494,7 +526,18 @@ class VisualBatch(BatchedTask):
 
 #: The batched task of each environment class (by class name: subclasses step robot by robot).
 TASKS = {"FrankaTorqueTrackingEnv": TorqueTrackingBatch, "FrankaIBVSEnv": VisualBatch,
-         "FrankaPBVSEnv": VisualBatch, "FrankaVisualTorqueEnv": VisualBatch}
+         "FrankaPBVSEnv": VisualBatch, "FrankaVisualTorqueEnv": VisualBatch,
+         "FrankaIBVSEyeToHandEnv": VisualBatch, "FrankaPBVSEyeToHandEnv": VisualBatch}
+
+
+def _task_class(env: Any) -> str:
+    """The name of the registered task class whose evaluation ``env`` runs: its own, or for the eye-to-hand
+    classes the eye-in-hand task they derive from."""
+    names = [c.__name__ for c in type(env).__mro__]
+    for name in ("FrankaPBVSEnv", "FrankaIBVSEnv", "FrankaVisualTorqueEnv"):
+        if name in names:
+            return name
+    return names[0]
 
 
 def batched_task(envs: list[Any], batch: Any) -> BatchedTask | None:

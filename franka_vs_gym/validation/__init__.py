@@ -12,9 +12,12 @@ Typical use::
 
 from franka_vs_gym.validation.bench import bench_compare_diagnose
 from franka_vs_gym.validation.compare import CompareResult, baseline_config, compare, replay
-from franka_vs_gym.validation.diagnose import Diagnosis, FitResult, diagnose, fit_effects
+from franka_vs_gym.validation.diagnose import diagnose
 from franka_vs_gym.validation.effects import LIBRARY, get_effect
-from franka_vs_gym.validation.logs import MeasurementLog, load_log, save_log
+from franka_vs_gym.validation.fitting import fit_effects
+from franka_vs_gym.validation.loading import load_log
+from franka_vs_gym.validation.logs import MeasurementLog, save_log
+from franka_vs_gym.validation.results import Diagnosis, FitResult
 from franka_vs_gym.validation.signals import CleanSettings, ProcessedLog, clean
 
 __all__ = ["CleanSettings", "CompareResult", "Diagnosis", "FitResult", "LIBRARY", "MeasurementLog", "ProcessedLog",

@@ -20,8 +20,10 @@ from typing import Any
 
 import numpy as np
 
+from franka_vs_gym.validation.compare import progress
 from franka_vs_gym.validation.effects import Context, Effect, Fit, get_effect
-from franka_vs_gym.validation.selection import n_eff
+from franka_vs_gym.validation.results import ModelChange
+from franka_vs_gym.validation.selection import Engine, SetFit, Term, n_eff
 
 KINDS = ("payload", "torque_offset")
 GRID = 120
@@ -153,4 +155,28 @@ def describe(kind: str, whole: dict[str, Any] | None, step: dict[str, Any]) -> t
     return what, {"offset_Nm": np.round(o0, 4).tolist()}, {"offset_Nm": np.round(o0 + do, 4).tolist()}
 
 
-__all__ = ["After", "Found", "KINDS", "describe", "scan"]
+def model_changes(ctx: Context, eng: Engine, sel: Any, chosen: list[Term], cur: SetFit, noise: np.ndarray,
+                   forced: list[Term], verbose: bool) -> tuple[list[Term], SetFit, list[ModelChange]]:
+    """Scan the residual of the selected set for a change of the model during the log
+    (:mod:`~franka_vs_gym.validation.changes`); when one is found, select again with the change in the model (so
+    the effects present all along are named on a residual without the step) and describe it. ``sel``: the
+    diagnosis' selector (its ``run``)."""
+    found = scan(ctx, eng.residual(cur), noise)
+    if found is None:
+        return chosen, cur, []
+    progress(f"the model changes at t = {found.t_c:.2f} s ({found.effect}): selecting again with the change", verbose)
+    base = get_effect(found.effect)
+    step = After(base, found.t_c)
+    joints = None
+    if base.per_joint:
+        joints = [j for j in range(7) if found.removed[j] >= 0.25 * noise[j]] or list(range(7))
+    term = Term(step, {}, joints)
+    _, chosen2, cur2 = sel.run(True, forced=forced + [term])
+    k = next(i for i, t in enumerate(chosen2) if t.effect is step)  # (its joints may have been pruned)
+    whole = next((f for t, f in zip(chosen2, cur2.fits, strict=True) if t.effect is base), None)
+    what, before, after = describe(found.effect, base.public(whole) if whole is not None else None,
+                                      step.public(cur2.fits[k]))
+    return chosen2, cur2, [ModelChange(found.t_c, what, before, after)]
+
+
+__all__ = ["After", "Found", "KINDS", "describe", "model_changes", "scan"]

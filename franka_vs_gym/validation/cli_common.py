@@ -3,9 +3,26 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
+from collections.abc import Iterator
 from pathlib import Path
 
 from franka_vs_gym.validation.signals import GAP_FACTOR, CleanSettings
+
+
+@contextlib.contextmanager
+def one_blas_thread() -> Iterator[None]:
+    """Run a diagnosis or a fit with the BLAS libraries on one thread (``threadpoolctl``): its least-squares
+    problems are small and long (tens of columns, thousands of rows), where OpenBLAS's second thread costs more CPU
+    than it saves, and on a busy machine much more wall time too (docs/speed_check.md). Without threadpoolctl
+    installed the threads are left as they are."""
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:
+        yield
+        return
+    with threadpool_limits(limits=1, user_api="blas"):
+        yield
 
 
 def add_common(parser: argparse.ArgumentParser) -> None:
@@ -60,7 +77,7 @@ def settings_from(args: argparse.Namespace) -> CleanSettings:
 
 def load_from(args: argparse.Namespace):
     """The log named on the command line, read with the --topic option (a path stays a path when not needed)."""
-    from franka_vs_gym.validation.logs import load_log
+    from franka_vs_gym.validation.loading import load_log
 
     return load_log(args.log, topic=args.topic, progress=not getattr(args, "quiet", False),
                     tool=getattr(args, "tool", None))

@@ -28,6 +28,7 @@ from franka_vs_gym.validation.cli_common import (
     carried_flags,
     input_paths,
     load_from,
+    one_blas_thread,
     say_outputs,
     settings_from,
     stage_views,
@@ -63,7 +64,7 @@ def main(args: argparse.Namespace) -> int:
     effects = None if args.effects is None else [e for e in args.effects.split(",") if e.strip()]
     with OutputSet(force=args.force, inputs=input_paths(args)) as outputs:
         report_tmp, mcap_tmp = stage_views(args, outputs)
-        with progress_line(args.verbose):
+        with progress_line(args.verbose), one_blas_thread():
             d = diagnose(load_from(args), args.model, rigid_body=args.rigid_body, effects=effects,
                          settings=settings_from(args), verbose=verbose, tool=args.tool, robot=args.robot,
                          band_evidence=args.band_evidence, evidence=args.evidence)

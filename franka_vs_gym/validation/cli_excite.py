@@ -107,7 +107,8 @@ def main(args: argparse.Namespace) -> int:
     from franka_vs_gym.errors import UserError
     from franka_vs_gym.io import OutputSet
     from franka_vs_gym.validation.compare import as_processed, progress
-    from franka_vs_gym.validation.excite import design_excitation, scripts, trajectory_csv, trajectory_table
+    from franka_vs_gym.validation.excite import design_excitation
+    from franka_vs_gym.validation.excite_scripts import scripts, trajectory_csv, trajectory_table
 
     verbose = not args.quiet
     effects = [e.strip() for e in (args.effects or "").split(",") if e.strip()]
@@ -138,7 +139,7 @@ def main(args: argparse.Namespace) -> int:
         folder = outputs.folder(args.output, what="excitation folder")
         report_dir = outputs.folder(args.report, what="report folder") if args.report else None
         if args.log:
-            from franka_vs_gym.validation.logs import load_log
+            from franka_vs_gym.validation.loading import load_log
 
             progress(f"reading the reference log {args.log}", verbose)
             reference = as_processed(load_log(args.log, progress=verbose))

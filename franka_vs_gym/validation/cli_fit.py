@@ -15,6 +15,7 @@ from franka_vs_gym.validation.cli_common import (
     carried_flags,
     input_paths,
     load_from,
+    one_blas_thread,
     say_outputs,
     settings_from,
     stage_views,
@@ -37,7 +38,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from franka_vs_gym.io import OutputSet
-    from franka_vs_gym.validation.diagnose import fit_effects
+    from franka_vs_gym.validation.fitting import fit_effects
 
     out = Path(args.output)
     effects = [e for e in args.add.split(",") if e.strip()]
@@ -51,7 +52,7 @@ def main(args: argparse.Namespace) -> int:
     with OutputSet(force=args.force, inputs=input_paths(args)) as outputs:
         model_tmp = outputs.file(out, what="calibrated model file")
         report_tmp, mcap_tmp = stage_views(args, outputs)
-        with progress_line(args.verbose):
+        with progress_line(args.verbose), one_blas_thread():
             res = fit_effects(load_from(args), effects, args.model, rigid_body=args.rigid_body,
                               settings=settings_from(args), verbose=verbose, holdout=args.holdout or None,
                               tool=args.tool, robot=args.robot)

@@ -29,7 +29,8 @@ import numpy as np
 from franka_vs_gym.model.config import Friction, ModelConfig, Tool, resolve_config
 from franka_vs_gym.model.description import robot_description
 from franka_vs_gym.validation.evaluate import delay_channel, evaluate, shift
-from franka_vs_gym.validation.logs import Q_RANGE_WARN, MeasurementLog, load_log
+from franka_vs_gym.validation.loading import load_log
+from franka_vs_gym.validation.logs import Q_RANGE_WARN, MeasurementLog
 from franka_vs_gym.validation.results import CompareResult, ReplayResult, rmse
 from franka_vs_gym.validation.signals import CleanSettings, ProcessedLog, clean
 

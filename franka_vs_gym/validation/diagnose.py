@@ -1,4 +1,5 @@
-"""Diagnose which physical effect a model lacks, and fit effects.
+"""Diagnose which physical effect a model lacks: the selector and :func:`diagnose` (fitting the selected effects into
+a model: :mod:`~franka_vs_gym.validation.fitting`).
 
 Method (all on the inverse-dynamics residual ``r = tau_J - tau_model`` of the baseline model):
 
@@ -64,27 +65,26 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
-from franka_vs_gym.model.config import ModelConfig
+from franka_vs_gym.validation.candidates import resolve_effects
+from franka_vs_gym.validation.changes import model_changes
 from franka_vs_gym.validation.compare import as_processed, baseline_config, progress, rmse
-from franka_vs_gym.validation.effects import (
-    COMMAND_DELAY,
-    REGISTRY,
-    Context,
-    Effect,
-    EffectRegistry,
-    Fit,
-    NotApplicable,
-    get_effect,
-    load_entry_points,
-    load_plugin,
+from franka_vs_gym.validation.effects import COMMAND_DELAY, Context, Effect, get_effect
+from franka_vs_gym.validation.effects.alternatives import (
+    CONFUSABLE,
+    CROSSTALK,
+    CROSSTALK_SEPARATE,
+    FRICTION_NAMES,
+    GRAVITY_MAGNITUDE,
+    _ShiftedDelay,
 )
 from franka_vs_gym.validation.effects.base import MAX_DELAY, MIN_DELAY
 from franka_vs_gym.validation.effects.timing import Delay
-from franka_vs_gym.validation.evaluate import evaluate, shift
+from franka_vs_gym.validation.lackfit import mark_lack_of_fit
 from franka_vs_gym.validation.logs import MeasurementLog
-from franka_vs_gym.validation.results import Ambiguity, Candidate, Diagnosis, FitResult, ModelChange, Selected
-from franka_vs_gym.validation.selection import Engine, SetFit, Term, n_eff
+from franka_vs_gym.validation.results import Ambiguity, Candidate, Diagnosis, ModelChange, Selected
+from franka_vs_gym.validation.selection import Engine, SetFit, Term, contiguous_folds
 from franka_vs_gym.validation.signals import CleanSettings, ProcessedLog, decimated
+from franka_vs_gym.validation.uncertainty import attach_command_confidence, attach_confidence
 
 SCORE_MIN = 10.0
 JOINT_SCORE_MIN = 2.0
@@ -105,99 +105,6 @@ PAYLOAD_COM_Z_MIN = -0.03
 BLOCK_LEVEL = float(stats.chi2.sf(SCORE_MIN, 1))
 EVIDENCE = ("band", "band_only", "full")  # diagnose(evidence=...): see Engine and _Selector
 AMBIGUOUS = 10.0  # held-out evidence (the score's units) within which two laws on a joint are not told apart
-# laws a log may not tell apart on a joint, and the motion that separates them
-CONFUSABLE = {
-    "torque_offset": [("asymmetric_friction", "the joint at rest for a few seconds at two or three poses, and slow "
-                                              "motions in both directions (an offset stays at rest, friction "
-                                              "vanishes)")],
-    "asymmetric_friction": [("torque_offset", "the joint at rest for a few seconds at two or three poses, and slow "
-                                              "motions in both directions (an offset stays at rest, friction "
-                                              "vanishes)")],
-    "viscous_friction": [("coulomb_friction", "the joint at three or more constant speeds (e.g. 0.1, 0.5 and 1 "
-                                              "rad/s) in both directions (viscous friction grows with speed, a "
-                                              "Coulomb step does not)")],
-    "coulomb_friction": [("viscous_friction", "the joint at three or more constant speeds (e.g. 0.1, 0.5 and 1 "
-                                              "rad/s) in both directions (viscous friction grows with speed, a "
-                                              "Coulomb step does not)")],
-    "sigmoid_friction": [("viscous_friction", "the joint at three or more constant speeds (e.g. 0.1, 0.5 and 1 "
-                                              "rad/s) in both directions (viscous friction grows with speed, a "
-                                              "step law does not)")],
-}
-CROSSTALK_SEPARATE = ("the joint held still while the joints before it move through large torque changes (torque-"
-                      "sensor crosstalk follows the other joint's torque, friction needs the joint's own motion)")
-FRICTION_NAMES = ("viscous_friction", "coulomb_friction", "sigmoid_friction", "asymmetric_friction",
-                  "stribeck_friction")
-
-
-def _folds(n: int, k: int) -> list[np.ndarray]:
-    edges = np.linspace(0, n, k + 1).astype(int)
-    return [np.arange(edges[i], edges[i + 1]) for i in range(k)]
-
-
-class _Crosstalk(Effect):
-    """Torque-sensor crosstalk (internal: an alternative the ambiguity check tries, not a library effect): joint j's
-    sensor also measures a fraction of the torque of another joint i (the model's torque of the i whose torque
-    follows the target most closely, chosen per joint)."""
-
-    name = "torque_crosstalk"
-    n_params = 2
-    injectable = False
-
-    def shape(self, ctx, target):
-        P = ctx.ev.predicted[ctx.coarse]
-        P = P - P.mean(axis=0)
-        T = target[ctx.coarse] - target[ctx.coarse].mean(axis=0)
-        c = np.abs(np.einsum("ni,nj->ij", P, T)) / np.sqrt(np.outer(np.einsum("ni,ni->i", P, P),
-                                                                       np.einsum("nj,nj->j", T, T)) + 1e-30)
-        np.fill_diagonal(c, -1.0)
-        return {"from": np.argmax(c, axis=0).astype(float)}
-
-    def design(self, ctx, shape):
-        src = np.asarray(shape["from"], dtype=int)
-        return ctx.ev.predicted[:, src][:, :, None]
-
-
-CROSSTALK = _Crosstalk()
-
-
-class _GravityMagnitude(Effect):
-    """The part of a change of the gravity vector along it (internal: what a ``gravity_tilt`` is judged against).
-    A tilt of the mounting rotates gravity: to first order it changes the gravity vector perpendicular to it, and
-    only that horizontal part (2 of the law's 3 parameters) is a tilt; the part along it is second order (0.14 % of
-    g at 3 degrees). A change of the magnitude is not a tilt: Earth's gravity lies within 9.780-9.832 m/s^2 from
-    equator to pole (normal gravity of the Geodetic Reference System 1980; Moritz 2000, J. Geodesy 74: 128-133),
-    0.3 % either side of the model's 9.81, and to the joint torques a change of it scales every body's first mass
-    moment: it is a mass error of the bodies the model has (a payload's, the links')."""
-
-    name = "gravity_magnitude"
-    per_joint = False
-    n_params = 1
-    injectable = False
-
-    def design(self, ctx, shape):
-        g0 = np.asarray(ctx.config.gravity, dtype=np.float64)
-        return (ctx.ev.G @ (g0 / max(float(np.linalg.norm(g0)), 1e-12)))[:, :, None]
-
-
-GRAVITY_MAGNITUDE = _GravityMagnitude()
-
-
-class _ShiftedDelay(Delay):
-    """``delay`` with the exact shift of the model's torque as its design, at a delay ``d0`` (the library's law is
-    first order, ``-d x d(predicted torque)/dt``): the column ``(tau_model(t - d0) - tau_model(t)) / d0``, whose
-    coefficient is the delay when it is near ``d0``. The first-order law leaves ``d^2/2`` times the torque's second
-    derivative, systematic at tens of milliseconds: on a recording served with a 60 ms delay it was 0.035-0.056 Nm
-    on joints 0-2 (noise 0.10 Nm), and the link inertials took it at 1 kHz."""
-
-    def __init__(self, d0: float) -> None:
-        self.d0 = float(d0)
-
-    def shape_key(self, shape):
-        return (("d0", round(self.d0, 12)),)
-
-    def design(self, ctx, shape):
-        pred = ctx.ev.predicted
-        return ((shift(pred, ctx.data.time, self.d0) - pred) / self.d0)[:, :, None]
 
 
 class _Selector:
@@ -1025,7 +932,7 @@ def _order(c: Candidate) -> tuple:
     return (not c.ok, not c.plausible, -c.score)
 
 
-def _command_delay(ctx: Context, fl, noise: np.ndarray, verbose: bool) -> Candidate | None:
+def command_channel_delay(ctx: Context, fl, noise: np.ndarray, verbose: bool) -> Candidate | None:
     """The delay on the command channel (the measured torque lags the logged command), when tau_J_d is logged."""
     if ctx.cmd_residual is None:
         return None
@@ -1039,50 +946,6 @@ def _command_delay(ctx: Context, fl, noise: np.ndarray, verbose: bool) -> Candid
     c.rmse_tau_after = rmse(ctx.residual)
     return c
 
-
-_ENTRY_POINTS_LOADED = False
-
-
-def _installed_plugins() -> None:
-    """Register, once per process, the effects installed packages declare in the entry-point group
-    ``franka_vs_gym.effects``; a broken plug-in is reported in one line, not fatal to the library."""
-    global _ENTRY_POINTS_LOADED
-    if _ENTRY_POINTS_LOADED:
-        return
-    _ENTRY_POINTS_LOADED = True
-    try:
-        load_entry_points()
-    except Exception as exc:  # a third party's package: say which, keep the library usable
-        progress(f"warning: an installed effect plug-in failed to load: {type(exc).__name__}: {exc}")
-
-
-def resolve_effects(effects: list[str] | None, registry: EffectRegistry = REGISTRY) -> list[Effect]:
-    """Candidate effects: every registered effect, or the names given; an item ending in ``.py`` is a plug-in file
-    whose effects are registered and added to the candidates."""
-    if registry is REGISTRY:
-        _installed_plugins()
-    if effects is None:
-        return list(registry.values())
-    out: list[Effect] = []
-    plugins_only = True
-    for item in effects:
-        item = item.strip()
-        if not item:
-            continue
-        if item.endswith(".py"):
-            for n in load_plugin(item, registry):
-                out.append(registry.get(n))
-            continue
-        plugins_only = False
-        out.append(registry.get(item))
-    if plugins_only:  # only plug-in files: rank them with the whole library
-        out = list(registry.values())
-    seen, uniq = set(), []
-    for e in out:
-        if e.name not in seen:
-            seen.add(e.name)
-            uniq.append(e)
-    return uniq
 
 
 def diagnose(log: MeasurementLog | ProcessedLog | str, model: Any = None, *, rigid_body: bool = False,
@@ -1115,7 +978,7 @@ def diagnose(log: MeasurementLog | ProcessedLog | str, model: Any = None, *, rig
     ctx = Context(fx, cfg)
     y = ctx.residual
     noise = data.noise
-    fl = _folds(ctx.n, folds)
+    fl = contiguous_folds(ctx.n, folds)
     cands = resolve_effects(effects)
     forced = []
     if tool == "unknown":  # the tool is a payload of unknown mass, centre of mass and inertia
@@ -1126,25 +989,25 @@ def diagnose(log: MeasurementLog | ProcessedLog | str, model: Any = None, *, rig
     ranking, chosen, cur = sel.run(select, forced=forced)
     changes: list[ModelChange] = []
     if select:
-        chosen, cur, changes = _model_changes(ctx, eng, sel, chosen, cur, noise, forced, verbose)
+        chosen, cur, changes = model_changes(ctx, eng, sel, chosen, cur, noise, forced, verbose)
     named = {t.effect.name for t in chosen}  # (a candidate that waited a round and entered later is not "not selected")
     notes = [f"{n} not selected: {why}" for n, why in sel.rejections.items() if n not in named]
     selection = sel.describe(chosen, cur) if chosen else []
     if chosen and select:
         progress("95% intervals of the selected set's parameters", verbose)
-        _attach_confidence(ctx, y, chosen, cur, selection)
+        attach_confidence(ctx, y, chosen, cur, selection)
     selection = [s for s in selection if not s.effect.endswith("_after")]  # a mid-log change is in `changes`
     ambiguous = sel.ambiguities(chosen, cur) if select and chosen else []
     # the delay may be on the command channel instead (commands reach the joints late)
     if any(e.name == "delay" for e in cands):
         meas = next((c for c in ranking if c.effect == "delay"), None)
         if meas is not None and not meas.ok:
-            cmd = _command_delay(ctx, fl, noise, verbose)
+            cmd = command_channel_delay(ctx, fl, noise, verbose)
             if cmd is not None and cmd.ok:
                 ranking = sorted([c for c in ranking if c.effect != "delay"] + [cmd], key=_order)
                 if select:
                     selection.append(Selected("delay", [], cmd.params, np.zeros(7), cmd.score, "command"))
-                    _attach_command_confidence(ctx, cmd.fits[0], selection[-1])
+                    attach_command_confidence(ctx, cmd.fits[0], selection[-1])
     if not select:
         selection = []
     if select:
@@ -1161,7 +1024,7 @@ def diagnose(log: MeasurementLog | ProcessedLog | str, model: Any = None, *, rig
         unexplained = test_structure(ctx, residual, noise, fl)
         if chosen:
             progress("lack-of-fit test of each selected effect along its own variables", verbose)
-            _lack_of_fit(ctx, eng, chosen, cur, residual, noise, folds, selection, unexplained)
+            mark_lack_of_fit(ctx, eng, chosen, cur, residual, noise, folds, selection, unexplained)
     d = Diagnosis(rmse(y), float(np.sqrt(np.mean(y ** 2))), noise.copy(), ranking, verdict, selection, cfg, ctx,
                   rmse_sel, unexplained, assumptions_of(data, cfg, tool), notes, residual, data, ambiguous, changes)
     if fx is not data:
@@ -1178,385 +1041,4 @@ def diagnose(log: MeasurementLog | ProcessedLog | str, model: Any = None, *, rig
     return d
 
 
-def _attach_confidence(ctx: Context, y: np.ndarray, chosen: list[Term], cur: SetFit,
-                       selection: list[Selected]) -> None:
-    """Intervals, correlations and unidentifiable combinations of the jointly fitted selection
-    (:mod:`~franka_vs_gym.validation.uncertainty`)."""
-    from franka_vs_gym.validation.uncertainty import confidence
-
-    try:
-        conf = confidence(ctx, [t.effect for t in chosen], cur.fits, y)
-    except Exception as exc:  # e.g. a plug-in whose contribution fails off its fitted values: keep the diagnosis
-        for s in selection:
-            s.unidentifiable = [f"intervals not computed: {type(exc).__name__}: {exc}"]
-        return
-    for s, ci, corr, unid in zip(selection, conf.params_ci95, conf.correlations, conf.unidentifiable, strict=True):
-        s.params_ci95, s.correlations, s.unidentifiable = ci, corr, unid
-
-
-def _attach_command_confidence(ctx: Context, fit: Fit, s: Selected) -> None:
-    """The interval of a delay fitted on the command channel (measured torque vs logged command)."""
-    from franka_vs_gym.validation.uncertainty import confidence
-
-    conf = confidence(ctx, [COMMAND_DELAY], [fit], ctx.cmd_residual)
-    s.params_ci95, s.correlations, s.unidentifiable = (conf.params_ci95[0], conf.correlations[0],
-                                                       conf.unidentifiable[0])
-
-
-def _model_changes(ctx: Context, eng: Engine, sel: _Selector, chosen: list[Term], cur: SetFit, noise: np.ndarray,
-                   forced: list[Term], verbose: bool) -> tuple[list[Term], SetFit, list[ModelChange]]:
-    """Scan the residual of the selected set for a change of the model during the log
-    (:mod:`~franka_vs_gym.validation.changes`); when one is found, select again with the change in the model (so
-    the effects present all along are named on a residual without the step) and describe it."""
-    from franka_vs_gym.validation import changes as ch
-
-    found = ch.scan(ctx, eng.residual(cur), noise)
-    if found is None:
-        return chosen, cur, []
-    progress(f"the model changes at t = {found.t_c:.2f} s ({found.effect}): selecting again with the change", verbose)
-    base = get_effect(found.effect)
-    step = ch.After(base, found.t_c)
-    joints = None
-    if base.per_joint:
-        joints = [j for j in range(7) if found.removed[j] >= 0.25 * noise[j]] or list(range(7))
-    term = Term(step, {}, joints)
-    _, chosen2, cur2 = sel.run(True, forced=forced + [term])
-    k = next(i for i, t in enumerate(chosen2) if t.effect is step)  # (its joints may have been pruned)
-    whole = next((f for t, f in zip(chosen2, cur2.fits, strict=True) if t.effect is base), None)
-    what, before, after = ch.describe(found.effect, base.public(whole) if whole is not None else None,
-                                      step.public(cur2.fits[k]))
-    return chosen2, cur2, [ModelChange(found.t_c, what, before, after)]
-
-
-def _lack_of_fit(ctx: Context, eng: Engine, chosen: list[Term], cur: SetFit, residual: np.ndarray,
-                 noise: np.ndarray, folds: int, selection: list[Selected], unexplained: Any) -> None:
-    """Mark the selected effects whose law does not capture the shape of their own driving variables (see
-    :mod:`~franka_vs_gym.validation.lackfit`): the name is kept as the closest library effect, ``explained`` is
-    false and the description says what remains."""
-    from franka_vs_gym.validation.lackfit import describe, test_lack_of_fit
-    from franka_vs_gym.validation.structure import Finding
-
-    keep = [i for i, t in enumerate(chosen) if not t.effect.name.endswith("_after")]  # a model change: not a law
-    contribs = eng.contributions(cur)
-    fails = test_lack_of_fit(ctx, [chosen[i] for i in keep], [contribs[i] for i in keep], residual, noise, folds)
-    if not fails:
-        return
-    if unexplained.explained:
-        unexplained.text = [s for s in unexplained.text if not s.startswith(("The residual is at the noise",
-                                                                             "No structure left"))]
-    unexplained.explained = False
-    for i, fl in sorted(fails.items()):
-        selection[i].lack_of_fit = fl
-        unexplained.text.append(describe(selection[i].effect, fl, noise))
-        for f in fl:
-            unexplained.findings.append(Finding(f.joint, "lack_of_fit", f.removed_rms, f.score,
-                                                f"{f.effect}: {f.alternative} of {f.driver} {f.detail}".strip()))
-
-
-def _split(n: int, frac: float = HOLDOUT) -> tuple[np.ndarray, np.ndarray]:
-    """Time split for held-out validation: the first (1 - frac) of the log fits, the last frac validates."""
-    k = int(round(n * (1 - frac)))
-    return np.arange(k), np.arange(k, n)
-
-
-def _alternate(ctx: Context, spec, y: np.ndarray, idx: np.ndarray, refine: bool) -> list[Fit]:
-    """Fit the effects of ``spec`` [(effect, joints)] together on samples idx: the joint linear least-squares
-    solution (shapes chosen on the residual) as the start, then alternating passes in which each effect is re-fitted
-    to what the others leave (its own fit: e.g. the sigmoid as a replacement of the model's), with the non-linear
-    refinements inside when ``refine``."""
-    eng = Engine(ctx, y, [np.asarray(idx)])
-    terms = [Term(e, e.shape(ctx, y), (list(j) if j is not None else list(range(7))) if e.per_joint else None)
-             for e, j in spec]
-    contrib = eng.contributions(eng.fit(terms, cv=False))
-    fits: list[Fit | None] = [None] * len(spec)
-    for _ in range(2 if len(spec) > 1 else 1):
-        for i, (e, joints) in enumerate(spec):
-            others = sum((contrib[m] for m in range(len(spec)) if m != i), np.zeros_like(y))
-            f = e.fit(ctx, y - others, idx)
-            if joints is not None:
-                f.joints = list(joints)
-            if refine:
-                f = e.refine(ctx, y - others, f)
-                if joints is not None:
-                    f.joints = list(joints)
-            fits[i] = f
-            contrib[i] = e.contribution(ctx, f)
-    return fits  # type: ignore[return-value]
-
-
-def _apply_fits(cfg: ModelConfig, ctx: Context, members: list[Effect],
-                fits: list[Fit]) -> tuple[ModelConfig, list[Fit | None], dict[str, str]]:
-    """Write fitted effects into ``cfg`` as the model can take them: each fit first constrained
-    (:meth:`Effect.constrain`: e.g. friction kept dissipative, link inertials physically consistent), then applied;
-    a joint whose friction law would still push it is left out, and an effect the model cannot take is not applied.
-    Returns the configuration, the fits as applied (None: not applied) and what was constrained or left out, by
-    effect (one line each). Effects that constrain themselves are applied last, against the law the others made."""
-    from franka_vs_gym.model.checks import NotDissipative
-
-    notes: dict[str, str] = {}
-    applied: list[Fit | None] = list(fits)
-    order = sorted(range(len(members)), key=lambda i: type(members[i]).constrain is not Effect.constrain)
-    new = cfg
-    for i in order:
-        e, f = members[i], fits[i]
-        f, said = e.constrain(ctx, new, f)
-        msgs = [said] if said else []
-        out = None
-        while out is None:
-            try:
-                out = e.apply(new, f)
-            except NotDissipative as err:
-                if err.joint in f.joints and len(f.joints) > 1:
-                    msgs.append(f"joint {err.joint} left out: {err}")
-                    f = Fit(f.effect, f.theta, [j for j in f.joints if j != err.joint])
-                    continue
-                msgs.append(f"not applied: {err}")
-                break
-            except (NotApplicable, ValueError) as err:  # e.g. a gravity whose norm is not Earth's
-                msgs.append(f"not applied: {' '.join(str(err).split())}")
-                break
-        applied[i] = f if out is not None else None
-        if out is not None:
-            new = out
-        if msgs:
-            notes[e.name] = "; ".join(msgs)
-    return new, applied, notes
-
-
-def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], model: Any = None, *,
-                rigid_body: bool = False, settings: CleanSettings | None = None, verbose: bool = False,
-                holdout: float | None = HOLDOUT, tool: str | None = None, robot: Any = None) -> FitResult:
-    """Fit ``effects`` (names, or ["auto"] for the diagnosis' selection) and apply them to the model configuration
-    (model and plant), then re-compare.
-
-    ``["auto"]`` fits what :func:`diagnose` selects on the same data with the same model, robot and tool (the
-    effects, their joints and the delay's channel): one selection, the one ``franka-vs diagnose`` shows. The held-out
-    check is reported beside the fit and does not change that set: an effect whose removal does not raise the
-    held-out RMSE is named in ``holdout["no_gain"]`` and in the notes, and kept (``dropped``, ``added`` and
-    ``joints_added`` stay empty). An effect the fit cannot keep (the
-    model cannot take it, e.g. a gravity whose norm is not Earth's once fitted on the whole log) is dropped with its
-    reason in the notes, and the others are fitted again without it.
-
-    Named effects: held-out validation (default, ``holdout`` = 0.25): the effects are first fitted on the first 75%
-    of the log and the RMSE of the full calibrated model is measured on the last 25%; an effect whose removal does
-    not raise that held-out RMSE is dropped (``dropped`` says which). The kept effects are then fitted on the whole
-    log (with the non-linear refinements) for the final model. ``holdout=None`` skips the check."""
-    from franka_vs_gym.validation.structure import assumptions_of
-
-    data = as_processed(log, settings)
-    cfg = baseline_config(data.log, model, rigid_body, tool=tool, robot=robot, data=data)
-    joints_of: dict[str, list[int]] = {}
-    fit_notes: dict[str, str] = {}  # effect -> what was constrained, left out or not applied, and why
-    auto = [e.strip() for e in effects] == ["auto"]
-    command_channel = False
-    if auto:
-        # the diagnosis as `franka-vs diagnose` makes it on the same data: its selection is the set fitted (the
-        # robot settled above: --robot, or the log's declaration)
-        d = diagnose(data, model, rigid_body=rigid_body, tool=tool, robot=cfg.robot, verbose=verbose)
-        cfg = d.config
-        names = d.selected
-        ctx = d.context
-        joints_of = {s.effect: s.joints for s in d.selection if s.channel != "command"}
-        command_channel = any(s.effect == "delay" and s.channel == "command" for s in d.selection)
-        progress(f"auto: selected {names or 'nothing (verdict none)'}", verbose)
-        for n in names:  # named by the diagnosis but not writable into a model: said, not handed to the fit
-            e = get_effect(n)
-            if type(e).apply is Effect.apply:
-                fit_notes[n] = f"diagnosed but not fitted: {e.not_applicable}"
-                progress(f"auto: {n} {fit_notes[n]}", verbose)
-        names = [n for n in names if n not in fit_notes]
-    else:
-        names = []
-        for e in (part for item in effects for part in item.split("+")):
-            n = get_effect(e).name
-            if n in names:
-                raise ValueError(f"effect {n!r} given twice")
-            names.append(n)
-        progress(f"evaluating the baseline model and regressors on {data.n} samples", verbose)
-        ctx = Context(decimated(data), cfg)
-    for n in names:
-        e = get_effect(n)
-        if type(e).apply is Effect.apply:
-            raise ValueError(f"effect {n!r} can be diagnosed but not applied: {e.not_applicable}")
-    y = ctx.residual
-    noise = data.noise
-    fl = _folds(ctx.n, FOLDS)
-    command_fit = None
-    if auto and command_channel and ctx.cmd_residual is not None:  # the channel the diagnosis named
-        command_fit = COMMAND_DELAY.fit(ctx, ctx.cmd_residual, np.arange(ctx.n))
-        names = [n for n in names if n != "delay"]
-    elif not auto and "delay" in names and ctx.cmd_residual is not None:
-        progress("delay: choosing the channel (measured torque vs motion, or vs command)", verbose)
-        eng = Engine(ctx, y, fl)
-        sel = _Selector(ctx, eng, noise, [get_effect("delay")], False)
-        cur = eng.fit([])
-        meas = sel.try_add([], cur, sel._neff(cur), get_effect("delay"))
-        if not meas.ok:
-            cmd = _command_delay(ctx, fl, noise, False)
-            if cmd is not None and cmd.ok:
-                command_fit = COMMAND_DELAY.fit(ctx, ctx.cmd_residual, np.arange(ctx.n))
-                names = [n for n in names if n != "delay"]
-    members = [get_effect(n) for n in names]
-    spec = []
-    for e in members:
-        if e.per_joint and e.name not in joints_of:
-            progress(f"held-out joint selection for {e.name}", verbose)
-            eng = Engine(ctx, y, fl)
-            sel = _Selector(ctx, eng, noise, [e], False)
-            cur = eng.fit([])
-            c = sel.try_add([], cur, sel._neff(cur), e)
-            joints_of[e.name] = c.joints if c.joints else [j for j in range(7) if c.joint_scores[j] > 0]
-        spec.append((e, joints_of.get(e.name) if e.per_joint else None))
-    dropped: list[str] = []
-    holdout_info: dict[str, Any] | None = None
-    if holdout and (spec or auto):
-        train, test = _split(ctx.n, holdout)
-        sub = ctx.data.subset(test)
-
-        def heldout_rmse(sp) -> np.ndarray:
-            new = cfg
-            if sp:
-                ok = [(e, f) for (e, _), f in zip(sp, _alternate(ctx, sp, y, train, refine=False), strict=True)
-                      if not any(e.problems(ctx, f).values())]  # not applied with implausible values
-                if ok:
-                    new = _apply_fits(cfg, ctx, [e for e, _ in ok], [f for _, f in ok])[0]
-            return rmse(sub.tau - evaluate(new, sub).predicted)
-
-        progress(f"held-out check: fitting on the first {100 * (1 - holdout):.0f}% of the log, validating on the "
-                 f"last {100 * holdout:.0f}%", verbose)
-        base_h = rmse(y[test])
-        full_h = heldout_rmse(spec)
-        no_gain: list[str] = []
-        for i, (e, _) in enumerate(spec if auto else []):  # reported beside the fit; the set stays the diagnosis'
-            rest = spec[:i] + spec[i + 1:]
-            h = heldout_rmse(rest) if rest else base_h
-            if float(np.sum(h ** 2)) <= float(np.sum(full_h ** 2)):
-                no_gain.append(e.name)
-                why = (f"held-out check: the last {100 * holdout:.0f}% of the log has a total RMSE of "
-                       f"{float(rmse(h)):.4f} Nm without it, {float(rmse(full_h)):.4f} Nm with it (fitted on the "
-                       "first part): it does not lower the held-out error; kept, as the diagnosis selected it")
-                fit_notes[e.name] = f"{fit_notes[e.name]}; {why}" if e.name in fit_notes else why
-                progress(f"{e.name}: {why}", verbose)
-        changed = not auto
-        while changed and spec:
-            changed = False
-            for i, (e, _) in enumerate(spec):
-                rest = spec[:i] + spec[i + 1:]
-                h = heldout_rmse(rest) if rest else base_h
-                if float(np.sum(h ** 2)) <= float(np.sum(full_h ** 2)):
-                    progress(f"held-out check: {e.name} does not lower the held-out RMSE; dropped", verbose)
-                    dropped.append(e.name)
-                    spec, full_h, changed = rest, h, True
-                    break
-        added: list[str] = []  # the held-out check adds no effect and no joint (named effects and 'auto' alike)
-        widened: dict[str, list[int]] = {}
-        holdout_info = {"split": f"time split: fit on the first {100 * (1 - holdout):.0f}% "
-                                 f"({len(train) / data.settings.rate:.1f} s), validate on the last "
-                                 f"{100 * holdout:.0f}% ({len(test) / data.settings.rate:.1f} s)",
-                        "rmse_tau_before": np.round(base_h, 4).tolist(),
-                        "rmse_tau_after": np.round(full_h, 4).tolist(),
-                        "rmse_tau_total_before": round(float(rmse(base_h)), 4),
-                        "rmse_tau_total_after": round(float(rmse(full_h)), 4), "dropped": dropped,
-                        "added": added, "joints_added": widened, "no_gain": no_gain}
-        members = [e for e, _ in spec]
-        names = [e.name for e in members]
-    progress(f"fitting {names} on all samples", verbose)
-    fits = _alternate(ctx, spec, y, np.arange(ctx.n), refine=True) if spec else []
-    implausible: dict[str, list[str]] = {}
-    earlier_notes = dict(fit_notes)  # the diagnosis' and the held-out check's; each attempt's own are kept apart
-    attempt_notes: dict[str, str] = {}
-    dropped_notes: dict[str, str] = {}  # why each effect the model could not take was dropped
-    for _attempt in range(len(members) + 1):
-        implausible = {}
-        for e, f in zip(members, fits, strict=True):
-            probs = e.problems(ctx, f)  # also prepares what apply needs (e.g. consistent link inertials)
-            if probs:
-                implausible[e.name] = [m for _, m in sorted(probs.items())]
-                progress(f"warning: {e.name} fits with implausible values: {'; '.join(implausible[e.name])}",
-                         verbose)
-        new, applied, notes = _apply_fits(cfg, ctx, members, fits)
-        attempt_notes = notes
-        for n, why in notes.items():
-            progress(f"{n}: {why}", verbose)
-        if all(f is not None for f in applied):
-            break
-        # an effect the model cannot take is dropped and the others are fitted again without it. Where several
-        # cannot be taken, one may fail only through another that took its share (link inertials fitted with a
-        # tilt absorbed part of it and left |g| = 8.8 m/s^2): they are dropped one at a time, each time the one
-        # whose removal leaves the largest set the model takes, then the smallest squared residual
-        failed = [i for i, f in enumerate(applied) if f is None]
-        keep = [i for i, f in enumerate(applied) if f is not None]
-        refit = None
-        if len(failed) > 1:
-            best = None
-            for i in failed:
-                k_i = [k for k in range(len(spec)) if k != i]
-                f_i = _alternate(ctx, [spec[k] for k in k_i], y, np.arange(ctx.n), refine=True)
-                for m, f in zip([members[k] for k in k_i], f_i, strict=True):
-                    m.problems(ctx, f)  # prepares what apply needs, as above
-                _, a_i, _ = _apply_fits(cfg, ctx, [members[k] for k in k_i], f_i)
-                r = y - sum((members[k].contribution(ctx, f) for k, f in zip(k_i, a_i, strict=True)
-                             if f is not None), np.zeros_like(y))
-                rank = (sum(f is not None for f in a_i), -float(np.sum(r ** 2)))
-                if best is None or rank > best[0]:
-                    best = (rank, k_i, f_i)
-            assert best is not None
-            keep, refit = best[1], best[2]
-        dropped_notes.update({names[i]: notes.get(names[i], "not applied") for i in range(len(names))
-                              if i not in keep})
-        spec = [spec[i] for i in keep]
-        members, names = [members[i] for i in keep], [names[i] for i in keep]
-        fits = refit if refit is not None else (_alternate(ctx, spec, y, np.arange(ctx.n), refine=True)
-                                                if spec else [])
-    else:
-        new, applied, notes = _apply_fits(cfg, ctx, members, fits)
-        attempt_notes = notes
-        keep = [i for i, f in enumerate(applied) if f is not None]
-        members, names = [members[i] for i in keep], [names[i] for i in keep]
-    fits = [f for f in applied if f is not None]
-    for n, why in [*dropped_notes.items(), *attempt_notes.items()]:  # the final attempt's, and why each was dropped
-        earlier_notes[n] = f"{earlier_notes[n]}; {why}" if n in earlier_notes else why
-    fit_notes.clear()
-    fit_notes.update(earlier_notes)
-    if command_fit is not None:
-        new = COMMAND_DELAY.apply(new, command_fit)
-        members, fits, names = members + [COMMAND_DELAY], fits + [command_fit], names + ["delay"]
-    new = new.copy(notes={**new.notes, "calibrated_on": str(data.log.source), "effects": names})
-    progress("re-comparing with the calibrated model", verbose)
-    ev = evaluate(new, data)
-    r_after = data.tau - ev.predicted
-    y_full = y if ctx.data is data else data.tau - evaluate(cfg, data).predicted
-    params = {e.name: {**e.public(f), "joints": list(map(int, f.joints))} for e, f in zip(members, fits, strict=True)}
-    for name, probs in implausible.items():
-        if name in params:
-            params[name]["problems"] = probs
-    res = FitResult(cfg, new, names, fits, params, rmse(y_full), rmse(r_after), noise.copy(), data, y_full, r_after,
-                    holdout_info, assumptions_of(data, cfg, tool), fit_notes)
-    if len(members) > (command_fit is not None):
-        from franka_vs_gym.validation.uncertainty import confidence
-
-        progress("95% intervals of the fitted parameters", verbose)
-        # the jointly fitted effects that the model took (a command-channel delay is fitted on its own channel)
-        k = len(members) - (command_fit is not None)
-        try:
-            conf = confidence(ctx, members[:k], fits[:k], y)
-        except Exception as exc:  # e.g. a plug-in whose contribution fails off its fitted values: keep the fit
-            res.unidentifiable = [f"intervals not computed: {type(exc).__name__}: {exc}"]
-        else:
-            for e, ci in zip(members[:k], conf.params_ci95, strict=True):
-                res.params_ci95[e.name] = {**ci, "joints": params[e.name]["joints"]}
-            res.correlations = [c for cs in conf.correlations for c in cs]
-            res.unidentifiable = list(dict.fromkeys(u for us in conf.unidentifiable for u in us))
-    if command_fit is not None:  # the delay on the command channel: its own fit, its own residual
-        from franka_vs_gym.validation.uncertainty import confidence
-
-        conf = confidence(ctx, [COMMAND_DELAY], [command_fit], ctx.cmd_residual)
-        res.params_ci95["delay"] = {**conf.params_ci95[0], "joints": params["delay"]["joints"]}
-    res.contributions = {e.name: e.contribution(ctx, f) for e, f in zip(members, fits, strict=True)
-                         if f is not command_fit}
-    res.contribution_time = ctx.data.time
-    return res
-
-
-__all__ = ["Ambiguity", "Candidate", "Diagnosis", "ModelChange", "FitResult", "Selected", "diagnose", "fit_effects",
-           "n_eff", "resolve_effects", "SCORE_MIN", "PRACTICAL"]
+__all__ = ["AMBIGUOUS", "EVIDENCE", "PRACTICAL", "SCORE_MIN", "command_channel_delay", "diagnose"]

@@ -47,8 +47,9 @@ from typing import Any
 import numpy as np
 
 from franka_vs_gym.validation.effects import Context
-from franka_vs_gym.validation.selection import Term, n_eff
-from franka_vs_gym.validation.structure import BLOCK_S, _bins, _cv_lin
+from franka_vs_gym.validation.results import Selected
+from franka_vs_gym.validation.selection import Engine, SetFit, Term, n_eff
+from franka_vs_gym.validation.structure import BLOCK_S, Finding, _bins, _cv_lin
 
 SCORE_MIN = 10.0
 PRACTICAL = 0.25
@@ -184,4 +185,26 @@ def describe(effect: str, fails: list[LackOfFit], noise: np.ndarray) -> str:
             + "; ".join(parts) + ".")
 
 
-__all__ = ["LackOfFit", "describe", "test_lack_of_fit"]
+def mark_lack_of_fit(ctx: Context, eng: Engine, chosen: list[Term], cur: SetFit, residual: np.ndarray,
+                 noise: np.ndarray, folds: int, selection: list[Selected], unexplained: Any) -> None:
+    """Mark the selected effects whose law does not capture the shape of their own driving variables (see
+    :mod:`~franka_vs_gym.validation.lackfit`): the name is kept as the closest library effect, ``explained`` is
+    false and the description says what remains."""
+    keep = [i for i, t in enumerate(chosen) if not t.effect.name.endswith("_after")]  # a model change: not a law
+    contribs = eng.contributions(cur)
+    fails = test_lack_of_fit(ctx, [chosen[i] for i in keep], [contribs[i] for i in keep], residual, noise, folds)
+    if not fails:
+        return
+    if unexplained.explained:
+        unexplained.text = [s for s in unexplained.text if not s.startswith(("The residual is at the noise",
+                                                                             "No structure left"))]
+    unexplained.explained = False
+    for i, fl in sorted(fails.items()):
+        selection[i].lack_of_fit = fl
+        unexplained.text.append(describe(selection[i].effect, fl, noise))
+        for f in fl:
+            unexplained.findings.append(Finding(f.joint, "lack_of_fit", f.removed_rms, f.score,
+                                                f"{f.effect}: {f.alternative} of {f.driver} {f.detail}".strip()))
+
+
+__all__ = ["LackOfFit", "describe", "mark_lack_of_fit", "test_lack_of_fit"]

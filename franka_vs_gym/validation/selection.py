@@ -41,6 +41,12 @@ from franka_vs_gym.validation.effects import Context, Effect, Fit
 from franka_vs_gym.validation.signals import band_sos
 
 
+def contiguous_folds(n: int, k: int) -> list[np.ndarray]:
+    """``k`` contiguous blocks of ``range(n)``, the held-out folds of the selection."""
+    edges = np.linspace(0, n, k + 1).astype(int)
+    return [np.arange(edges[i], edges[i + 1]) for i in range(k)]
+
+
 def n_eff(r: np.ndarray, max_lag: int = 2000) -> np.ndarray | float:
     """Effective number of independent samples of a series r (N,) or of each column of r (N, k):
     N / tau_int with tau_int = 1 + 2 * (sum of the autocorrelations up to the first non-positive one)."""
@@ -321,4 +327,4 @@ def _solve_folds(A: np.ndarray, b: np.ndarray, ref: np.ndarray) -> np.ndarray:
 EXCITED = 1e-9  # share of a parameter's excitation on the whole log below which a fold does not estimate it
 
 
-__all__ = ["Engine", "SetFit", "Term", "n_eff"]
+__all__ = ["Engine", "SetFit", "Term", "contiguous_folds", "n_eff"]

@@ -13,33 +13,29 @@ import numpy as np
 from bokeh.events import DocumentReady
 from bokeh.layouts import column, row
 from bokeh.models import (
-    BoxAnnotation,
     Button,
     CheckboxButtonGroup,
     ColumnDataSource,
     DataTable,
     Div,
-    FactorRange,
     RadioButtonGroup,
     Select,
     Slider,
-    Span,
     Spinner,
     TableColumn,
     TextInput,
 )
-from bokeh.plotting import figure
 
 from franka_vs_gym.errors import is_user_error, one_line
 from franka_vs_gym.validation.app import session as S
 from franka_vs_gym.validation.app.arm import RED_AT, ArmView, NoGL
 from franka_vs_gym.validation.app.panels import candidates_html, fit_html, free_name, params_html, rmse_html, short
+from franka_vs_gym.validation.app.plots import build_figures
 from franka_vs_gym.validation.app.state import App
 
 POLL_MS = 250
 MAX_POINTS = 3000  # samples drawn per curve (the log decimated by a whole stride for the browser)
 OVERLAY_COLOURS = ("#2ca02c", "#9467bd", "#8c564b", "#e377c2", "#17becf")
-TOOLS = "pan,box_zoom,wheel_zoom,reset,save"
 
 
 def _stride(n: int) -> int:
@@ -95,52 +91,7 @@ class Page:
                              name="cursor")
         self.cursor.on_change("value_throttled", lambda a, o, n: self._move_cursor(n))
 
-        self.src = ColumnDataSource(dict(t=[], base=[], cur=[], dq=[], q=[]))
-        self.ovl_src = ColumnDataSource(dict(xs=[], ys=[], colour=[], label=[]))
-        self.f_time = figure(height=260, width=820, title="residual tau_J - model (Nm) over time", tools=TOOLS,
-                             x_axis_label="time (s)", y_axis_label="Nm", name="f_time")
-        self.f_time.multi_line("xs", "ys", color="colour", source=self.ovl_src, alpha=0.7, legend_field="label")
-        self.f_time.line("t", "base", source=self.src, color="#aaaaaa", legend_label="baseline model")
-        self.f_time.line("t", "cur", source=self.src, color="#1f77b4", legend_label="with the enabled effects")
-        self.f_time.legend.location = "top_left"
-        self.f_time.legend.background_fill_alpha = 0.6
-        self.f_time.on_event("tap", lambda ev: self._move_cursor(ev.x, set_slider=True))
-        self.f_dq = figure(height=260, width=400, title="residual against velocity", tools=TOOLS,
-                           x_axis_label="dq (rad/s)", y_axis_label="Nm", name="f_dq")
-        self.f_q = figure(height=260, width=400, title="residual against position", tools=TOOLS,
-                          x_axis_label="q (rad)", y_axis_label="Nm", name="f_q")
-        for f, x in ((self.f_dq, "dq"), (self.f_q, "q")):
-            f.scatter(x, "base", source=self.src, size=2, color="#bbbbbb", alpha=0.5)
-            f.scatter(x, "cur", source=self.src, size=2, color="#1f77b4", alpha=0.5)
-        self.bands = [BoxAnnotation(bottom=-1, top=1, fill_color="#2ca02c", fill_alpha=0.12) for _ in range(3)]
-        for f, b in zip((self.f_time, self.f_dq, self.f_q), self.bands, strict=True):
-            f.add_layout(b)
-        self.heldout_box = BoxAnnotation(left=0, fill_color="#ff7f0e", fill_alpha=0.06)
-        self.f_time.add_layout(self.heldout_box)
-        self.span = Span(location=0, dimension="height", line_color="#d62728", line_width=2)
-        self.f_time.add_layout(self.span)
-        self.arm_div = Div(text="", width=430, height=400, name="arm")
-
-        self.rmse_src = ColumnDataSource(dict(x=[], v=[], colour=[], kind=[]))
-        self.f_rmse = figure(height=250, width=560, tools="save",
-                             title="held-out RMSE per joint (Nm): grey baseline, blue enabled, black dash noise floor",
-                             x_range=FactorRange(*[(f"joint {j}", k) for j in range(7)
-                                                   for k in ("baseline", "enabled")]),
-                             name="f_rmse")
-        self.f_rmse.vbar(x="x", top="v", width=0.8, color="colour", source=self.rmse_src)
-        self.noise_src = ColumnDataSource(dict(x=[], v=[]))
-        self.f_rmse.scatter("x", "v", source=self.noise_src, marker="dash", size=22, color="black", line_width=2)
-        self.f_rmse.xaxis.major_label_text_font_size = "0pt"  # the joints (group labels) only
-        self.f_rmse.xaxis.group_label_orientation = 0.0
-        self.fitp_src = ColumnDataSource(dict(x=[], v=[], colour=[], variant=[]))
-        self.f_fitp = figure(height=300, width=780, title="fit % per joint and model variant (100 = perfect; held out)",
-                             tools="save", x_range=FactorRange(factors=[("0", "baseline")]), name="f_fitp")
-        self.f_fitp.vbar(x="x", top="v", width=0.8, color="colour", source=self.fitp_src, legend_field="variant")
-        self.f_fitp.xaxis.major_label_text_font_size = "0pt"  # the joints (group labels); variants in the legend
-        self.f_fitp.legend.label_text_font_size = "8pt"
-        self.f_fitp.add_layout(self.f_fitp.legend[0], "right")
-        self.rmse_div = Div(text="", width=1200, height=130, name="heldout")
-        self.params_div = Div(text="", width=1250, height=110, name="params", styles={"overflow-y": "auto"})
+        build_figures(self)
 
         self.toggle_box = column(name="toggles")
         self._build_toggles()

@@ -4,7 +4,7 @@ A log is opened once (:func:`open_log`): read and cleaned as ``diagnose`` and ``
 inverse-dynamics residual ``y`` computed, and every library effect's regressor columns built once by the effect's own
 code (each effect's shape chosen on ``y`` as ``fit`` chooses it, then cached by the selection engine, with its Gram
 matrices on the fit part). A toggle is then :func:`refit`: one joint least-squares solve of the enabled set on the
-fit part of ``fit``'s own time split (the first ``1 - HOLDOUT`` of the log, :func:`~..diagnose._split`), by the
+fit part of ``fit``'s own time split (the first ``1 - HOLDOUT`` of the log, :func:`~..fitting.holdout_split`), by the
 selection engine (:class:`~..selection.Engine`), and the residual it leaves everywhere: its RMSE per joint on the
 held-out part is what the page reports. The app writes no estimator of its own.
 
@@ -95,8 +95,9 @@ def open_log(path: str, *, model: Any = None, tool: str | None = None, robot: An
     """Read, clean and prepare ``path`` (see :class:`Opened`); the log's own errors (a missing file, a format
     that cannot be read, a model file that does not fit) are raised as the CLI raises them."""
     from franka_vs_gym.validation.compare import as_processed, baseline_config
-    from franka_vs_gym.validation.diagnose import _split
-    from franka_vs_gym.validation.logs import load_log, sidecar_path
+    from franka_vs_gym.validation.fitting import holdout_split
+    from franka_vs_gym.validation.loading import load_log
+    from franka_vs_gym.validation.logs import sidecar_path
     from franka_vs_gym.validation.signals import decimated
 
     t0 = time.perf_counter()
@@ -114,7 +115,7 @@ def open_log(path: str, *, model: Any = None, tool: str | None = None, robot: An
     _say(progress, f"evaluating the model and its regressors on {fx.n} samples")
     ctx = Context(fx, cfg)
     y = ctx.residual
-    train, test = _split(ctx.n)
+    train, test = holdout_split(ctx.n)
     eng = Engine(ctx, y, [train])
     terms: dict[str, Term] = {}
     skipped: dict[str, str] = {}
@@ -292,7 +293,7 @@ def diagnose_file(path: str, options: dict[str, Any], send: Callable[[tuple[str,
     and ``send`` each stage as ``("progress", line)``, then ``("done", slim diagnosis)`` or ``("error", exc)``."""
     from franka_vs_gym.validation.compare import as_processed, baseline_config
     from franka_vs_gym.validation.diagnose import diagnose
-    from franka_vs_gym.validation.logs import load_log
+    from franka_vs_gym.validation.loading import load_log
 
     def say(msg: str) -> None:
         send(("progress", f"diagnosing: {msg}"))
@@ -314,8 +315,8 @@ def calibrate(op: Opened, enabled: dict[str, list[int] | None], progress: Progre
     refinements, each fit constrained as the model can take it and written into the model; the error before and
     after with the calibrated model, the held-out figures of the page, the intervals. The calibrated model is
     ``result.after``."""
-    from franka_vs_gym.validation.diagnose import _alternate, _apply_fits
     from franka_vs_gym.validation.evaluate import evaluate
+    from franka_vs_gym.validation.fitting import apply_fits, fit_jointly
     from franka_vs_gym.validation.structure import assumptions_of
     from franka_vs_gym.validation.uncertainty import confidence
 
@@ -336,11 +337,11 @@ def calibrate(op: Opened, enabled: dict[str, list[int] | None], progress: Progre
             say(msg, progress is not None)
 
         stage(f"fitting {[t.effect.name for t in terms]} on all samples", True)
-        fits = _alternate(ctx, spec, y, np.arange(ctx.n), refine=True)
+        fits = fit_jointly(ctx, spec, y, np.arange(ctx.n), refine=True)
         members = [t.effect for t in terms]
         implausible = {e.name: [m for _, m in sorted(p.items())] for e, f in zip(members, fits, strict=True)
                        if (p := e.problems(ctx, f))}
-        new, applied, notes = _apply_fits(cfg, ctx, members, fits)
+        new, applied, notes = apply_fits(cfg, ctx, members, fits)
         kept = [(e, f) for e, f in zip(members, applied, strict=True) if f is not None]
         members, fits = [e for e, _ in kept], [f for _, f in kept]
         names = [e.name for e in members]

@@ -27,4 +27,5 @@ from franka_vs_gym.validation.effects.friction import *  # noqa: F403
 from franka_vs_gym.validation.effects.inertial import *  # noqa: F403
 from franka_vs_gym.validation.effects.registry import *  # noqa: F403
 from franka_vs_gym.validation.effects.sensor import *  # noqa: F403
+from franka_vs_gym.validation.effects.sigmoid import *  # noqa: F403
 from franka_vs_gym.validation.effects.timing import *  # noqa: F403

@@ -15,10 +15,8 @@ from franka_vs_gym.validation.effects.base import (
     PlantChange,
 )
 from franka_vs_gym.validation.effects.friction import (
-    AsymmetricFriction,
     CoulombFriction,
     LoadDependentFriction,
-    SigmoidFriction,
     StribeckFriction,
     ViscousFriction,
 )
@@ -32,6 +30,7 @@ from franka_vs_gym.validation.effects.inertial import (
 from franka_vs_gym.validation.effects.sensor import (
     TorqueOffset,
 )
+from franka_vs_gym.validation.effects.sigmoid import AsymmetricFriction, SigmoidFriction
 from franka_vs_gym.validation.effects.timing import (
     CommandDelay,
     Delay,

@@ -22,7 +22,7 @@ Two kinds of topic are read:
    ``time``). Recognised by their fields, not their names. The measured torque, the desired trajectory and the
    commanded torque fill the log's columns, and the tool the robot declared (end effector plus load: ``m_total``,
    ``F_x_Ctotal``, ``I_total``, flange frame) is the log's tool (see
-   :func:`franka_vs_gym.validation.readers.robot_states.tool_from_state`). Time: the message's ``time`` field (the
+   :func:`franka_vs_gym.validation.readers.fields.tool_from_state`). Time: the message's ``time`` field (the
    robot's own clock, s) when it advances, else the header stamp, else the bag's receive time.
 2. ``sensor_msgs/JointState`` messages with the seven arm joints and their efforts (``effort`` = measured link-side
    torque tau_J, what franka_ros's and franka_ros2's state publishers put there). Joint names are mapped to joints
@@ -52,7 +52,6 @@ from __future__ import annotations
 import contextlib
 import functools
 import os
-import re
 import sys
 import tempfile
 from collections.abc import Iterator
@@ -61,7 +60,8 @@ from typing import Any
 
 import numpy as np
 
-_JOINT = re.compile(r"^(?:.*?[_/])?joint[_]?([1-7])$")
+from franka_vs_gym.validation.readers.fields import joint_index
+
 JOINTSTATE = "sensor_msgs/msg/JointState"
 ROS1, ROS2 = "ROS 1", "ROS 2"
 _ROS1_MAGIC = b"#ROSBAG V2.0"
@@ -74,15 +74,6 @@ _FLAT_OPTIONAL = {"tau_J_d": "tau_j_d", "q_d": "q_d", "dq_d": "dq_d", "ddq_d": "
 _NESTED_OPTIONAL = {"q_d": ("desired_joint_state", "position"), "dq_d": ("desired_joint_state", "velocity"),
                     "tau_J_d": ("desired_joint_state", "effort"), "ddq_d": (None, "ddq_d"),
                     "tau_ext_hat_filtered": ("tau_ext_hat_filtered", "effort")}
-
-
-def joint_index(name: str) -> int | None:
-    """FER joint index 0..6 of a JointState name (``fer_joint1`` -> 0), or None (fingers, other joints)."""
-    n = name.strip().lower()
-    if "finger" in n:
-        return None
-    m = _JOINT.match(n)
-    return int(m.group(1)) - 1 if m else None
 
 
 def _storage_files(folder: Path) -> list[Path]:
@@ -523,7 +514,7 @@ def _part(obj: Any, member: str) -> np.ndarray | None:
 
 
 def _read_franka(reader: Any, conns: list[Any], layout: str, p: Path, found: str) -> tuple[dict, dict, list[str]]:
-    from franka_vs_gym.validation.readers.robot_states import tool_from_state
+    from franka_vs_gym.validation.readers.fields import tool_from_state
 
     opt_names = list(_FLAT_OPTIONAL if layout == "flat" else _NESTED_OPTIONAL)
     cols: dict[str, list[np.ndarray | None]] = {k: [] for k in ("q", "dq", "tau_J", *opt_names)}

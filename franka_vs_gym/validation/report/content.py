@@ -1,6 +1,6 @@
 """What every view of a run shows (the HTML report, the Markdown report, the MCAP log, the terminal), read from the
 objects the workbench computed: :class:`~franka_vs_gym.validation.compare.CompareResult`,
-:class:`~franka_vs_gym.validation.diagnose.Diagnosis` and :class:`~franka_vs_gym.validation.diagnose.FitResult`.
+:class:`~franka_vs_gym.validation.results.Diagnosis` and :class:`~franka_vs_gym.validation.results.FitResult`.
 
 Nothing here fits or tests again; it arranges numbers for display: units from the parameter names, the status of a
 ranking entry in words, the signals on one timeline, the phase of a periodic finding, and decimation of long traces
