@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import os
+import sys
 
 import numpy as np
 import pytest
@@ -86,6 +88,56 @@ def test_deployed_episode_is_the_env_episode(tmp_path):
     assert info["rms_error"] < 0.2 * default_error
 
 
+def test_deployed_agent_episode_is_the_env_episode(tmp_path):
+    """A residual torque agent through the runner (its base and the runner's gravity term on the agent's plant
+    model, the network on the observation built from RobotState, the action held 10 ms) on a server whose plant is
+    that model gives the agent's FrankaTorqueTracking-v0 episode step by step."""
+    pytest.importorskip("stable_baselines3")
+    import shutil
+    import subprocess
+
+    import gymnasium as gym
+
+    from franka_vs_gym.envs.torque_agent import TorqueAgentPolicy
+    from franka_vs_gym.fci import FCIServer
+    from franka_vs_gym.model.config import ModelConfig
+    from franka_vs_gym.policies import agent_path
+
+    base = ModelConfig()
+    path = tmp_path / "model.json"  # the served plant: the robot's model and its motors' armature
+    base.copy(armature=np.asarray(base.robot.rotor_inertia)).save(path)
+    src = agent_path("torque_tracking_fer")
+    shutil.copy(src, tmp_path / "agent.zip")  # the shipped network, as an agent of that plant model
+    meta = json.loads(src.with_suffix(".json").read_text())
+    meta["env_kwargs"] = {"model": str(path)}
+    (tmp_path / "agent.json").write_text(json.dumps(meta))
+    host = loopback_host(NET + 5)
+    with FCIServer(host, lockstep=True, camera=False, verbose=False):
+        r = subprocess.run([sys.executable, "-m", "franka_vs_gym.fci.deploy", host, "--policy",
+                            str(tmp_path / "agent.zip"), "--seeds", "10000"], capture_output=True, text=True,
+                           timeout=300, env=s2r._env())
+    assert r.returncode == 0, r.stderr[-2000:]
+    ep = json.loads(r.stdout.strip().splitlines()[-1])["episodes"][0]
+    agent = TorqueAgentPolicy.load(tmp_path / "agent.zip")
+    env = gym.make("FrankaTorqueTracking-v0", action_scale="physical", model=str(path), clip_actions=True)
+    obs, _ = env.reset(seed=10_000)
+    agent.reset()
+    errors = []
+    while True:
+        obs, _, term, trunc, info = env.step(agent.predict(obs)[0])
+        errors.append(info["error"])
+        if term or trunc:
+            break
+    env.close()
+    assert len(errors) == ep["steps"] == 500 and ep["failure"] is None
+    assert np.abs(np.array(ep["errors"]) - np.array(errors)).max() < 2e-6
+    # a mismatched --model is refused in one line (the agent's base is built on its own plant model)
+    r = subprocess.run([sys.executable, "-m", "franka_vs_gym.fci.deploy", host, "--policy", str(tmp_path / "agent.zip"),
+                        "--model", str(tmp_path / "other.json")], capture_output=True, text=True, timeout=120,
+                       env=s2r._env())
+    assert r.returncode == 2 and "trained on the plant model" in r.stderr, r.stderr
+
+
 def _default_error(host):
     import subprocess
     import sys
@@ -125,3 +177,66 @@ def test_runner_errors_are_one_line():
     assert r.returncode == 1 and len(r.stderr.strip().splitlines()) == 1, r.stderr
     r = run(loopback_host(NET + 3), "--seeds", "x")
     assert r.returncode == 2 and "--seeds" in r.stderr
+
+
+def _descendants(pid: int) -> set[int]:
+    """The pids of a process's descendants (Linux /proc)."""
+    out: set[int] = set()
+    todo = [pid]
+    while todo:
+        p = todo.pop()
+        try:
+            tasks = os.listdir(f"/proc/{p}/task")
+        except OSError:
+            continue
+        for t in tasks:
+            try:
+                kids = [int(k) for k in open(f"/proc/{p}/task/{t}/children").read().split()]
+            except OSError:
+                continue
+            out.update(kids)
+            todo.extend(kids)
+    return out
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc for the study's child processes")
+def test_sigterm_ends_the_truth_server(tmp_path):
+    """scripts/sim_to_real.py killed with SIGTERM while a truth server runs (here: idle, during the calibration)
+    leaves no process behind (its server and its client processes end with it)."""
+    import signal
+    import subprocess
+    import time
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    proc = subprocess.Popen([sys.executable, str(root / "scripts" / "sim_to_real.py"), "--out", str(tmp_path / "o"),
+                             "--robots", "0", "--episodes", "1", "--duration", "6", "--evaluations", "10",
+                             "--controllers", "computed_torque", "--host", loopback_host(NET + 4)],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=s2r._env())
+    kids: set[int] = set()
+    try:
+        for line in proc.stdout:  # the server is up and idle while the recording is calibrated
+            if "calibrating" in line:
+                break
+        time.sleep(0.5)
+        kids = _descendants(proc.pid)
+        assert kids, "no child process while calibrating"
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(timeout=60)
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline and any(_alive(k) for k in kids):
+            time.sleep(0.2)
+        left = [k for k in kids if _alive(k)]
+        assert not left, f"processes left after SIGTERM: {left}"
+    finally:
+        for k in kids | {proc.pid}:
+            if _alive(k):
+                os.kill(k, signal.SIGKILL)

@@ -207,7 +207,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--policy", default="computed_torque",
                     help=f"a controller ({', '.join(CONTROLLERS)}) or a shipped agent's name (load_agent)")
     ap.add_argument("--model", default=None, metavar="FILE",
-                    help="the model the policy was built on (a calibrated model file; default the robot's)")
+                    help="the model the policy was built on (a calibrated model file; default the robot's; an agent: "
+                         "the plant model of its training, from its sidecar)")
     ap.add_argument("--robot", default="fer", help="the arm: fer (default) or fr3")
     ap.add_argument("--seeds", default="0", help="FrankaTorqueTracking-v0 episode seeds, comma-separated")
     ap.add_argument("--duration", type=float, default=5.0, help="seconds per episode (default 5, the env's)")
@@ -227,10 +228,19 @@ def main(argv: list[str] | None = None) -> int:
         else:
             from franka_vs_gym.policies import load_agent
 
-            policy = load_agent(args.policy)  # (an AgentPolicy: physical actions out)
+            policy = load_agent(args.policy)  # (physical actions out)
             if getattr(policy, "env_id", None) != "FrankaTorqueTracking-v0":
                 raise UserError(f"--policy {args.policy}: an agent of {getattr(policy, 'env_id', '?')}; the runner "
                                 "plays FrankaTorqueTracking-v0 torque agents")
+            if getattr(policy, "robot", args.robot) != args.robot:
+                raise UserError(f"--policy {args.policy}: an agent of the {policy.robot}, played with --robot "
+                                f"{args.robot}")
+            if hasattr(policy, "base"):  # a residual torque agent: its base is built on the model it was trained
+                if args.model is None:  # on, which is also the model whose gravity the runner adds
+                    args.model = policy.env_kwargs.get("model")
+                elif args.model != policy.env_kwargs.get("model"):
+                    raise UserError(f"--model {args.model}: the agent {args.policy} was trained on the plant model "
+                                    f"{policy.env_kwargs.get('model')}; play it with that model (or no --model)")
         eps = [dict(tracking_episode(s, args.robot), seed=s) for s in seeds]
         res = play_tracking(args.host, policy, eps, model=args.model, robot=args.robot, action_scale=scale,
                             duration=args.duration,

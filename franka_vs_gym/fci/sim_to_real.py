@@ -23,6 +23,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -36,6 +37,9 @@ from franka_vs_gym.errors import UserError
 
 CONTROLLERS = ("computed_torque", "joint_impedance")
 MODELS = ("default", "calibrated", "calibrated+motors", "truth")
+#: the torque agents of the study: trained on the default plant, the calibrated model, the default plant with
+#: dynamics randomisation, the true plant's model
+AGENT_KINDS = ("default", "calibrated", "randomized", "truth")
 #: the effects the excitation is designed to identify (what a user calibrating for torque control asks about)
 EXCITE_EFFECTS = "payload,gravity_tilt,coulomb_friction,armature"
 
@@ -95,8 +99,30 @@ def _env() -> dict[str, str]:
     return env
 
 
+def _die_with_parent() -> None:
+    """In a child process before exec (Linux): ask the kernel to send it SIGTERM when the study's process dies,
+    whatever kills it (the study also ends its children itself on SIGTERM / SIGINT: stop_on_signals)."""
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        try:
+            ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG = 1
+        except OSError:
+            pass
+
+
+def stop_on_signals() -> None:
+    """SIGTERM (and SIGINT, as usual) end the study by an exception, so that every context (a truth server, a
+    client process of ``subprocess.run``) ends its children on the way out."""
+    def _stop(signum: int, frame: Any) -> None:
+        raise SystemExit(128 + signum)
+
+    signal.signal(signal.SIGTERM, _stop)
+
+
 def _run(args: list[str], what: str, timeout: float) -> str:
-    r = subprocess.run(args, capture_output=True, text=True, timeout=timeout, env=_env())
+    r = subprocess.run(args, capture_output=True, text=True, timeout=timeout, env=_env(),
+                       preexec_fn=_die_with_parent)
     if r.returncode != 0:
         tail = (r.stderr or r.stdout).strip().splitlines()[-3:]
         raise RuntimeError(f"{what} failed (exit {r.returncode}): {' | '.join(tail)}")
@@ -113,12 +139,17 @@ class TruthServer:
     def __enter__(self) -> TruthServer:
         self.proc = subprocess.Popen([sys.executable, "-m", "franka_vs_gym.cli", "serve", "--lockstep", "--host",
                                       self.host, "--truth", self.truth, "--robot", self.robot, "--no-camera"],
-                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env())
-        line = self.proc.stdout.readline() if self.proc.stdout else ""
-        if "ready at" not in line:
-            err = self.proc.stderr.read() if self.proc.stderr else ""
+                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(),
+                                     preexec_fn=_die_with_parent)
+        try:
+            line = self.proc.stdout.readline() if self.proc.stdout else ""
+            if "ready at" not in line:
+                err = self.proc.stderr.read() if self.proc.stderr else ""
+                raise RuntimeError(f"franka-vs serve did not start on {self.host}: {(line + err).strip()[-300:]}")
+        except BaseException:  # (also a signal's exit while waiting: the server must not outlive the study)
             self.proc.kill()
-            raise RuntimeError(f"franka-vs serve did not start on {self.host}: {(line + err).strip()[-300:]}")
+            self.proc.wait()
+            raise
         return self
 
     def __exit__(self, *exc: Any) -> None:
@@ -179,9 +210,17 @@ def deploy(host: str, policy: str, model: str | None, seeds: list[int], robot: s
 
 def run_robot(seed: int, out: Path, host: str, excitation: Path, episode_seeds: list[int],
               controllers: tuple[str, ...] = CONTROLLERS, robot: str = "fer",
-              say: Callable[[str], None] = lambda s: None) -> dict[str, Any]:
+              say: Callable[[str], None] = lambda s: None,
+              agents: Callable[[dict[str, str | None]], dict[str, list[str]]] | None = None) -> dict[str, Any]:
     """The whole study on robot ``seed``: truth file, server, recording, calibration, the controllers' runs.
-    Files go to ``out`` (``truth.json``, ``true_model.json``, ``excitation.csv``, ``calibrated.json``)."""
+    Files go to ``out`` (``truth.json``, ``true_model.json``, ``excitation.csv``, ``calibrated.json``).
+
+    ``agents``: called after the calibration with the models (``default``: None, ``calibrated``, ``truth``: model
+    files), returns the torque agents to play on this robot, ``{kind: [agent zip, ...]}`` (kinds
+    :data:`AGENT_KINDS`: trained on the default plant, on the calibrated model, on the default with dynamics
+    randomisation, on the true plant's model; one zip per training seed); each is played through pylibfranka with
+    the plant model of its training (its sidecar's) and the results go to ``runs["agent/<kind>"]``, with the agent's
+    gap recovered (mean over the seeds of each kind)."""
     out.mkdir(parents=True, exist_ok=True)
     truth_file = out / "truth.json"
     truth_file.write_text(json.dumps(truth_effects(seed), indent=1))
@@ -213,6 +252,8 @@ def run_robot(seed: int, out: Path, host: str, excitation: Path, episode_seeds: 
                                               "episodes": eps}
                 say(f"robot {seed}: {c} with the {m} model: mean rms error {err:.5f} rad over {len(eps)} episodes "
                     f"({time.perf_counter() - t:.0f} s)")
+        if agents is not None:
+            result["runs"].update(_play_agents(agents(models), host, episode_seeds, robot, seed, say))
         for c in controllers:
             e = {m: result["runs"][f"{c}/{m}"]["rms_error"] for m in MODELS}
             result["runs"][f"{c}/gap_recovered"] = gap_recovered(e["default"], e["calibrated"], e["truth"])
@@ -221,11 +262,39 @@ def run_robot(seed: int, out: Path, host: str, excitation: Path, episode_seeds: 
     return result
 
 
+def _play_agents(kinds: dict[str, list[str]], host: str, episode_seeds: list[int], robot: str, seed: int,
+                 say: Callable[[str], None]) -> dict[str, Any]:
+    """Each agent of each kind through :func:`deploy` (its own plant model); per kind the per-seed mean RMS errors,
+    their mean, the successes, and the gaps recovered."""
+    runs: dict[str, Any] = {}
+    for kind, zips in kinds.items():
+        per_seed = []
+        for z in zips:
+            t = time.perf_counter()
+            eps = deploy(host, str(z), None, episode_seeds, robot)["episodes"]
+            per_seed.append({"agent": str(z), "rms_error": float(np.mean([e["rms_error"] for e in eps])),
+                             "success": sum(e["success"] for e in eps),
+                             "failures": [e["failure"] for e in eps if e["failure"]], "episodes": eps})
+            say(f"robot {seed}: agent {kind} ({Path(z).stem}): mean rms error {per_seed[-1]['rms_error']:.5f} rad, "
+                f"{per_seed[-1]['success']} of {len(eps)} successes ({time.perf_counter() - t:.0f} s)")
+        errs = [p["rms_error"] for p in per_seed]
+        runs[f"agent/{kind}"] = {"rms_error": float(np.mean(errs)), "rms_error_per_seed": errs,
+                                 "success": sum(p["success"] for p in per_seed),
+                                 "episodes_total": sum(len(p["episodes"]) for p in per_seed), "seeds": per_seed}
+    e = {k: runs[f"agent/{k}"]["rms_error"] for k in kinds}
+    if {"default", "truth"} <= set(e):
+        for k in ("calibrated", "randomized"):
+            if k in e:
+                runs[f"agent/gap_recovered_{k}"] = gap_recovered(e["default"], e[k], e["truth"])
+    return runs
+
+
 def check_host(host: str) -> None:
     """A loopback address to serve on (the servers bind 127.0.0.x only)."""
     if not host.startswith("127."):
         raise UserError(f"--host {host}: the study's servers bind loopback addresses (127.x.y.z) only")
 
 
-__all__ = ["CONTROLLERS", "EXCITE_EFFECTS", "MODELS", "TruthServer", "calibrate", "check_host", "deploy",
-           "design_excitation", "gap_recovered", "record", "run_robot", "true_model", "truth_effects", "with_motors"]
+__all__ = ["AGENT_KINDS", "CONTROLLERS", "EXCITE_EFFECTS", "MODELS", "TruthServer", "calibrate", "check_host", "deploy",
+           "design_excitation", "gap_recovered", "record", "run_robot", "stop_on_signals", "true_model",
+           "truth_effects", "with_motors"]

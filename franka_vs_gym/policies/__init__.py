@@ -36,12 +36,25 @@ def agent_path(name: str) -> Path:
 
 
 def load_agent(name_or_path: str | Path = "ibvs_ppo") -> Any:
-    """An :class:`~franka_vs_gym.envs.wrappers.AgentPolicy` from a shipped agent's name or a zip path."""
+    """An :class:`~franka_vs_gym.envs.wrappers.AgentPolicy` from a shipped agent's name or a zip path (a residual
+    torque agent's sidecar gives a :class:`~franka_vs_gym.envs.torque_agent.TorqueAgentPolicy`)."""
+    import json
+
     from franka_vs_gym.envs.wrappers import AgentPolicy
 
     p = Path(name_or_path)
     if p.suffix != ".zip" and not p.with_suffix(".zip").is_file():
         p = agent_path(str(name_or_path))
+    meta = p.with_suffix(".json")
+    if meta.is_file():
+        from franka_vs_gym.envs.torque_agent import LAYOUTS, TorqueAgentPolicy
+
+        try:
+            layout = json.loads(meta.read_text()).get("observation_layout")
+        except (ValueError, AttributeError):
+            layout = None
+        if layout in LAYOUTS.values():
+            return TorqueAgentPolicy.load(p)
     return AgentPolicy.load(p)
 
 
