@@ -13,7 +13,6 @@ from franka_vs_gym.model.config import ModelConfig
 from franka_vs_gym.validation.compare import as_processed, baseline_config, progress, rmse
 from franka_vs_gym.validation.diagnose import FOLDS, HOLDOUT, _Selector, command_channel_delay, diagnose
 from franka_vs_gym.validation.effects import COMMAND_DELAY, Context, Effect, Fit, NotApplicable, get_effect
-from franka_vs_gym.validation.effects.constraints import constrained_fits, tangent
 from franka_vs_gym.validation.evaluate import evaluate
 from franka_vs_gym.validation.logs import MeasurementLog
 from franka_vs_gym.validation.results import FitResult
@@ -49,10 +48,7 @@ def fit_jointly(ctx: Context, spec, y: np.ndarray, idx: np.ndarray, refine: bool
                     f.joints = list(joints)
             fits[i] = f
             contrib[i] = e.contribution(ctx, f)
-    # physics inside the estimate: where a least-squares answer is not physically valid (a friction law that would
-    # push, an inconsistent body, a delay outside its box), the set is fitted again jointly over the valid values
-    # only (the fits stay as they are when every answer is valid); a gravity tilt is not constrained (a free vector)
-    return constrained_fits(ctx, [e for e, _ in spec], fits, y, idx)  # type: ignore[arg-type]
+    return fits  # type: ignore[return-value]
 
 
 def apply_fits(cfg: ModelConfig, ctx: Context, members: list[Effect],
@@ -104,11 +100,9 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
     effects, their joints and the delay's channel): one selection, the one ``franka-vs diagnose`` shows. The held-out
     check is reported beside the fit and does not change that set: an effect whose removal does not raise the
     held-out RMSE is named in ``holdout["no_gain"]`` and in the notes, and kept (``dropped``, ``added`` and
-    ``joints_added`` stay empty). The fits are constrained to physically valid values
-    (:func:`~franka_vs_gym.validation.effects.constraints.constrained_fits`: what is fitted is what the model can
-    take), except the gravity tilt's norm; an effect the model cannot take (e.g. link inertials from a log below
-    200 Hz, a gravity whose norm is not Earth's once fitted on the whole log) is dropped with its reason in the
-    notes, and the others are fitted again without it.
+    ``joints_added`` stay empty). An effect the fit cannot keep (the
+    model cannot take it, e.g. a gravity whose norm is not Earth's once fitted on the whole log) is dropped with its
+    reason in the notes, and the others are fitted again without it.
 
     Named effects: held-out validation (default, ``holdout`` = 0.25): the effects are first fitted on the first 75%
     of the log and the RMSE of the full calibrated model is measured on the last 25%; an effect whose removal does
@@ -156,8 +150,7 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
     fl = contiguous_folds(ctx.n, FOLDS)
     command_fit = None
     if auto and command_channel and ctx.cmd_residual is not None:  # the channel the diagnosis named
-        command_fit = constrained_fits(ctx, [COMMAND_DELAY], [COMMAND_DELAY.fit(ctx, ctx.cmd_residual,
-                                                                                np.arange(ctx.n))], ctx.cmd_residual)[0]
+        command_fit = COMMAND_DELAY.fit(ctx, ctx.cmd_residual, np.arange(ctx.n))
         names = [n for n in names if n != "delay"]
     elif not auto and "delay" in names and ctx.cmd_residual is not None:
         progress("delay: choosing the channel (measured torque vs motion, or vs command)", verbose)
@@ -168,8 +161,7 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
         if not meas.ok:
             cmd = command_channel_delay(ctx, fl, noise, False)
             if cmd is not None and cmd.ok:
-                command_fit = constrained_fits(ctx, [COMMAND_DELAY], [COMMAND_DELAY.fit(
-                    ctx, ctx.cmd_residual, np.arange(ctx.n))], ctx.cmd_residual)[0]
+                command_fit = COMMAND_DELAY.fit(ctx, ctx.cmd_residual, np.arange(ctx.n))
                 names = [n for n in names if n != "delay"]
     members = [get_effect(n) for n in names]
     spec = []
@@ -255,10 +247,10 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
             progress(f"{n}: {why}", verbose)
         if all(f is not None for f in applied):
             break
-        # an effect the model cannot take (it has no term for it, or a gravity tilt, fitted unconstrained, whose
-        # norm is not Earth's) is dropped and the others are fitted again without it. Where several cannot be taken
-        # they are dropped one at a time, each time the one whose removal leaves the largest set the model takes,
-        # then the smallest squared residual
+        # an effect the model cannot take is dropped and the others are fitted again without it. Where several
+        # cannot be taken, one may fail only through another that took its share (link inertials fitted with a
+        # tilt absorbed part of it and left |g| = 8.8 m/s^2): they are dropped one at a time, each time the one
+        # whose removal leaves the largest set the model takes, then the smallest squared residual
         failed = [i for i, f in enumerate(applied) if f is None]
         keep = [i for i, f in enumerate(applied) if f is not None]
         refit = None
@@ -314,8 +306,7 @@ def fit_effects(log: MeasurementLog | ProcessedLog | str, effects: list[str], mo
         # the jointly fitted effects that the model took (a command-channel delay is fitted on its own channel)
         k = len(members) - (command_fit is not None)
         try:
-            conf = confidence(ctx, members[:k], fits[:k], y,
-                              tangents=[tangent(ctx, e, f) for e, f in zip(members[:k], fits[:k], strict=True)])
+            conf = confidence(ctx, members[:k], fits[:k], y)
         except Exception as exc:  # e.g. a plug-in whose contribution fails off its fitted values: keep the fit
             res.unidentifiable = [f"intervals not computed: {type(exc).__name__}: {exc}"]
         else:

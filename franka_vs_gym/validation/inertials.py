@@ -99,56 +99,6 @@ def prior_scale(pi0: np.ndarray) -> np.ndarray:
     return s
 
 
-def nearest_consistent(pi: np.ndarray, rel: float = 1e-6) -> np.ndarray:
-    """Log-Cholesky parameters (10,) of the body closest to ``pi`` (10,) with a positive-definite pseudo-inertia: the
-    pseudo-inertia's eigenvalues raised to at least ``rel`` times its largest (the nearest positive-definite matrix
-    in the Frobenius norm, up to that margin)."""
-    w, V = np.linalg.eigh(pseudo_inertia(pi))
-    floor = rel * max(float(np.abs(w).max()), 1e-9)
-    return theta_from_params(params_of((V * np.maximum(w, floor)) @ V.T))
-
-
-def link_prior(pi0: np.ndarray):
-    """The prior of :func:`consistent_links` as residuals of the 7 links' log-Cholesky parameters (70,), and their
-    Jacobian: the change of the standard parameters over :func:`prior_scale`, and the wall keeping each
-    pseudo-inertia's Cholesky diagonal within e^-3 of the published links' smallest. Raises ValueError when ``pi0``
-    is not consistent."""
-    pi0 = np.asarray(pi0, dtype=float)
-    scale = prior_scale(pi0).ravel()
-    th_pub = np.array([theta_from_params(p) for p in pi0])
-    d_lim = th_pub[:, 1:4].min(axis=1, keepdims=True) - 3.0
-
-    def prior(x):
-        th = np.asarray(x, dtype=float).reshape(7, 10)
-        d = (params_from_theta(th) - pi0).ravel()
-        return np.concatenate([d / scale, WALL * np.maximum(0.0, d_lim - th[:, 1:4]).ravel()])
-
-    def prior_jac(x):
-        th = np.asarray(x, dtype=float).reshape(7, 10)
-        Jw = np.zeros((21, 70))
-        active = (d_lim - th[:, 1:4]) > 0
-        for i in range(7):
-            for k in range(3):
-                if active[i, k]:
-                    Jw[3 * i + k, 10 * i + 1 + k] = -WALL
-        return np.vstack([params_jacobian(th) / scale[:, None], Jw])
-
-    return prior, prior_jac
-
-
-def params_jacobian(theta: np.ndarray, step: float = 1e-6) -> np.ndarray:
-    """(70, 70) ``d pi / d theta`` of the 7 links' dynamic parameters (flattened link-major) with respect to their
-    log-Cholesky parameters (block diagonal, each 10x10 block by forward differences, all links at once)."""
-    th = np.asarray(theta, dtype=float).reshape(7, 10)
-    base = params_from_theta(th)
-    steps = params_from_theta(th[:, None, :] + step * np.eye(10)[None])  # (link, step, param)
-    D = (steps - base[:, None, :]) / step
-    J = np.zeros((70, 70))
-    for i in range(7):
-        J[i * 10:(i + 1) * 10, i * 10:(i + 1) * 10] = D[i].T
-    return J
-
-
 WALL = 30.0  # weight of the consistency-margin wall (per unit of log-diagonal beyond the limit)
 
 
@@ -223,5 +173,5 @@ def consistent_links(K: np.ndarray, G: np.ndarray, dbeta: np.ndarray, pi0: np.nd
     return ConsistentFit(pi, K @ d, float(r @ r), float(np.sum((d / scale.ravel()) ** 2)), int(sol.nfev), sol.x)
 
 
-__all__ = ["ConsistentFit", "consistent_links", "link_prior", "nearest_consistent", "params_from_theta",
-           "params_jacobian", "params_of", "prior_scale", "pseudo_inertia", "theta_from_params"]
+__all__ = ["ConsistentFit", "consistent_links", "params_from_theta", "params_of", "prior_scale", "pseudo_inertia",
+           "theta_from_params"]

@@ -235,17 +235,13 @@ def _words(null: np.ndarray, labels: list[str], scale: np.ndarray) -> list[str]:
 
 
 def confidence(ctx, effects: list, fits: list, y: np.ndarray, *, method: str = "hac",
-               draws: int = N_DRAWS, seed: int = 0, tangents: list | None = None) -> Confidence:
+               draws: int = N_DRAWS, seed: int = 0) -> Confidence:
     """Intervals of every reported parameter of the jointly fitted ``effects`` / ``fits`` on target ``y`` (N, 7)
-    (the context's residual the set explains); see the module docstring. ``tangents``: per effect, the directions
-    its physical constraints leave free at a constrained fit (:func:`~franka_vs_gym.validation.effects.constraints.
-    tangent`, None: unconstrained); the covariance is then the constrained problem's (the unconstrained one
-    projected onto them: a coordinate on an active bound has no spread)."""
+    (the context's residual the set explains); see the module docstring."""
     params: list[_Param] = []
     for ti, (e, f) in enumerate(zip(effects, fits, strict=True)):
         params += _theta_params(e, f, ti)
     from franka_vs_gym.validation.effects import Effect
-    from franka_vs_gym.validation.effects.constraints import constrained_projection
 
     contrib = [e.contribution(ctx, f) for e, f in zip(effects, fits, strict=True)]
     resid = y - sum(contrib, np.zeros_like(y))
@@ -288,9 +284,6 @@ def confidence(ctx, effects: list, fits: list, y: np.ndarray, *, method: str = "
     Jl = Jlive.reshape(len(Jlive), -1)
     gram = Jl @ Jl.T
     cv = covariance(Jlive.transpose(1, 2, 0), resid, method=method, gram=gram, nonzero=Jlive.any(axis=1).T)
-    proj = constrained_projection(params, live, gram, tangents or [])
-    if proj is not None:
-        cv.cov = proj @ cv.cov @ proj.T
     theta = np.array([p.value for p in params])
     bias = np.zeros(P)
     bias[live] = inertial_bias(ctx, effects, [params[k] for k in np.nonzero(live)[0]], gram)

@@ -23,7 +23,6 @@ Layout: :mod:`.base` (context, fit record, :class:`Effect`), one module per fami
 """
 
 from franka_vs_gym.validation.effects.base import *  # noqa: F403
-from franka_vs_gym.validation.effects.constraints import *  # noqa: F403
 from franka_vs_gym.validation.effects.friction import *  # noqa: F403
 from franka_vs_gym.validation.effects.inertial import *  # noqa: F403
 from franka_vs_gym.validation.effects.registry import *  # noqa: F403

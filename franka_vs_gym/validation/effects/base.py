@@ -136,14 +136,11 @@ class Context:
 @dataclass
 class Fit:
     """One fitted effect: ``theta`` (``{"coef": (7, p) or (p,), **shape}``, effect-specific), ``joints`` the joints
-    a per-joint effect applies to (all seven for a shared effect); ``constrained``: the values come from the
-    constrained fit (:func:`~franka_vs_gym.validation.effects.constraints.constrained_fits`), the least-squares answer
-    lying outside the physically valid values."""
+    a per-joint effect applies to (all seven for a shared effect)."""
 
     effect: str
     theta: dict[str, Any]
     joints: list[int] = field(default_factory=lambda: list(range(7)))
-    constrained: bool = False
 
 
 @dataclass
@@ -265,13 +262,6 @@ class Effect:
     def apply(self, config: ModelConfig, fit: Fit) -> ModelConfig:
         """The configuration with this effect added (model and plant); raises NotApplicable if it cannot be."""
         raise NotApplicable(f"effect {self.name!r} cannot be written into a model configuration: {self.not_applicable}")
-
-    def feasible_set(self, ctx: Context, fit: Fit):
-        """The effect's physically valid values around ``fit`` in free coordinates (a
-        :class:`~franka_vs_gym.validation.effects.constraints.FeasibleSet`: e.g. a body through the log-Cholesky
-        parameters of its pseudo-inertia, box bounds on a coefficient), used
-        by the constrained fit of ``franka-vs fit``; None: no constraint (the default)."""
-        return None
 
     def constrain(self, ctx: Context, config: ModelConfig, fit: Fit) -> tuple[Fit, str | None]:
         """The fit as ``config`` can take it with a physically valid result (e.g. a friction law that still opposes

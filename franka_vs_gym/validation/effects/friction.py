@@ -24,7 +24,6 @@ from franka_vs_gym.validation.effects.base import (
     _tau_max,
     _vc_choice,
 )
-from franka_vs_gym.validation.effects.constraints import box_set
 
 
 class _DissipativeLinear(Effect):
@@ -41,15 +40,13 @@ class _DissipativeLinear(Effect):
     def apply(self, config, fit):
         return config.copy(friction=self.friction(config.friction, fit))
 
-    def _c_min(self, config: ModelConfig, fit: Fit) -> tuple[np.ndarray, np.ndarray] | None:
-        """Per joint the smallest coefficient (7,) that keeps ``config``'s friction law plus this term dissipative on
-        the checked velocities (-inf: any), and the joints (7,) bool where no coefficient does (the rest of the law
-        pushes where this term is ~0); None when the law cannot take the term."""
+    def constrain(self, ctx, config, fit):
+        c = _joint_coef(fit)[:, 0]
         try:
             base = self.friction(config.friction, Fit(fit.effect, {**fit.theta, "coef": np.zeros((7, 1))}, fit.joints))
             one = self.friction(config.friction, Fit(fit.effect, {**fit.theta, "coef": np.ones((7, 1))}, fit.joints))
         except NotApplicable:
-            return None
+            return fit, None
         grid = dissipation_grid(config.robot.limits.dq_max, low_speed=True)
         b = base(grid) * grid
         p = one(grid) * grid - b  # >= 0: the term opposes motion
@@ -58,24 +55,6 @@ class _DissipativeLinear(Effect):
         fin = np.isfinite(c_min)  # -inf: any coefficient keeps that joint's law dissipative
         c_min[fin] += 1e-7 + 1e-6 * np.abs(c_min[fin])  # strictly inside (the check allows -1e-9 W)
         infeasible = np.any(~pos & (b < -1e-9), axis=0)  # the rest of the law pushes where this term is ~0
-        return c_min, infeasible
-
-    def feasible_set(self, ctx, fit):
-        """The coefficient of each fitted joint bounded below by the dissipative limit (:meth:`_c_min`); a joint no
-        coefficient makes dissipative is not bounded here (:meth:`constrain` leaves it out)."""
-        lim = self._c_min(ctx.config, fit)
-        if lim is None or not fit.joints:
-            return None
-        c_min, infeasible = lim
-        lower = np.where(infeasible, -np.inf, c_min)[fit.joints]
-        return box_set(fit, _joint_coef(fit)[fit.joints, 0], lower, p=1)
-
-    def constrain(self, ctx, config, fit):
-        c = _joint_coef(fit)[:, 0]
-        lim = self._c_min(config, fit)
-        if lim is None:
-            return fit, None
-        c_min, infeasible = lim
         joints, said = [], []
         new = c.copy()
         for j in fit.joints:

@@ -26,11 +26,7 @@ from franka_vs_gym.validation.effects.base import (
     _model_step_levels,
     _tau_max,
 )
-from franka_vs_gym.validation.effects.constraints import box_set
 from franka_vs_gym.validation.evaluate import sigmoid_friction
-
-LEVEL_MARGIN = 1e-3  # Nm: a constrained direction-dependent level stays this far above zero (the model's sigmoid
-# writes it as a centre offset logit(L_minus / phi1) / phi2, which a level of exactly zero would send to infinity)
 
 
 def _sig(u):
@@ -294,26 +290,6 @@ class AsymmetricFriction(Effect):
             elif hi > 0.25 * _tau_max(ctx)[j]:
                 out[j] = f"friction level {hi:.3g} Nm is implausibly large"
         return out
-
-    def _lower(self, config) -> np.ndarray:
-        """(7, 2) the smallest (F_plus, F_minus) per joint that :meth:`apply` can write: the levels it adds them to
-        (the model's sigmoid asymptotes where the joint has a sigmoid, else its Coulomb term) kept positive."""
-        fr = config.friction
-        out = np.empty((7, 2))
-        for j in range(7):
-            if fr.phi1[j] != 0:
-                lp, lm = sigmoid_levels(fr.phi1[j], float(fr.phi2[j]), fr.phi3[j])
-                out[j] = (-float(lp), -float(lm))
-            else:
-                out[j] = (-float(fr.coulomb[j]), -float(fr.coulomb[j]))
-        return out + LEVEL_MARGIN
-
-    def feasible_set(self, ctx, fit):
-        """Both levels of each fitted joint bounded below so that the law's total level in each direction stays
-        positive (what :meth:`apply` writes into the model's sigmoid)."""
-        if not fit.joints:
-            return None
-        return box_set(fit, _joint_coef(fit, 2)[fit.joints].ravel(), self._lower(ctx.config)[fit.joints].ravel(), p=2)
 
     def apply(self, config, fit):
         # the two levels go into the model's sigmoid, the law's direction-dependent term. A joint without a sigmoid

@@ -13,7 +13,6 @@ from franka_vs_gym.validation.effects.base import (
     Fit,
     without_motor_terms,
 )
-from franka_vs_gym.validation.effects.constraints import box_set
 from franka_vs_gym.validation.evaluate import shift
 from franka_vs_gym.validation.signals import band_sos
 
@@ -194,10 +193,6 @@ class Delay(Effect):
         if d > MAX_DELAY:
             return {-1: f"delay {d * 1000:.1f} ms exceeds {MAX_DELAY * 1000:.0f} ms"}
         return {}
-
-    def feasible_set(self, ctx, fit):
-        """The delay in its box [MIN_DELAY, MAX_DELAY]."""
-        return box_set(fit, self.coef(fit)[:1], [MIN_DELAY], [MAX_DELAY])
 
     def apply(self, config, fit):
         return config.copy(delay=max(0.0, config.delay + float(self.coef(fit)[0])), delay_channel=self.channel)
