@@ -47,6 +47,22 @@ def test_truth_and_true_model(tmp_path):
     assert s2r.gap_recovered(1.5, 1.2, 1.0) is None  # the model is not what limits the controller
 
 
+def _same_episode(env, policy, ep: dict) -> dict:
+    """Play episode 10000 of env with policy, check it against the runner's episode ep step by step (500 steps, no
+    failure, every step's tracking error within 2e-6 rad: float32 on the wire), close env; the last step's info."""
+    obs, _ = env.reset(seed=10_000)
+    errors = []
+    while True:
+        obs, _, term, trunc, info = env.step(policy.predict(obs)[0])
+        errors.append(info["error"])
+        if term or trunc:
+            break
+    env.close()
+    assert len(errors) == ep["steps"] == 500 and ep["failure"] is None
+    assert np.abs(np.array(ep["errors"]) - np.array(errors)).max() < 2e-6
+    return info
+
+
 def test_deployed_episode_is_the_env_episode(tmp_path):
     """The runner (pylibfranka, its own process: observation from RobotState, the action held 10 ms, the robot's
     rate limiter, the gravity of the policy's model less the robot's) on a server whose plant is the policy's model
@@ -73,16 +89,7 @@ def test_deployed_episode_is_the_env_episode(tmp_path):
     ep = json.loads(r.stdout.strip().splitlines()[-1])["episodes"][0]
     env = gym.make("FrankaTorqueTracking-v0", action_scale="physical", model=str(path))
     policy = ComputedTorquePolicy(str(path))
-    obs, _ = env.reset(seed=10_000)
-    errors = []
-    while True:
-        obs, _, term, trunc, info = env.step(policy.predict(obs)[0])
-        errors.append(info["error"])
-        if term or trunc:
-            break
-    env.close()
-    assert len(errors) == ep["steps"] == 500 and ep["failure"] is None
-    assert np.abs(np.array(ep["errors"]) - np.array(errors)).max() < 2e-6
+    info = _same_episode(env, policy, ep)
     assert ep["rms_error"] == pytest.approx(info["rms_error"], rel=1e-3)
     # the same controller with the envs' default model tracks at least 5x worse on the robot with motors
     assert info["rms_error"] < 0.2 * default_error
@@ -120,17 +127,8 @@ def test_deployed_agent_episode_is_the_env_episode(tmp_path):
     ep = json.loads(r.stdout.strip().splitlines()[-1])["episodes"][0]
     agent = TorqueAgentPolicy.load(tmp_path / "agent.zip")
     env = gym.make("FrankaTorqueTracking-v0", action_scale="physical", model=str(path), clip_actions=True)
-    obs, _ = env.reset(seed=10_000)
     agent.reset()
-    errors = []
-    while True:
-        obs, _, term, trunc, info = env.step(agent.predict(obs)[0])
-        errors.append(info["error"])
-        if term or trunc:
-            break
-    env.close()
-    assert len(errors) == ep["steps"] == 500 and ep["failure"] is None
-    assert np.abs(np.array(ep["errors"]) - np.array(errors)).max() < 2e-6
+    _same_episode(env, agent, ep)
     # a mismatched --model is refused in one line (the agent's base is built on its own plant model)
     r = subprocess.run([sys.executable, "-m", "franka_vs_gym.fci.deploy", host, "--policy", str(tmp_path / "agent.zip"),
                         "--model", str(tmp_path / "other.json")], capture_output=True, text=True, timeout=120,
