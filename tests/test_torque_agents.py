@@ -98,3 +98,15 @@ def test_network_beats_its_base_on_the_randomised_plant():
     eb = [i.get("rms_error", 1.0) for i in _episodes(Base(), "FrankaTorqueTracking-v0", "fer", seeds,
                                                       **tt.RANDOMIZATION)]
     assert np.mean(ea) < 0.7 * np.mean(eb), (ea, eb)
+
+
+@pytest.mark.parametrize("name", ["torque_tracking_fer", "visual_torque_fr3"])
+def test_franka_vs_evaluate_plays_a_shipped_torque_agent(name, capsys):
+    """`franka-vs evaluate <torque agent>` plays it on its own env and robot with physical torque actions (it used
+    to give the agent the servo agents' features observation and joint-velocity actions, and stopped with an error)."""
+    from franka_vs_gym.cli import main as cli
+
+    assert cli(["evaluate", name, "--episodes", "1", "--seed", "10000", "--quiet"]) == 0
+    out = capsys.readouterr().out
+    meta = json.loads((AGENTS_DIR / f"{name}.json").read_text())
+    assert f"{name} on {meta['env_id']}" in out and "success rate 1.00" in out

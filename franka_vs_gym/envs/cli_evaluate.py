@@ -6,9 +6,10 @@ Policies:
                                 --env-kwargs '{"action_type": "cartesian_velocity"}')
   ``computed-torque`` / ``impedance``   franka_vs_gym.policies torque policies (FrankaTorqueTracking-v0)
   ``zero``                      a zero action (a reference: what doing nothing scores)
-  ``ibvs_ppo``, ``ibvs_pixels`` a shipped agent (franka_vs_gym.policies.shipped_agents(); needs the [rl] extra):
-                                the features agent, and the agent that sees the camera image (its env kwargs,
-                                observation_type "image" at 64x48, come from its JSON sidecar)
+  ``ibvs_ppo``, ...            a shipped agent, one for every env and robot (franka_vs_gym.policies.shipped_agents():
+                                e.g. ibvs_ppo, ibvs_pixels, pbvs_ppo_fr3, torque_tracking_fer, visual_torque_fr3;
+                                needs the [rl] extra); its env id and env kwargs (e.g. observation_type
+                                "image" at 64x48 for ibvs_pixels) come from its JSON sidecar
   ``path/to/agent.zip``         a stable-baselines3 agent saved by baselines/train_sb3.py (with its .json)
 """
 
@@ -26,8 +27,9 @@ SCRIPTED = ("ibvs", "pbvs", "computed-torque", "impedance", "zero")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("policy", help=f"one of {', '.join(SCRIPTED)}, a shipped agent (ibvs_ppo, ibvs_pixels), or "
-                        "the path of an agent .zip")
+    parser.add_argument("policy", help=f"one of {', '.join(SCRIPTED)}, a shipped agent (e.g. ibvs_ppo, "
+                        "pbvs_ppo_fr3, torque_tracking_fer: the names in franka_vs_gym/policies/agents), or the "
+                        "path of an agent .zip")
     parser.add_argument("--env", default=None, help="environment id (default: the agent's, or FrankaIBVS-v0 for "
                         "ibvs/pbvs/zero, FrankaTorqueTracking-v0 for the torque policies)")
     parser.add_argument("--episodes", type=int, default=20)
@@ -115,7 +117,8 @@ def resolve_policy(name: str, env: str | None, env_kwargs: dict[str, Any]) -> tu
             or name in shipped_agents()):
         policy = load_agent(name)
         env_id = env or policy.env_id
-        kw = {"observation_type": "features", "action_type": "joint_velocity"} | policy.env_kwargs | env_kwargs
+        defaults = getattr(policy, "env_defaults", {"observation_type": "features", "action_type": "joint_velocity"})
+        kw = defaults | policy.env_kwargs | env_kwargs
     elif name == "zero":
         env_id = env or "FrankaIBVS-v0"
         kw = env_kwargs

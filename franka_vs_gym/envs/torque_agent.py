@@ -217,6 +217,12 @@ class TorqueAgentPolicy:
         return cls(algo.load(str(p), device="cpu"), meta["env_id"], robot or own, plant_model, kw,
                    float(meta.get("residual_fraction", RESIDUAL_FRACTION)))
 
+    @property
+    def env_defaults(self) -> dict[str, Any]:
+        """The env keywords this agent is played with (``franka-vs evaluate`` takes them; the sidecar's
+        ``env_kwargs`` and the command line's come on top): physical torque actions, clipped, on its robot."""
+        return {"action_type": "torque", "action_scale": "physical", "clip_actions": True, "robot": self.robot}
+
     def reset(self) -> None:
         self.base.reset()
 
