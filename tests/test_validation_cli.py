@@ -99,7 +99,8 @@ def test_diagnose_and_fit_run_on_one_blas_thread_and_give_the_setting_back(tilt_
     process's setting is back afterwards."""
     import importlib
 
-    threadpoolctl = pytest.importorskip("threadpoolctl")
+    import threadpoolctl
+
     dg = importlib.import_module("franka_vs_gym.validation.diagnose")  # the module (the package exports the function)
     fitting = importlib.import_module("franka_vs_gym.validation.fitting")
 

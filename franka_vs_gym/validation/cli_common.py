@@ -14,13 +14,9 @@ from franka_vs_gym.validation.signals import GAP_FACTOR, CleanSettings
 def one_blas_thread() -> Iterator[None]:
     """Run a diagnosis or a fit with the BLAS libraries on one thread (``threadpoolctl``): its least-squares
     problems are small and long (tens of columns, thousands of rows), where OpenBLAS's second thread costs more CPU
-    than it saves, and on a busy machine much more wall time too (docs/speed_check.md). Without threadpoolctl
-    installed the threads are left as they are."""
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:
-        yield
-        return
+    than it saves, and on a busy machine much more wall time too (docs/speed_check.md)."""
+    from threadpoolctl import threadpool_limits
+
     with threadpool_limits(limits=1, user_api="blas"):
         yield
 
