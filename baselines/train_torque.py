@@ -81,43 +81,20 @@ def _curve_callback(log_every: int, total: int, curve: list, t0: float, c0: floa
 
 def evaluate_agent(agent: Any, env_id: str, robot: str, n: int, seed: int, env_kwargs: dict[str, Any]) -> dict:
     """Episodes ``seed`` ... ``seed + n - 1`` of a torque policy (``predict(obs) -> (Nm, _)``, ``reset()``) on
-    ``env_id`` with physical torque actions (the numbers of ``franka_vs_gym.evaluate``, plus the tracking task's
-    RMS error)."""
-    import gymnasium as gym
+    ``env_id`` with physical torque actions: the summary of ``franka_vs_gym.evaluate`` (without its per-episode
+    list), plus the tracking task's mean RMS error."""
+    import math
 
-    import franka_vs_gym  # noqa: F401
+    import franka_vs_gym
 
-    env = gym.make(env_id, **dict(env_kwargs, robot=robot, action_type="torque", action_scale="physical",
-                                  clip_actions=True))
-    succ, rms, final, conv, fails, rets, lens = [], [], [], [], {}, [], []
-    try:
-        for i in range(n):
-            obs, _ = env.reset(seed=seed + i)
-            agent.reset()
-            ret, length = 0.0, 0
-            while True:
-                obs, r, term, trunc, info = env.step(agent.predict(obs)[0])
-                ret, length = ret + float(r), length + 1
-                if term or trunc:
-                    break
-            rets.append(ret)
-            lens.append(length)
-            succ.append(bool(info.get("is_success", False)))
-            final.append(float(info.get("error", np.nan)))
-            if info.get("rms_error") is not None:
-                rms.append(float(info["rms_error"]))
-            if succ[-1]:
-                conv.append(float(info.get("time", np.nan)))
-            if info.get("failure"):
-                k = str(info["failure"]).split(":")[0]
-                fails[k] = fails.get(k, 0) + 1
-    finally:
-        env.close()
-    out = {"n_episodes": n, "seed": seed, "success_rate": float(np.mean(succ)), "failures": fails,
-           "mean_final_error": float(np.nanmean(final)), "median_final_error": float(np.nanmedian(final)),
-           "mean_return": float(np.mean(rets)), "mean_length": float(np.mean(lens)),
-           "mean_time_to_converge": float(np.mean(conv)) if conv else None}
+    out = franka_vs_gym.evaluate(agent, env_id, n, seed, env_kwargs=dict(
+        env_kwargs, robot=robot, action_type="torque", action_scale="physical", clip_actions=True))
+    episodes = out.pop("episodes")
+    out["seed"] = seed
+    if math.isnan(out["mean_time_to_converge"]):
+        out["mean_time_to_converge"] = None
     if env_id == "FrankaTorqueTracking-v0":
+        rms = [e["rms_error"] for e in episodes if e.get("rms_error") is not None]
         out["mean_rms_error"] = float(np.mean(rms)) if rms else None  # (episodes that ended by a failure excluded)
     return out
 

@@ -76,7 +76,7 @@ def evaluate(policy: Any, env_id_or_env: Any, n_episodes: int = 20, seed: int = 
         ``is_success``; NaN if none), ``mean_final_error`` and ``median_final_error`` (the task error
         ``info["error"]`` at the last step: feature error, pose error or tracking error, see the env docstring),
         ``mean_return``, ``mean_length`` (steps), ``failures`` (reason -> count; the reason's text before its first
-        ':'), and ``episodes`` (per-episode dicts).
+        ':'), and ``episodes`` (per-episode dicts; with ``rms_error`` where the task reports one).
     """
     if not isinstance(n_episodes, (int, np.integer)) or n_episodes < 1:
         raise ValueError(f"n_episodes must be an integer >= 1, got {n_episodes!r}")
@@ -127,6 +127,8 @@ def run_episodes(policy: Any, env: gym.Env, seeds: list[int], progress: bool = F
               "final_error": float(info.get("error", math.nan)),
               "time_to_converge": t_conv if info.get("is_success") else math.nan,
               "failure": info.get("failure")}
+        if info.get("rms_error") is not None:  # the tracking task's RMS error over the episode
+            ep["rms_error"] = float(info["rms_error"])
         episodes.append(ep)
         if progress:
             status = "success" if ep["success"] else (ep["failure"] or "time limit")
